@@ -1,0 +1,31 @@
+//! easyhec: markerless eye-to-hand calibration by silhouette alignment.
+//!
+//! # Layout
+//! - [`geometry`]: se(3), pose errors, matrix I/O.
+//! - [`mesh`], [`robot`]: mesh loading and URDF kinematics (the model).
+//! - [`camera`], [`mask`]: pinhole + distortion, binary masks and distance transforms.
+//! - [`render`]: silhouettes and their outline samples, behind [`render::SilhouetteRenderer`].
+//! - [`objective`]: the paper's loss and its exact boundary gradient.
+//! - [`solve`]: Levenberg–Marquardt (default) and Adam (baseline) solvers, uncertainty.
+//! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
+//! - [`synth`], [`interop`], [`overlay`], [`bench`]: synthetic runs, import/export, overlays,
+//!   benchmarks.
+
+pub mod bench;
+pub mod camera;
+pub mod error;
+pub mod geometry;
+pub mod interop;
+pub mod io;
+pub mod mask;
+pub mod mesh;
+pub mod objective;
+pub mod overlay;
+pub mod render;
+pub mod robot;
+pub mod run;
+pub mod solve;
+pub mod synth;
+
+pub use error::{Error, Result};
+pub use nalgebra;

@@ -1,0 +1,476 @@
+//! The `easyhec` command line.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context};
+use clap::{Args, Parser, Subcommand};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+
+use easyhec::bench;
+use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
+use easyhec::overlay::write_overlay;
+use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use easyhec::robot::{RobotModel, RobotSource};
+use easyhec::run::{load_run, PerView, ResultFile, RobotEntry, UncertaintyEntry};
+use easyhec::solve::{solve, Optimizer, SolveOptions, View};
+use easyhec::synth::{generate, write_scene, NoiseModel, SynthOptions};
+
+#[derive(Parser)]
+#[command(
+    name = "easyhec",
+    version,
+    about = "Markerless eye-to-hand camera calibration by silhouette alignment"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Solve camera_from_base from a recorded run directory (easyhec-run/1).
+    Solve(SolveArgs),
+    /// Write a synthetic run directory with a separate ground-truth file.
+    Synth(SynthArgs),
+    /// Convert another tool's recordings into a run directory.
+    #[command(subcommand)]
+    Import(ImportCommand),
+    /// Write a result in the form another tool reads.
+    Export(ExportArgs),
+    /// Benchmarks (figures for the README).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Args)]
+struct SolveArgs {
+    /// Run directory (or its run.json).
+    run: PathBuf,
+    /// Number of views to use (default: all).
+    #[arg(long)]
+    views: Option<usize>,
+    /// How views are chosen: first (0..K-1), random (view 0 then random others).
+    #[arg(long, default_value = "first")]
+    select: String,
+    /// Seed for --select random.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Result path (default RUN/result.json).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// lm (default) or adam (the paper's baseline).
+    #[arg(long, default_value = "lm")]
+    optimizer: String,
+    /// Write one agreement overlay PNG per view into this folder.
+    #[arg(long)]
+    overlays: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct SynthArgs {
+    /// Robot URDF.
+    #[arg(long)]
+    robot: PathBuf,
+    /// Output run directory.
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of views.
+    #[arg(long, default_value_t = 5)]
+    views: usize,
+    /// RNG seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Image width.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Focal length, pixels.
+    #[arg(long, default_value_t = 600.0)]
+    focal: f64,
+    /// Noise-free masks and joints.
+    #[arg(long)]
+    no_noise: bool,
+    /// plumb_bob coefficients k1,k2,p1,p2,k3.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    distortion: Option<Vec<f64>>,
+    /// Links not rendered (and not in the masks).
+    #[arg(long, value_delimiter = ',')]
+    ignore_links: Vec<String>,
+    /// Write no initial guess.
+    #[arg(long)]
+    no_initial_guess: bool,
+}
+
+#[derive(Subcommand)]
+enum ImportCommand {
+    /// EasyHeC's offline folder: color/ mask/ qpos/ K.txt [initial_guess.txt].
+    Easyhec {
+        /// Source folder.
+        dir: PathBuf,
+        /// Output run directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Robot URDF.
+        #[arg(long)]
+        urdf: PathBuf,
+        /// Actuated joints in qpos order (default: the URDF's movable, non-mimic joints).
+        #[arg(long, value_delimiter = ',')]
+        joints: Option<Vec<String>>,
+        /// Links the masks leave out (e.g. fingers).
+        #[arg(long, value_delimiter = ',')]
+        ignore_links: Vec<String>,
+    },
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// easyhec-result/1 file.
+    result: PathBuf,
+    /// opencv | ros | easy-handeye | urdf
+    #[arg(long)]
+    format: String,
+    /// Name of the camera optical frame in ROS/URDF forms.
+    #[arg(long, default_value = "camera_color_optical_frame")]
+    camera_frame: String,
+    /// Output file (default: standard output).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Median pose error over seeded synthetic scenes, views 1..K, LM and/or Adam.
+    Accuracy {
+        /// Robot URDF.
+        #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
+        robot: PathBuf,
+        /// Number of scenes (seeds 0..N-1).
+        #[arg(long, default_value_t = 20)]
+        scenes: u64,
+        /// View counts to evaluate.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,5")]
+        views: Vec<usize>,
+        /// Optimisers to run.
+        #[arg(long, value_delimiter = ',', default_value = "lm")]
+        optimizers: Vec<String>,
+    },
+    /// Wall time of K-view solves, and peak memory.
+    Speed {
+        /// Robot URDF.
+        #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
+        robot: PathBuf,
+        /// Views per solve.
+        #[arg(long, default_value_t = 5)]
+        views: usize,
+        /// Image width.
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        /// Image height.
+        #[arg(long, default_value_t = 480)]
+        height: u32,
+        /// Number of scenes (seeds) timed.
+        #[arg(long, default_value_t = 5)]
+        scenes: u64,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let outcome = match cli.command {
+        Command::Solve(a) => cmd_solve(a),
+        Command::Synth(a) => cmd_synth(a),
+        Command::Import(ImportCommand::Easyhec {
+            dir,
+            out,
+            urdf,
+            joints,
+            ignore_links,
+        }) => cmd_import(dir, out, urdf, joints, ignore_links),
+        Command::Export(a) => cmd_export(a),
+        Command::Bench(b) => cmd_bench(b),
+    };
+    match outcome {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+            eprintln!("error: {}", chain.join(": "));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let optimizer: Optimizer = a.optimizer.parse().map_err(|e: String| anyhow!(e))?;
+    let run = load_run(&a.run)?;
+    let total = run.views.len();
+    let k = a.views.unwrap_or(total);
+    if k == 0 || k > total {
+        bail!("--views {k}: the run has {total} views");
+    }
+    let order: Vec<usize> = match a.select.as_str() {
+        "first" => (0..k).collect(),
+        "random" => {
+            let mut rest: Vec<usize> = (1..total).collect();
+            rest.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(a.seed));
+            std::iter::once(0).chain(rest.into_iter().take(k - 1)).collect()
+        }
+        "explore" => bail!("--select explore: consistency-based exploration is not built yet; use --select first or random"),
+        other => bail!("--select {other}: use first, random or explore"),
+    };
+    let initial = run.initial_guess.ok_or_else(|| {
+        anyhow!("{}: initial_guess: missing; automatic initialisation is not built yet, so add initial_guess.camera_from_base", run.dir.join("run.json").display())
+    })?;
+    let views: Vec<View> = order
+        .iter()
+        .map(|&i| View {
+            robot: PosedRobot::new(&run.robot, &run.views[i].joints),
+            observed: run.views[i].observed.clone(),
+        })
+        .collect();
+    let renderer = CpuRenderer;
+    let t = Instant::now();
+    let report = solve(
+        &renderer,
+        &run.camera,
+        &views,
+        &initial,
+        &SolveOptions {
+            optimizer,
+            ..SolveOptions::default()
+        },
+    )?;
+    let solve_s = t.elapsed().as_secs_f64();
+    let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
+    result.views_used = order.clone();
+    result.per_view = order
+        .iter()
+        .zip(&report.per_view_iou)
+        .map(|(&v, &iou)| PerView { view: v, iou })
+        .collect();
+    result.uncertainty = Some(UncertaintyEntry {
+        rotation_deg: report.uncertainty.rotation_deg,
+        translation_mm: report.uncertainty.translation_mm,
+    });
+    result.stop_reason = match optimizer {
+        Optimizer::Lm => format!("converged ({} renders)", report.iterations),
+        Optimizer::Adam => format!("adam: {} steps, best iterate", report.iterations),
+    };
+    if let Some(dir) = &a.overlays {
+        let pinhole = run.camera.undistorted();
+        for (&i, view) in order.iter().zip(&views) {
+            let rendered = renderer
+                .render(&view.robot, &pinhole, &report.camera_from_base, None)
+                .mask;
+            let image = run.views[i]
+                .image
+                .as_deref()
+                .filter(|_| !run.camera.is_distorted());
+            write_overlay(
+                &dir.join(format!("{i:03}.overlay.png")),
+                &rendered,
+                &view.observed,
+                image,
+            )?;
+        }
+    }
+    result.timings_s.insert("solve".into(), solve_s);
+    result
+        .timings_s
+        .insert("total".into(), started.elapsed().as_secs_f64());
+    let out = a.out.unwrap_or_else(|| run.dir.join("result.json"));
+    easyhec::io::write_json_atomic(&out, &result)?;
+    let mean_iou = report.per_view_iou.iter().sum::<f64>() / report.per_view_iou.len() as f64;
+    println!(
+        "camera_from_base solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm -> {}",
+        views.len(),
+        solve_s,
+        mean_iou,
+        report.uncertainty.rotation_deg,
+        report.uncertainty.translation_mm,
+        out.display()
+    );
+    Ok(())
+}
+
+fn urdf_for_run(urdf: &Path, out: &Path) -> String {
+    // Absolute paths keep the run directory valid wherever it is solved from.
+    let abs = std::fs::canonicalize(urdf).unwrap_or_else(|_| urdf.to_path_buf());
+    let _ = out;
+    abs.display().to_string()
+}
+
+fn cmd_synth(a: SynthArgs) -> anyhow::Result<()> {
+    let robot = RobotModel::load(&RobotSource {
+        urdf: a.robot.clone(),
+        ignore_links: a.ignore_links.clone(),
+        ..Default::default()
+    })?;
+    let noise = if a.no_noise {
+        NoiseModel::none()
+    } else {
+        NoiseModel::standard()
+    };
+    let distortion = match a.distortion.as_deref() {
+        None => None,
+        Some([k1, k2, p1, p2, k3]) => Some([*k1, *k2, *p1, *p2, *k3]),
+        Some(other) => bail!(
+            "--distortion: plumb_bob needs 5 coefficients k1,k2,p1,p2,k3, got {}",
+            other.len()
+        ),
+    };
+    let opts = SynthOptions {
+        views: a.views,
+        seed: a.seed,
+        width: a.width,
+        height: a.height,
+        focal_px: a.focal,
+        distortion,
+        noise: noise.clone(),
+        initial_error: if a.no_initial_guess {
+            None
+        } else {
+            Some(((2.0, 6.0), (0.02, 0.08)))
+        },
+    };
+    let scene = generate(&robot, &opts)?;
+    let entry = RobotEntry {
+        urdf: urdf_for_run(&a.robot, &a.out),
+        package_dirs: Default::default(),
+        base_link: None,
+        ignore_links: a.ignore_links,
+        joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),
+    };
+    write_scene(&scene, entry, &a.out, a.seed, &noise)?;
+    println!(
+        "wrote {} views to {} (ground truth in ground_truth.json)",
+        a.views,
+        a.out.display()
+    );
+    Ok(())
+}
+
+fn cmd_import(
+    dir: PathBuf,
+    out: PathBuf,
+    urdf: PathBuf,
+    joints: Option<Vec<String>>,
+    ignore_links: Vec<String>,
+) -> anyhow::Result<()> {
+    let joints = match joints {
+        Some(j) => j,
+        None => {
+            let robot = RobotModel::load(&RobotSource {
+                urdf: urdf.clone(),
+                ..Default::default()
+            })?;
+            robot.joint_names().iter().map(|s| s.to_string()).collect()
+        }
+    };
+    let run = import_easyhec(&EasyHecImport {
+        source: dir,
+        out: out.clone(),
+        urdf: urdf_for_run(&urdf, &out),
+        joints,
+        ignore_links,
+        initial_guess: None,
+    })?;
+    println!("imported {} views into {}", run.views.len(), out.display());
+    Ok(())
+}
+
+fn cmd_export(a: ExportArgs) -> anyhow::Result<()> {
+    let format: ExportFormat = a.format.parse().map_err(|e: String| anyhow!(e))?;
+    let result = ResultFile::read(&a.result)?;
+    let text = export(&result, format, &a.camera_frame);
+    match a.out {
+        Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
+            .with_context(|| format!("writing {}", p.display()))?,
+        None => print!("{text}"),
+    }
+    Ok(())
+}
+
+fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
+    match b {
+        BenchCommand::Accuracy {
+            robot,
+            scenes,
+            views,
+            optimizers,
+        } => {
+            let model = RobotModel::load(&RobotSource {
+                urdf: robot,
+                ..Default::default()
+            })?;
+            let seeds: Vec<u64> = (0..scenes).collect();
+            for name in optimizers {
+                let optimizer: Optimizer = name.parse().map_err(|e: String| anyhow!(e))?;
+                let trials = bench::accuracy(
+                    &model,
+                    &seeds,
+                    &views,
+                    optimizer,
+                    &SynthOptions::default(),
+                    |t| {
+                        eprintln!(
+                        "{name} seed {} views {}: {:.4} deg {:.3} mm (1-sigma {:.4} deg {:.3} mm) {:.2} s",
+                        t.seed, t.views, t.rotation_deg, t.translation_mm, t.sigma_rotation_deg, t.sigma_translation_mm, t.seconds
+                    )
+                    },
+                )?;
+                println!("{}", bench::summarize(&name, &trials, &views));
+            }
+        }
+        BenchCommand::Speed {
+            robot,
+            views,
+            width,
+            height,
+            scenes,
+        } => {
+            let model = RobotModel::load(&RobotSource {
+                urdf: robot,
+                ..Default::default()
+            })?;
+            let mut times = Vec::new();
+            for seed in 0..scenes {
+                let scene = generate(
+                    &model,
+                    &SynthOptions {
+                        seed,
+                        views,
+                        width,
+                        height,
+                        focal_px: 600.0 * f64::from(width) / 640.0,
+                        ..Default::default()
+                    },
+                )?;
+                let v = bench::scene_views(&model, &scene);
+                let t = Instant::now();
+                solve(
+                    &CpuRenderer,
+                    &scene.camera,
+                    &v,
+                    &scene.initial_guess.expect("guess"),
+                    &SolveOptions::default(),
+                )?;
+                times.push(t.elapsed().as_secs_f64());
+            }
+            println!(
+                "{views}-view {width}x{height} solve on {} threads: median {:.3} s, min {:.3} s, max {:.3} s over {scenes} scenes; peak RSS {:.0} MB",
+                rayon::current_num_threads(),
+                bench::median(&times),
+                times.iter().copied().fold(f64::INFINITY, f64::min),
+                times.iter().copied().fold(0.0, f64::max),
+                bench::peak_rss_bytes().unwrap_or(0) as f64 / 1e6
+            );
+        }
+    }
+    Ok(())
+}

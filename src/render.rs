@@ -1,0 +1,543 @@
+//! Silhouette rendering: the union mask of all robot links plus samples of its outline.
+//!
+//! The outline samples are what makes the objective differentiable: each sample is a point on
+//! a mesh silhouette edge (an edge between a front- and a back-facing triangle, or an open
+//! border) that lies on the outer boundary of the union silhouette, with its 3D point, outward
+//! image normal and the outline length it stands for. The boundary-integral gradient
+//! (method.md §3) and the solver's sub-pixel residuals are sums over these samples.
+//!
+//! [`SilhouetteRenderer`] is the seam for other backends (wgpu): the solver only sees
+//! [`Silhouette`]s.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Matrix2x6, Point3};
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::mask::Mask;
+use crate::mesh::{TriMesh, NO_TRIANGLE};
+use crate::robot::RobotModel;
+
+/// Points closer to the camera than this (metres) are not rendered.
+pub const NEAR_PLANE_M: f64 = 0.01;
+
+/// A robot at one joint configuration: visual vertices in the base frame and the shared mesh
+/// topology. Built once per view; every render of the view only transforms these.
+#[derive(Clone, Debug)]
+pub struct PosedRobot {
+    /// Vertices in the base frame.
+    pub vertices_base: Vec<Point3<f64>>,
+    /// Triangles and edges (indices into `vertices_base`).
+    pub topology: Arc<TriMesh>,
+}
+
+impl PosedRobot {
+    /// Poses `robot` at actuated joint positions `q`.
+    pub fn new(robot: &RobotModel, q: &[f64]) -> PosedRobot {
+        PosedRobot {
+            vertices_base: robot.posed_vertices(q),
+            topology: robot.visual.clone(),
+        }
+    }
+
+    /// A coarse copy by vertex clustering on a `cell_m` grid: silhouettes change by at most
+    /// about one cell, and coarse searches at low resolution get many times cheaper.
+    pub fn decimated(&self, cell_m: f64) -> PosedRobot {
+        let mesh = TriMesh::from_soup(&self.vertices_base, &self.topology.triangles, cell_m);
+        let mut seen = std::collections::HashSet::with_capacity(mesh.triangles.len());
+        let triangles: Vec<[u32; 3]> = mesh
+            .triangles
+            .iter()
+            .filter(|t| {
+                let mut k = **t;
+                k.sort_unstable();
+                seen.insert(k)
+            })
+            .copied()
+            .collect();
+        let vertices_base = mesh.vertices.clone();
+        PosedRobot {
+            vertices_base,
+            topology: Arc::new(TriMesh {
+                vertices: mesh.vertices,
+                triangles,
+                edges: Vec::new(),
+            }),
+        }
+    }
+}
+
+/// One sample of the silhouette outline.
+#[derive(Clone, Copy, Debug)]
+pub struct BoundarySample {
+    /// Image position, pixels (pinhole image).
+    pub pixel: [f64; 2],
+    /// The 3D point on the mesh edge that projects there, camera frame, metres.
+    pub point_camera: Point3<f64>,
+    /// Outward unit normal of the outline in the image.
+    pub normal: [f64; 2],
+    /// Outline length this sample stands for, pixels.
+    pub length_px: f64,
+}
+
+impl BoundarySample {
+    /// 2x6 derivative of the sample's pixel position with respect to a left se(3) increment
+    /// `(rho, phi)` of `camera_from_base` (see [`crate::geometry`]).
+    #[inline]
+    pub fn pixel_jacobian(&self, camera: &Camera) -> Matrix2x6<f64> {
+        pixel_jacobian(camera, &self.point_camera)
+    }
+}
+
+/// 2x6 derivative of the projection of camera-frame point `p` under a left se(3) increment.
+#[inline]
+pub fn pixel_jacobian(camera: &Camera, p: &Point3<f64>) -> Matrix2x6<f64> {
+    let iz = 1.0 / p.z;
+    let (x, y) = (p.x * iz, p.y * iz);
+    let (fx, fy) = (camera.fx * iz, camera.fy * iz);
+    // d(u,v)/dP = [[fx/z, 0, -fx x/z], [0, fy/z, -fy y/z]]; dP/dxi = [I, -[P]x].
+    let (px, py, pz) = (p.x, p.y, p.z);
+    let du = [fx, 0.0, -fx * x];
+    let dv = [0.0, fy, -fy * y];
+    // -[P]x columns (e_k x P): phi_x -> (0, -pz, py), phi_y -> (pz, 0, -px), phi_z -> (-py, px, 0).
+    let rot = |d: &[f64; 3]| {
+        [
+            -d[1] * pz + d[2] * py,
+            d[0] * pz - d[2] * px,
+            -d[0] * py + d[1] * px,
+        ]
+    };
+    let ru = rot(&du);
+    let rv = rot(&dv);
+    Matrix2x6::new(
+        du[0], du[1], du[2], ru[0], ru[1], ru[2], dv[0], dv[1], dv[2], rv[0], rv[1], rv[2],
+    )
+}
+
+/// A rendered view.
+#[derive(Clone, Debug)]
+pub struct Silhouette {
+    /// Union of all rendered links, pixel-centre sampled.
+    pub mask: Mask,
+    /// Samples of the outer outline (empty unless requested).
+    pub boundary: Vec<BoundarySample>,
+}
+
+/// What a renderer backend must provide. Implementations must agree with [`CpuRenderer`] to
+/// the pixel on masks (pixel centre inside any triangle) and sample the same outline.
+pub trait SilhouetteRenderer: Send + Sync {
+    /// Backend name for logs.
+    fn name(&self) -> &str;
+
+    /// Renders one view. `boundary_step_px` is the outline sample spacing; `None` renders the
+    /// mask only.
+    fn render(
+        &self,
+        robot: &PosedRobot,
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Silhouette;
+
+    /// Renders several views of the same camera pose; backends may batch.
+    fn render_many(
+        &self,
+        robots: &[&PosedRobot],
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Vec<Silhouette> {
+        robots
+            .par_iter()
+            .map(|r| self.render(r, camera, camera_from_base, boundary_step_px))
+            .collect()
+    }
+}
+
+/// The reference renderer: scan-converts every triangle on the CPU (rayon over triangle
+/// chunks), then walks silhouette edges.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CpuRenderer;
+
+/// Triangles per parallel rasterisation job.
+const RASTER_CHUNK: usize = 8192;
+
+/// Marks every pixel whose centre lies inside (or on) triangle `a b c`.
+#[inline]
+pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+    if area.abs() < 1e-12 || !area.is_finite() {
+        return;
+    }
+    let (w, h) = (f64::from(mask.width), f64::from(mask.height));
+    let ymin = a[1].min(b[1]).min(c[1]).ceil().max(0.0);
+    let ymax = a[1].max(b[1]).max(c[1]).floor().min(h - 1.0);
+    let xmin = a[0].min(b[0]).min(c[0]).ceil().max(0.0);
+    let xmax = a[0].max(b[0]).max(c[0]).floor().min(w - 1.0);
+    if ymin > ymax || xmin > xmax {
+        return;
+    }
+    let s = area.signum();
+    let edges = [(a, b), (b, c), (c, a)];
+    let width = mask.width as usize;
+    let mut y = ymin;
+    while y <= ymax {
+        let (mut lo, mut hi) = (xmin, xmax);
+        for (p, q) in &edges {
+            // Inside: s * ((q-p) x (pt-p)) >= 0, linear in x: A + B x >= 0.
+            let ex = q[0] - p[0];
+            let ey = q[1] - p[1];
+            let a0 = s * (ex * (y - p[1]) + ey * p[0]);
+            let b0 = -s * ey;
+            if b0 > 0.0 {
+                lo = lo.max((-a0 / b0).ceil());
+            } else if b0 < 0.0 {
+                hi = hi.min((-a0 / b0).floor());
+            } else if a0 < 0.0 {
+                hi = lo - 1.0;
+            }
+        }
+        if lo <= hi {
+            let row = y as usize * width;
+            mask.data[row + lo as usize..=row + hi as usize].fill(1);
+        }
+        y += 1.0;
+    }
+}
+
+/// Projects every vertex; vertices behind the near plane get NaN.
+pub fn project_vertices(
+    vertices_base: &[Point3<f64>],
+    camera: &Camera,
+    camera_from_base: &Isometry3<f64>,
+) -> (Vec<[f64; 2]>, Vec<Point3<f64>>) {
+    vertices_base
+        .par_iter()
+        .map(|v| {
+            let p = camera_from_base * v;
+            if p.z > NEAR_PLANE_M {
+                (camera.project(&p), p)
+            } else {
+                ([f64::NAN, f64::NAN], p)
+            }
+        })
+        .unzip()
+}
+
+/// Rasterises the union silhouette from projected vertices.
+pub fn rasterize(topology: &TriMesh, pixels: &[[f64; 2]], width: u32, height: u32) -> Mask {
+    topology
+        .triangles
+        .par_chunks(RASTER_CHUNK)
+        .fold(
+            || Mask::new(width, height),
+            |mut m, tris| {
+                for t in tris {
+                    let (a, b, c) = (
+                        pixels[t[0] as usize],
+                        pixels[t[1] as usize],
+                        pixels[t[2] as usize],
+                    );
+                    if a[0].is_nan() || b[0].is_nan() || c[0].is_nan() {
+                        continue;
+                    }
+                    fill_triangle(&mut m, a, b, c);
+                }
+                m
+            },
+        )
+        .reduce(
+            || Mask::new(width, height),
+            |mut a, b| {
+                for (x, y) in a.data.iter_mut().zip(&b.data) {
+                    *x |= *y;
+                }
+                a
+            },
+        )
+}
+
+/// A silhouette-edge crossing of the segment between two 4-adjacent pixel centres.
+#[derive(Clone, Copy)]
+struct Crossing {
+    /// Slot of the pixel pair: rows first (`v * (w-1) + u`), then columns.
+    slot: u32,
+    /// Distance from the crossing to the outside pixel centre (smaller is outermost).
+    to_outside: f64,
+    sample: BoundarySample,
+}
+
+/// Samples the outer outline of `mask` exactly where it crosses the pixel grid.
+///
+/// Candidate edges are mesh silhouette edges (front/back-facing neighbours, or open borders).
+/// For every pair of 4-adjacent pixels where the mask changes, the outline crosses the segment
+/// between their centres; among the candidate edges crossing it, the one nearest the outside
+/// pixel is the outline (inner folds and duplicate shells lose). Each such crossing is one
+/// sample standing for `1 / (|n_x| + |n_y|)` pixels of outline, so row and column crossings
+/// together integrate the outline exactly once, whatever its direction. `step_px` > 1
+/// thins the samples (used only to save work; the weights stay exact in expectation).
+pub fn outline_samples(
+    topology: &TriMesh,
+    pixels: &[[f64; 2]],
+    points_camera: &[Point3<f64>],
+    camera: &Camera,
+    mask: &Mask,
+    step_px: f64,
+) -> Vec<BoundarySample> {
+    let facing: Vec<i8> = topology
+        .triangles
+        .par_iter()
+        .map(|t| {
+            let (a, b, c) = (
+                pixels[t[0] as usize],
+                pixels[t[1] as usize],
+                pixels[t[2] as usize],
+            );
+            let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+            if area.is_nan() {
+                i8::MIN
+            } else {
+                area.signum() as i8
+            }
+        })
+        .collect();
+    let (w, h) = (i64::from(mask.width), i64::from(mask.height));
+    let row_slots = (h * (w - 1)).max(0);
+    let mut crossings: Vec<Crossing> = topology
+        .edges
+        .par_iter()
+        .flat_map_iter(|e| {
+            let mut out: Vec<Crossing> = Vec::new();
+            let f0 = facing[e.t0 as usize];
+            if f0 == i8::MIN {
+                return out.into_iter();
+            }
+            let open = e.t1 == NO_TRIANGLE;
+            if !open {
+                let f1 = facing[e.t1 as usize];
+                if f1 == i8::MIN || f1 == f0 {
+                    return out.into_iter();
+                }
+            }
+            let (pa, pb) = (pixels[e.a as usize], pixels[e.b as usize]);
+            let d = [pb[0] - pa[0], pb[1] - pa[1]];
+            let len = d[0].hypot(d[1]);
+            if len < 1e-12 {
+                return out.into_iter();
+            }
+            let mut n = [d[1] / len, -d[0] / len];
+            // Both triangles of a silhouette edge project to its inner side.
+            let tri = topology.triangles[e.t0 as usize];
+            let k = tri.iter().position(|&v| v != e.a && v != e.b).unwrap_or(0);
+            let pc = pixels[tri[k] as usize];
+            if n[0] * (pc[0] - pa[0]) + n[1] * (pc[1] - pa[1]) > 0.0 {
+                n = [-n[0], -n[1]];
+            }
+            let (qa, qb) = (points_camera[e.a as usize], points_camera[e.b as usize]);
+            let ds = 1.0 / (n[0].abs() + n[1].abs());
+            let stride = step_px.round().max(1.0) as i64;
+            let mut emit =
+                |t: f64, x: [f64; 2], outside: (i64, i64), slot: i64, normal: [f64; 2]| {
+                    // Perspective-correct parameter along the 3D edge.
+                    let s = t * qa.z / ((1.0 - t) * qb.z + t * qa.z);
+                    let p = qa + (qb - qa) * s;
+                    let to_outside =
+                        (x[0] - outside.0 as f64).abs() + (x[1] - outside.1 as f64).abs();
+                    out.push(Crossing {
+                        slot: slot as u32,
+                        to_outside,
+                        sample: BoundarySample {
+                            pixel: x,
+                            point_camera: p,
+                            normal,
+                            length_px: ds * stride as f64,
+                        },
+                    });
+                };
+            // Row crossings: y = integer between the endpoints.
+            let thin = |i: i64| i % stride == 0;
+            if d[1].abs() > 1e-12 {
+                let (y0, y1) = (
+                    pa[1].min(pb[1]).ceil().max(0.0) as i64,
+                    pa[1].max(pb[1]).floor().min((h - 1) as f64) as i64,
+                );
+                for y in y0..=y1 {
+                    if !thin(y) {
+                        continue;
+                    }
+                    let t = (y as f64 - pa[1]) / d[1];
+                    if !(0.0..=1.0).contains(&t) {
+                        continue;
+                    }
+                    let xc = pa[0] + t * d[0];
+                    let u = xc.floor() as i64;
+                    if u < 0 || u + 1 >= w {
+                        continue;
+                    }
+                    let (l, r) = (mask.get(u, y), mask.get(u + 1, y));
+                    if l == r {
+                        continue;
+                    }
+                    let (inside, outside) = if l {
+                        ((u, y), (u + 1, y))
+                    } else {
+                        ((u + 1, y), (u, y))
+                    };
+                    let toward = (outside.0 - inside.0) as f64;
+                    let normal = if open && n[0] * toward < 0.0 {
+                        [-n[0], -n[1]]
+                    } else {
+                        n
+                    };
+                    if normal[0] * toward <= 0.0 {
+                        continue;
+                    }
+                    emit(t, [xc, y as f64], outside, y * (w - 1) + u, normal);
+                }
+            }
+            if d[0].abs() > 1e-12 {
+                let (x0, x1) = (
+                    pa[0].min(pb[0]).ceil().max(0.0) as i64,
+                    pa[0].max(pb[0]).floor().min((w - 1) as f64) as i64,
+                );
+                for x in x0..=x1 {
+                    if !thin(x) {
+                        continue;
+                    }
+                    let t = (x as f64 - pa[0]) / d[0];
+                    if !(0.0..=1.0).contains(&t) {
+                        continue;
+                    }
+                    let yc = pa[1] + t * d[1];
+                    let v = yc.floor() as i64;
+                    if v < 0 || v + 1 >= h {
+                        continue;
+                    }
+                    let (top, bottom) = (mask.get(x, v), mask.get(x, v + 1));
+                    if top == bottom {
+                        continue;
+                    }
+                    let (inside, outside) = if top {
+                        ((x, v), (x, v + 1))
+                    } else {
+                        ((x, v + 1), (x, v))
+                    };
+                    let toward = (outside.1 - inside.1) as f64;
+                    let normal = if open && n[1] * toward < 0.0 {
+                        [-n[0], -n[1]]
+                    } else {
+                        n
+                    };
+                    if normal[1] * toward <= 0.0 {
+                        continue;
+                    }
+                    emit(t, [x as f64, yc], outside, row_slots + v * w + x, normal);
+                }
+            }
+            out.into_iter()
+        })
+        .collect();
+    crossings.par_sort_unstable_by(|a, b| {
+        a.slot
+            .cmp(&b.slot)
+            .then(a.to_outside.total_cmp(&b.to_outside))
+    });
+    crossings.dedup_by_key(|c| c.slot);
+    let _ = camera;
+    crossings.into_iter().map(|c| c.sample).collect()
+}
+
+impl SilhouetteRenderer for CpuRenderer {
+    fn name(&self) -> &str {
+        "cpu"
+    }
+
+    fn render(
+        &self,
+        robot: &PosedRobot,
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Silhouette {
+        let (pixels, points) = project_vertices(&robot.vertices_base, camera, camera_from_base);
+        let mask = rasterize(&robot.topology, &pixels, camera.width, camera.height);
+        let boundary = match boundary_step_px {
+            Some(step) => outline_samples(&robot.topology, &pixels, &points, camera, &mask, step),
+            None => Vec::new(),
+        };
+        Silhouette { mask, boundary }
+    }
+}
+
+/// Renders at `factor`x resolution and keeps, per pixel, the covered fraction of its
+/// `factor x factor` sub-pixels (a coverage reference for tests and the gradient check).
+pub fn render_coverage(
+    robot: &PosedRobot,
+    camera: &Camera,
+    camera_from_base: &Isometry3<f64>,
+    factor: u32,
+) -> Vec<f32> {
+    let f = f64::from(factor);
+    let fine = Camera {
+        width: camera.width * factor,
+        height: camera.height * factor,
+        fx: camera.fx * f,
+        fy: camera.fy * f,
+        cx: (camera.cx + 0.5) * f - 0.5,
+        cy: (camera.cy + 0.5) * f - 0.5,
+        distortion: None,
+    };
+    let m = CpuRenderer
+        .render(robot, &fine, camera_from_base, None)
+        .mask;
+    let mut cov = vec![0f32; (camera.width * camera.height) as usize];
+    for v in 0..fine.height {
+        for u in 0..fine.width {
+            if m.data[(v * fine.width + u) as usize] != 0 {
+                cov[((v / factor) * camera.width + u / factor) as usize] += 1.0;
+            }
+        }
+    }
+    let n = (factor * factor) as f32;
+    cov.iter_mut().for_each(|c| *c /= n);
+    cov
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fill_triangle_covers_pixel_centres() {
+        let mut m = Mask::new(10, 10);
+        fill_triangle(&mut m, [0.0, 0.0], [9.0, 0.0], [0.0, 9.0]);
+        // Pixel (u, v) inside iff u + v <= 9.
+        for v in 0..10 {
+            for u in 0..10 {
+                assert_eq!(m.get(u, v), u + v <= 9, "{u},{v}");
+            }
+        }
+    }
+
+    #[test]
+    fn pixel_jacobian_matches_finite_difference() {
+        let cam = Camera::pinhole(640, 480, 600.0, 590.0, 320.0, 240.0);
+        let p = Point3::new(0.2, -0.1, 1.3);
+        let j = pixel_jacobian(&cam, &p);
+        for k in 0..6 {
+            let mut xi = crate::geometry::Twist::zeros();
+            xi[k] = 1e-6;
+            let a = cam.project(&(crate::geometry::exp_se3(&xi) * p));
+            let b = cam.project(&(crate::geometry::exp_se3(&(-xi)) * p));
+            for r in 0..2 {
+                let fd = (a[r] - b[r]) / 2e-6;
+                assert!(
+                    (fd - j[(r, k)]).abs() < 1e-4 * (1.0 + fd.abs()),
+                    "row {r} col {k}: {fd} vs {}",
+                    j[(r, k)]
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,507 @@
+//! Robot model: URDF kinematic tree, forward kinematics and visual geometry.
+//!
+//! FK is owned here (small, exact, nalgebra): revolute, continuous, prismatic, fixed and mimic
+//! joints. Visual meshes are loaded once, scaled and placed at their `<origin>` in the link
+//! frame, and concatenated into one topology so a posed robot is just a vertex transform.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+
+use crate::error::{Error, Result};
+use crate::geometry::from_xyz_rpy;
+use crate::mesh::{load_mesh_file, TriMesh};
+
+/// Joint type as FK needs it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum JointKind {
+    /// Rotation about `axis`, limited.
+    Revolute,
+    /// Rotation about `axis`, unlimited.
+    Continuous,
+    /// Translation along `axis`.
+    Prismatic,
+    /// Rigid.
+    Fixed,
+}
+
+/// One URDF joint.
+#[derive(Clone, Debug)]
+pub struct Joint {
+    /// URDF name.
+    pub name: String,
+    /// Motion type.
+    pub kind: JointKind,
+    /// Parent link index.
+    pub parent: usize,
+    /// Child link index.
+    pub child: usize,
+    /// `parent_from_joint` at zero position.
+    pub parent_from_joint: Isometry3<f64>,
+    /// Unit axis in the joint frame.
+    pub axis: Unit<Vector3<f64>>,
+    /// Lower position limit (rad or m).
+    pub lower: f64,
+    /// Upper position limit (rad or m).
+    pub upper: f64,
+    /// Velocity limit (rad/s or m/s); 0 when the URDF gives none.
+    pub velocity: f64,
+    /// `(leader joint index, multiplier, offset)` for a mimic joint.
+    pub mimic: Option<(usize, f64, f64)>,
+}
+
+/// Everything needed to build a [`RobotModel`], as a run or cell config states it.
+#[derive(Clone, Debug, Default)]
+pub struct RobotSource {
+    /// URDF file.
+    pub urdf: PathBuf,
+    /// `package://NAME` roots.
+    pub package_dirs: BTreeMap<String, PathBuf>,
+    /// Frame `camera_from_base` refers to; default the URDF root.
+    pub base_link: Option<String>,
+    /// Links whose visuals are not rendered.
+    pub ignore_links: Vec<String>,
+    /// Actuated joints in the order joint vectors use; default: every movable, non-mimic joint.
+    pub joints: Option<Vec<String>>,
+}
+
+/// A loaded robot: kinematics plus merged visual geometry.
+#[derive(Debug)]
+pub struct RobotModel {
+    /// URDF robot name.
+    pub name: String,
+    /// Link names, index = link id.
+    pub links: Vec<String>,
+    /// All joints.
+    pub joints: Vec<Joint>,
+    /// Joints in parent-before-child order.
+    order: Vec<usize>,
+    /// Root link index.
+    root: usize,
+    /// Base link index (`camera_from_base` refers to it).
+    pub base: usize,
+    /// Indices (into `joints`) of the actuated joints, in joint-vector order.
+    pub actuated: Vec<usize>,
+    /// All rendered visuals merged, vertices in their link frames.
+    pub visual: Arc<TriMesh>,
+    /// For each vertex of `visual`, its link index.
+    pub vertex_link: Vec<u32>,
+}
+
+fn resolve_mesh_uri(
+    uri: &str,
+    urdf_dir: &Path,
+    package_dirs: &BTreeMap<String, PathBuf>,
+) -> Result<PathBuf, String> {
+    if let Some(rest) = uri.strip_prefix("package://") {
+        let (pkg, rel) = rest
+            .split_once('/')
+            .ok_or_else(|| format!("malformed package URI '{uri}'"))?;
+        if let Some(dir) = package_dirs.get(pkg) {
+            return Ok(dir.join(rel));
+        }
+        if let Ok(paths) = std::env::var("ROS_PACKAGE_PATH") {
+            for root in std::env::split_paths(&paths) {
+                for cand in [root.join(pkg), root.clone()] {
+                    if cand.file_name().and_then(|n| n.to_str()) == Some(pkg)
+                        && cand.join(rel).exists()
+                    {
+                        return Ok(cand.join(rel));
+                    }
+                }
+            }
+        }
+        return Err(format!(
+            "cannot resolve '{uri}': add \"{pkg}\" to robot.package_dirs or to ROS_PACKAGE_PATH"
+        ));
+    }
+    let path = uri.strip_prefix("file://").unwrap_or(uri);
+    let p = Path::new(path);
+    Ok(if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        urdf_dir.join(p)
+    })
+}
+
+/// Largest sane robot-part extent; anything bigger is almost surely a unit mistake.
+const MAX_LINK_EXTENT_M: f64 = 3.0;
+
+impl RobotModel {
+    /// Loads a URDF and its visual meshes.
+    pub fn load(src: &RobotSource) -> Result<RobotModel> {
+        let urdf_path = &src.urdf;
+        let text = std::fs::read_to_string(urdf_path)
+            .map_err(|e| Error::io(urdf_path, format!("cannot read URDF: {e}")))?;
+        let urdf = urdf_rs::read_from_string(&text)
+            .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
+        let urdf_dir = urdf_path.parent().unwrap_or(Path::new("."));
+        let links: Vec<String> = urdf.links.iter().map(|l| l.name.clone()).collect();
+        let link_index: HashMap<&str, usize> = links
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.as_str(), i))
+            .collect();
+        if links.is_empty() {
+            return Err(Error::input(urdf_path, "robot", "URDF has no <link>"));
+        }
+        let mut joints = Vec::with_capacity(urdf.joints.len());
+        for j in &urdf.joints {
+            let parent = *link_index.get(j.parent.link.as_str()).ok_or_else(|| {
+                Error::input(
+                    urdf_path,
+                    format!("joint '{}' parent", j.name),
+                    format!("unknown link '{}'", j.parent.link),
+                )
+            })?;
+            let child = *link_index.get(j.child.link.as_str()).ok_or_else(|| {
+                Error::input(
+                    urdf_path,
+                    format!("joint '{}' child", j.name),
+                    format!("unknown link '{}'", j.child.link),
+                )
+            })?;
+            let kind = match j.joint_type {
+                urdf_rs::JointType::Revolute => JointKind::Revolute,
+                urdf_rs::JointType::Continuous => JointKind::Continuous,
+                urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+                urdf_rs::JointType::Fixed => JointKind::Fixed,
+                ref other => {
+                    return Err(Error::input(
+                        urdf_path,
+                        format!("joint '{}' type", j.name),
+                        format!("{other:?} joints are not supported"),
+                    ))
+                }
+            };
+            let axis = Vector3::from(j.axis.xyz.0);
+            let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| {
+                Error::input(
+                    urdf_path,
+                    format!("joint '{}' axis", j.name),
+                    "axis has zero length",
+                )
+            });
+            let axis = match (kind, axis) {
+                (JointKind::Fixed, _) => Vector3::x_axis(),
+                (_, a) => a?,
+            };
+            let (mut lower, mut upper) = (j.limit.lower, j.limit.upper);
+            if kind == JointKind::Continuous
+                || (lower == 0.0 && upper == 0.0 && kind != JointKind::Fixed)
+            {
+                lower = -std::f64::consts::PI * 2.0;
+                upper = std::f64::consts::PI * 2.0;
+            }
+            joints.push(Joint {
+                name: j.name.clone(),
+                kind,
+                parent,
+                child,
+                parent_from_joint: from_xyz_rpy(j.origin.xyz.0, j.origin.rpy.0),
+                axis,
+                lower,
+                upper,
+                velocity: j.limit.velocity,
+                mimic: None,
+            });
+        }
+        let joint_index: HashMap<String, usize> = joints
+            .iter()
+            .enumerate()
+            .map(|(i, j)| (j.name.clone(), i))
+            .collect();
+        for (i, j) in urdf.joints.iter().enumerate() {
+            if let Some(m) = &j.mimic {
+                let leader = *joint_index.get(&m.joint).ok_or_else(|| {
+                    Error::input(
+                        urdf_path,
+                        format!("joint '{}' mimic", j.name),
+                        format!("unknown leader joint '{}'", m.joint),
+                    )
+                })?;
+                joints[i].mimic =
+                    Some((leader, m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0)));
+            }
+        }
+        // Tree structure: every link has at most one parent joint; exactly one root.
+        let mut parent_joint: Vec<Option<usize>> = vec![None; links.len()];
+        for (i, j) in joints.iter().enumerate() {
+            if parent_joint[j.child].is_some() {
+                return Err(Error::input(
+                    urdf_path,
+                    format!("link '{}'", links[j.child]),
+                    "link has two parent joints",
+                ));
+            }
+            parent_joint[j.child] = Some(i);
+        }
+        let roots: Vec<usize> = (0..links.len())
+            .filter(|&l| parent_joint[l].is_none())
+            .collect();
+        if roots.len() != 1 {
+            let names: Vec<&str> = roots.iter().map(|&r| links[r].as_str()).collect();
+            return Err(Error::input(
+                urdf_path,
+                "robot",
+                format!("URDF must have exactly one root link, found {names:?}"),
+            ));
+        }
+        let root = roots[0];
+        let mut order = Vec::with_capacity(joints.len());
+        let mut stack = vec![root];
+        while let Some(l) = stack.pop() {
+            for (i, j) in joints.iter().enumerate() {
+                if j.parent == l {
+                    order.push(i);
+                    stack.push(j.child);
+                }
+            }
+        }
+        if order.len() != joints.len() {
+            return Err(Error::input(urdf_path, "robot", "joint graph has a cycle"));
+        }
+        let base = match &src.base_link {
+            Some(name) => *link_index.get(name.as_str()).ok_or_else(|| {
+                Error::input(
+                    urdf_path,
+                    "robot.base_link",
+                    format!("no link named '{name}' in the URDF"),
+                )
+            })?,
+            None => root,
+        };
+        let actuated = match &src.joints {
+            Some(names) => names
+                .iter()
+                .map(|n| {
+                    let i = *joint_index.get(n).ok_or_else(|| {
+                        Error::input(
+                            urdf_path,
+                            "robot.joints",
+                            format!("no joint named '{n}' in the URDF"),
+                        )
+                    })?;
+                    if joints[i].kind == JointKind::Fixed {
+                        return Err(Error::input(
+                            urdf_path,
+                            "robot.joints",
+                            format!("joint '{n}' is fixed and cannot be actuated"),
+                        ));
+                    }
+                    Ok(i)
+                })
+                .collect::<Result<Vec<_>>>()?,
+            None => order
+                .iter()
+                .copied()
+                .filter(|&i| joints[i].kind != JointKind::Fixed && joints[i].mimic.is_none())
+                .collect(),
+        };
+        for name in &src.ignore_links {
+            if !link_index.contains_key(name.as_str()) {
+                return Err(Error::input(
+                    urdf_path,
+                    "robot.ignore_links",
+                    format!("no link named '{name}' in the URDF"),
+                ));
+            }
+        }
+
+        // Visual geometry.
+        let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();
+        let mut visual = TriMesh::default();
+        let mut vertex_link = Vec::new();
+        for (li, link) in urdf.links.iter().enumerate() {
+            if src.ignore_links.iter().any(|n| n == &link.name) {
+                continue;
+            }
+            for (vi, v) in link.visual.iter().enumerate() {
+                let field = format!("link '{}' visual {vi}", link.name);
+                let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
+                let (mesh, scale) = match &v.geometry {
+                    urdf_rs::Geometry::Mesh { filename, scale } => {
+                        let path = resolve_mesh_uri(filename, urdf_dir, &src.package_dirs)
+                            .map_err(|m| Error::input(urdf_path, format!("{field} mesh"), m))?;
+                        let mesh = match cache.get(&path) {
+                            Some(m) => m.clone(),
+                            None => {
+                                let m = Arc::new(load_mesh_file(&path)?);
+                                cache.insert(path.clone(), m.clone());
+                                m
+                            }
+                        };
+                        let s = scale
+                            .map(|s| Vector3::from(s.0))
+                            .unwrap_or(Vector3::new(1.0, 1.0, 1.0));
+                        let (lo, hi) = mesh
+                            .bounds()
+                            .unwrap_or((Point3::origin(), Point3::origin()));
+                        let extent = (hi - lo).component_mul(&s.abs()).max();
+                        if extent > MAX_LINK_EXTENT_M {
+                            return Err(Error::input(
+                                &path,
+                                format!("{field} scale"),
+                                format!(
+                                    "mesh spans {extent:.1} m, which looks like millimetres: add scale=\"0.001 0.001 0.001\" to the <mesh> element in {}",
+                                    urdf_path.display()
+                                ),
+                            ));
+                        }
+                        ((*mesh).clone(), s)
+                    }
+                    urdf_rs::Geometry::Box { size } => {
+                        (TriMesh::cuboid(size.0), Vector3::new(1.0, 1.0, 1.0))
+                    }
+                    urdf_rs::Geometry::Cylinder { radius, length } => (
+                        TriMesh::cylinder(*radius, *length, 32),
+                        Vector3::new(1.0, 1.0, 1.0),
+                    ),
+                    urdf_rs::Geometry::Sphere { radius } => (
+                        TriMesh::capsule(*radius, 0.0, 16, 32),
+                        Vector3::new(1.0, 1.0, 1.0),
+                    ),
+                    urdf_rs::Geometry::Capsule { radius, length } => (
+                        TriMesh::capsule(*radius, *length, 16, 32),
+                        Vector3::new(1.0, 1.0, 1.0),
+                    ),
+                };
+                let placed = mesh.transformed(scale, &origin);
+                vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
+                visual.append(&placed);
+            }
+        }
+        Ok(RobotModel {
+            name: urdf.name.clone(),
+            links,
+            joints,
+            order,
+            root,
+            base,
+            actuated,
+            visual: Arc::new(visual),
+            vertex_link,
+        })
+    }
+
+    /// Names of the actuated joints, in joint-vector order.
+    pub fn joint_names(&self) -> Vec<&str> {
+        self.actuated
+            .iter()
+            .map(|&i| self.joints[i].name.as_str())
+            .collect()
+    }
+
+    /// `(lower, upper)` limits of the actuated joints.
+    pub fn joint_limits(&self) -> Vec<(f64, f64)> {
+        self.actuated
+            .iter()
+            .map(|&i| (self.joints[i].lower, self.joints[i].upper))
+            .collect()
+    }
+
+    /// Index of a link by name.
+    pub fn link_index(&self, name: &str) -> Option<usize> {
+        self.links.iter().position(|l| l == name)
+    }
+
+    /// `base_from_link` for every link at actuated positions `q` (radians / metres).
+    /// Joints not actuated stay at zero; mimic joints follow their leader.
+    ///
+    /// # Panics
+    /// If `q.len()` differs from the number of actuated joints (callers validate input first).
+    pub fn base_from_links(&self, q: &[f64]) -> Vec<Isometry3<f64>> {
+        assert_eq!(q.len(), self.actuated.len(), "joint vector length");
+        let mut pos = vec![0.0; self.joints.len()];
+        for (k, &ji) in self.actuated.iter().enumerate() {
+            pos[ji] = q[k];
+        }
+        for (i, j) in self.joints.iter().enumerate() {
+            if let Some((leader, mul, off)) = j.mimic {
+                pos[i] = pos[leader] * mul + off;
+            }
+        }
+        let mut root_from = vec![Isometry3::identity(); self.links.len()];
+        for &ji in &self.order {
+            let j = &self.joints[ji];
+            let motion = match j.kind {
+                JointKind::Revolute | JointKind::Continuous => Isometry3::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_axis_angle(&j.axis, pos[ji]),
+                ),
+                JointKind::Prismatic => Isometry3::from_parts(
+                    Translation3::from(j.axis.into_inner() * pos[ji]),
+                    UnitQuaternion::identity(),
+                ),
+                JointKind::Fixed => Isometry3::identity(),
+            };
+            root_from[j.child] = root_from[j.parent] * j.parent_from_joint * motion;
+        }
+        let base_from_root = root_from[self.base].inverse();
+        let _ = self.root;
+        root_from.iter().map(|p| base_from_root * p).collect()
+    }
+
+    /// Visual vertices in the base frame at joint positions `q`.
+    pub fn posed_vertices(&self, q: &[f64]) -> Vec<Point3<f64>> {
+        let poses = self.base_from_links(q);
+        self.visual
+            .vertices
+            .iter()
+            .zip(&self.vertex_link)
+            .map(|(v, &l)| poses[l as usize] * v)
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write_urdf(dir: &Path, body: &str) -> PathBuf {
+        let p = dir.join("r.urdf");
+        std::fs::write(&p, format!("<robot name=\"t\">{body}</robot>")).unwrap();
+        p
+    }
+
+    #[test]
+    fn mimic_and_prismatic_follow_leader() {
+        let d = tempfile::tempdir().unwrap();
+        let urdf = write_urdf(
+            d.path(),
+            r#"<link name="a"/><link name="b"/><link name="c"/>
+            <joint name="j1" type="prismatic"><parent link="a"/><child link="b"/><axis xyz="0 1 0"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>
+            <joint name="j2" type="prismatic"><parent link="a"/><child link="c"/><axis xyz="0 -1 0"/><limit lower="0" upper="1" effort="1" velocity="1"/><mimic joint="j1" multiplier="2" offset="0.1"/></joint>"#,
+        );
+        let m = RobotModel::load(&RobotSource {
+            urdf,
+            ..Default::default()
+        })
+        .unwrap();
+        assert_eq!(m.joint_names(), vec!["j1"]);
+        let poses = m.base_from_links(&[0.2]);
+        assert!((poses[1].translation.y - 0.2).abs() < 1e-12);
+        assert!((poses[2].translation.y + 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn unresolvable_package_uri_names_the_fix() {
+        let d = tempfile::tempdir().unwrap();
+        let urdf = write_urdf(
+            d.path(),
+            r#"<link name="a"><visual><geometry><mesh filename="package://nowhere_pkg/m.stl"/></geometry></visual></link>"#,
+        );
+        let e = RobotModel::load(&RobotSource {
+            urdf,
+            ..Default::default()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("package_dirs") && e.contains("nowhere_pkg"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,444 @@
+//! The `easyhec-run/1` run directory and the `easyhec-result/1` result (docs: formats.md).
+//!
+//! Readers accept exactly the documented fields and ignore unknown ones; every validation
+//! failure names the file and the field.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::{from_rows, to_rows};
+use crate::mask::Mask;
+use crate::robot::{RobotModel, RobotSource};
+
+/// Run-directory format tag.
+pub const RUN_FORMAT: &str = "easyhec-run/1";
+/// Result format tag.
+pub const RESULT_FORMAT: &str = "easyhec-result/1";
+
+/// `run.json` → `robot`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RobotEntry {
+    /// URDF path, relative to the run folder or absolute.
+    pub urdf: String,
+    /// `package://NAME` roots.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub package_dirs: BTreeMap<String, String>,
+    /// Frame `camera_from_base` refers to.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base_link: Option<String>,
+    /// Links not rendered.
+    #[serde(default)]
+    pub ignore_links: Vec<String>,
+    /// Actuated joints, in the order of each view's `joints`.
+    pub joints: Vec<String>,
+}
+
+/// `run.json` → `camera`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CameraEntry {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Focal length x, pixels.
+    pub fx: f64,
+    /// Focal length y, pixels.
+    pub fy: f64,
+    /// Principal point x, pixels.
+    pub cx: f64,
+    /// Principal point y, pixels.
+    pub cy: f64,
+    /// `plumb_bob` or absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion_model: Option<String>,
+    /// `k1 k2 p1 p2 k3`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion: Option<Vec<f64>>,
+}
+
+/// A 4x4 transform holder as the formats write it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct PoseEntry {
+    /// Row-major 4x4, base frame → OpenCV optical frame, metres.
+    pub camera_from_base: [[f64; 4]; 4],
+}
+
+/// `run.json` → `views[i]`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ViewEntry {
+    /// Joint positions (rad / m) in `robot.joints` order.
+    pub joints: Vec<f64>,
+    /// 8-bit grey mask PNG, relative to the run folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask: Option<String>,
+    /// Colour frame, relative to the run folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
+    /// RFC 3339 capture time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub captured_at: Option<String>,
+}
+
+/// `run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RunFile {
+    /// Always [`RUN_FORMAT`].
+    pub format: String,
+    /// The robot.
+    pub robot: RobotEntry,
+    /// The camera.
+    pub camera: CameraEntry,
+    /// Optional starting pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_guess: Option<PoseEntry>,
+    /// The recorded views.
+    pub views: Vec<ViewEntry>,
+}
+
+impl RunFile {
+    /// Reads and parses `run.json` (format version checked; content checked by [`load_run`]).
+    pub fn read(path: &Path) -> Result<RunFile> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
+        let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            Error::input(
+                path,
+                format!("line {} column {}", e.line(), e.column()),
+                format!("invalid JSON: {e} (NaN and Infinity are not JSON numbers)"),
+            )
+        })?;
+        match value.get("format").and_then(|f| f.as_str()) {
+            Some(RUN_FORMAT) => {}
+            Some(other) => {
+                return Err(Error::input(
+                    path,
+                    "format",
+                    format!("unknown format version '{other}': this easyhec reads {RUN_FORMAT}"),
+                ))
+            }
+            None => {
+                return Err(Error::input(
+                    path,
+                    "format",
+                    format!("missing: add \"format\": \"{RUN_FORMAT}\""),
+                ))
+            }
+        }
+        serde_json::from_value(value).map_err(|e| Error::input(path, "run", format!("{e}")))
+    }
+
+    /// Camera model described by this run.
+    pub fn camera(&self, path: &Path) -> Result<Camera> {
+        let c = &self.camera;
+        for (name, v) in [("fx", c.fx), ("fy", c.fy)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::input(
+                    path,
+                    format!("camera.{name}"),
+                    format!("must be a positive number of pixels, got {v}"),
+                ));
+            }
+        }
+        for (name, v) in [("cx", c.cx), ("cy", c.cy)] {
+            if !v.is_finite() {
+                return Err(Error::input(
+                    path,
+                    format!("camera.{name}"),
+                    "must be finite",
+                ));
+            }
+        }
+        if c.width == 0 || c.height == 0 {
+            return Err(Error::input(
+                path,
+                "camera.width/height",
+                "image size must be positive",
+            ));
+        }
+        let distortion = match (&c.distortion_model, &c.distortion) {
+            (None, None) => None,
+            (Some(m), _) if m != "plumb_bob" => {
+                return Err(Error::input(
+                    path,
+                    "camera.distortion_model",
+                    format!("unsupported model '{m}': use plumb_bob"),
+                ))
+            }
+            (_, Some(d)) => {
+                if d.len() != 5 || d.iter().any(|k| !k.is_finite()) {
+                    return Err(Error::input(
+                        path,
+                        "camera.distortion",
+                        "plumb_bob needs 5 finite coefficients k1 k2 p1 p2 k3",
+                    ));
+                }
+                Some([d[0], d[1], d[2], d[3], d[4]])
+            }
+            (Some(_), None) => None,
+        };
+        Ok(Camera {
+            width: c.width,
+            height: c.height,
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+            distortion,
+        })
+    }
+}
+
+/// One view of a loaded run.
+#[derive(Clone, Debug)]
+pub struct LoadedView {
+    /// Index in `run.json`'s views.
+    pub index: usize,
+    /// Joint vector.
+    pub joints: Vec<f64>,
+    /// Observed mask resampled into the pinhole image (see [`Camera::undistort_mask`]).
+    pub observed: Mask,
+    /// Colour frame path, when recorded.
+    pub image: Option<PathBuf>,
+}
+
+/// A validated run directory with its robot loaded.
+#[derive(Debug)]
+pub struct LoadedRun {
+    /// Folder holding `run.json`.
+    pub dir: PathBuf,
+    /// The parsed file.
+    pub file: RunFile,
+    /// The robot model.
+    pub robot: RobotModel,
+    /// Camera (possibly distorted; masks in `views` are already undistorted).
+    pub camera: Camera,
+    /// Initial `camera_from_base`, when given.
+    pub initial_guess: Option<Isometry3<f64>>,
+    /// Views.
+    pub views: Vec<LoadedView>,
+}
+
+fn resolve(dir: &Path, p: &str) -> PathBuf {
+    let p = Path::new(p);
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        dir.join(p)
+    }
+}
+
+/// Loads and validates a run directory (or a path to its `run.json`).
+pub fn load_run(path: &Path) -> Result<LoadedRun> {
+    let json = if path.is_dir() {
+        path.join("run.json")
+    } else {
+        path.to_path_buf()
+    };
+    let dir = json
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."));
+    let file = RunFile::read(&json)?;
+    let camera = file.camera(&json)?;
+    let source = RobotSource {
+        urdf: resolve(&dir, &file.robot.urdf),
+        package_dirs: file
+            .robot
+            .package_dirs
+            .iter()
+            .map(|(k, v)| (k.clone(), resolve(&dir, v)))
+            .collect(),
+        base_link: file.robot.base_link.clone(),
+        ignore_links: file.robot.ignore_links.clone(),
+        joints: Some(file.robot.joints.clone()),
+    };
+    if file.robot.joints.is_empty() {
+        return Err(Error::input(
+            &json,
+            "robot.joints",
+            "must list the actuated joints in the order of each view's joints",
+        ));
+    }
+    let robot = RobotModel::load(&source)?;
+    let initial_guess = match &file.initial_guess {
+        Some(g) => Some(
+            from_rows(&g.camera_from_base)
+                .map_err(|m| Error::input(&json, "initial_guess.camera_from_base", m))?,
+        ),
+        None => None,
+    };
+    if file.views.is_empty() {
+        return Err(Error::input(&json, "views", "run has no views"));
+    }
+    let mut views = Vec::with_capacity(file.views.len());
+    for (i, v) in file.views.iter().enumerate() {
+        if v.joints.len() != file.robot.joints.len() {
+            return Err(Error::input(
+                &json,
+                format!("views[{i}].joints"),
+                format!(
+                    "has {} values but robot.joints names {}",
+                    v.joints.len(),
+                    file.robot.joints.len()
+                ),
+            ));
+        }
+        if let Some(k) = v.joints.iter().position(|q| !q.is_finite()) {
+            return Err(Error::input(
+                &json,
+                format!("views[{i}].joints[{k}]"),
+                "not a finite number",
+            ));
+        }
+        let Some(mask_rel) = &v.mask else {
+            return Err(Error::input(
+                &json,
+                format!("views[{i}].mask"),
+                "view has no mask: this version solves from masks only",
+            ));
+        };
+        let mask_path = resolve(&dir, mask_rel);
+        if !mask_path.exists() {
+            return Err(Error::input(
+                &json,
+                format!("views[{i}].mask"),
+                format!("file {} does not exist", mask_path.display()),
+            ));
+        }
+        let mask = Mask::load(&mask_path)?;
+        if mask.width != camera.width || mask.height != camera.height {
+            return Err(Error::input(
+                &mask_path,
+                format!("views[{i}].mask"),
+                format!(
+                    "is {}x{} but camera is {}x{}: masks must have the camera's size",
+                    mask.width, mask.height, camera.width, camera.height
+                ),
+            ));
+        }
+        if mask.count() == 0 {
+            return Err(Error::input(
+                &mask_path,
+                format!("views[{i}].mask"),
+                "mask has no robot pixels (>= 128): drop the view or fix the mask",
+            ));
+        }
+        views.push(LoadedView {
+            index: i,
+            joints: v.joints.clone(),
+            observed: camera.undistort_mask(&mask),
+            image: v.image.as_ref().map(|p| resolve(&dir, p)),
+        });
+    }
+    Ok(LoadedRun {
+        dir,
+        file,
+        robot,
+        camera,
+        initial_guess,
+        views,
+    })
+}
+
+/// `easyhec-result/1`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ResultFile {
+    /// Always [`RESULT_FORMAT`].
+    pub format: String,
+    /// Base frame → OpenCV optical frame.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// Inverse of `camera_from_base`.
+    pub base_from_camera: [[f64; 4]; 4],
+    /// Frame `camera_from_base` refers to.
+    pub base_link: String,
+    /// Indices into the run's views, in the order they were added.
+    pub views_used: Vec<usize>,
+    /// Per-view agreement.
+    pub per_view: Vec<PerView>,
+    /// 1-sigma about the camera axes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<UncertaintyEntry>,
+    /// Why the solve or calibration stopped.
+    pub stop_reason: String,
+    /// Wall-clock timings, seconds.
+    pub timings_s: BTreeMap<String, f64>,
+}
+
+/// `per_view[i]`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct PerView {
+    /// Index into the run's views.
+    pub view: usize,
+    /// Mask IoU at the estimate.
+    pub iou: f64,
+}
+
+/// `uncertainty`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct UncertaintyEntry {
+    /// Rotation about camera x, y, z, degrees.
+    pub rotation_deg: [f64; 3],
+    /// Translation along camera x, y, z, millimetres.
+    pub translation_mm: [f64; 3],
+}
+
+impl ResultFile {
+    /// A result for `camera_from_base`.
+    pub fn new(camera_from_base: &Isometry3<f64>, base_link: &str) -> ResultFile {
+        ResultFile {
+            format: RESULT_FORMAT.into(),
+            camera_from_base: to_rows(camera_from_base),
+            base_from_camera: to_rows(&camera_from_base.inverse()),
+            base_link: base_link.into(),
+            views_used: Vec::new(),
+            per_view: Vec::new(),
+            uncertainty: None,
+            stop_reason: String::new(),
+            timings_s: BTreeMap::new(),
+        }
+    }
+
+    /// Reads a result file, checking the format tag and the transform.
+    pub fn read(path: &Path) -> Result<ResultFile> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
+        let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            Error::input(
+                path,
+                format!("line {} column {}", e.line(), e.column()),
+                format!("invalid JSON: {e}"),
+            )
+        })?;
+        match value.get("format").and_then(|f| f.as_str()) {
+            Some(RESULT_FORMAT) => {}
+            Some(other) => {
+                return Err(Error::input(
+                    path,
+                    "format",
+                    format!("unknown format version '{other}': this easyhec reads {RESULT_FORMAT}"),
+                ))
+            }
+            None => {
+                return Err(Error::input(
+                    path,
+                    "format",
+                    format!("missing: add \"format\": \"{RESULT_FORMAT}\""),
+                ))
+            }
+        }
+        let r: ResultFile = serde_json::from_value(value)
+            .map_err(|e| Error::input(path, "result", format!("{e}")))?;
+        from_rows(&r.camera_from_base).map_err(|m| Error::input(path, "camera_from_base", m))?;
+        Ok(r)
+    }
+
+    /// The transform as a rigid pose.
+    pub fn camera_from_base(&self) -> Isometry3<f64> {
+        from_rows(&self.camera_from_base).expect("validated when read or built")
+    }
+}

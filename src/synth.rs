@@ -1,0 +1,424 @@
+//! Synthetic runs with known ground truth.
+//!
+//! Scene: a camera 0.9–1.6 m from the robot's centre at a random azimuth, 10–50° elevation,
+//! looking at the robot with a few centimetres of aim jitter and ±10° roll; joint vectors drawn
+//! uniformly within 80% of each joint's range, kept when the robot stays above the base plane
+//! and at least 97% of its outline is inside the image.
+//!
+//! Segmentation-noise model (all seeded):
+//! - **boundary jitter**: the true silhouette boundary is displaced along its normal by a smooth
+//!   random field (six random planar waves, wavelength 8–40 px) with RMS `boundary_jitter_px`;
+//! - **blobs**: with probability `blob_probability` per view, 1–2 ellipses (3–12 px radii)
+//!   centred near the boundary are painted as robot or cut out as background;
+//! - **joint encoder noise**: recorded joints = true joints + N(0, `joint_noise_rad`).
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::{exp_se3, look_at_camera_from_base, to_rows, Twist};
+use crate::io::{write_atomic, write_json_atomic};
+use crate::mask::{Mask, SignedDistance};
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::robot::RobotModel;
+use crate::run::{CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
+
+/// The segmentation-noise model (see the module docs).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct NoiseModel {
+    /// RMS boundary displacement, pixels.
+    pub boundary_jitter_px: f64,
+    /// Chance of blobs in a view.
+    pub blob_probability: f64,
+    /// Standard deviation of recorded joint noise, radians (or metres).
+    pub joint_noise_rad: f64,
+}
+
+impl NoiseModel {
+    /// The default benchmark noise: 0.5 px jitter, blobs in 30% of views, 0.5 mrad encoders.
+    pub fn standard() -> NoiseModel {
+        NoiseModel {
+            boundary_jitter_px: 0.5,
+            blob_probability: 0.3,
+            joint_noise_rad: 5e-4,
+        }
+    }
+
+    /// No noise at all.
+    pub fn none() -> NoiseModel {
+        NoiseModel {
+            boundary_jitter_px: 0.0,
+            blob_probability: 0.0,
+            joint_noise_rad: 0.0,
+        }
+    }
+}
+
+/// Scene generator settings.
+#[derive(Clone, Debug)]
+pub struct SynthOptions {
+    /// Number of views.
+    pub views: usize,
+    /// RNG seed.
+    pub seed: u64,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Focal length, pixels.
+    pub focal_px: f64,
+    /// Lens distortion of the simulated camera.
+    pub distortion: Option<[f64; 5]>,
+    /// Segmentation noise.
+    pub noise: NoiseModel,
+    /// Initial-guess error ranges: rotation (deg) and translation (m); `None` writes no guess.
+    pub initial_error: Option<((f64, f64), (f64, f64))>,
+}
+
+impl Default for SynthOptions {
+    fn default() -> Self {
+        SynthOptions {
+            views: 5,
+            seed: 0,
+            width: 640,
+            height: 480,
+            focal_px: 600.0,
+            distortion: None,
+            noise: NoiseModel::standard(),
+            initial_error: Some(((2.0, 6.0), (0.02, 0.08))),
+        }
+    }
+}
+
+/// An in-memory synthetic scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Camera (possibly distorted: masks are in its image).
+    pub camera: Camera,
+    /// True pose.
+    pub camera_from_base: Isometry3<f64>,
+    /// Initial guess, when requested.
+    pub initial_guess: Option<Isometry3<f64>>,
+    /// Joint vectors the robot really had.
+    pub true_joints: Vec<Vec<f64>>,
+    /// Joint vectors as recorded (with encoder noise).
+    pub recorded_joints: Vec<Vec<f64>>,
+    /// Observed masks (with segmentation noise), in the camera's (distorted) image.
+    pub masks: Vec<Mask>,
+}
+
+/// `ground_truth.json`, written beside (never inside) `run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct GroundTruth {
+    /// Always `easyhec-truth/1`.
+    pub format: String,
+    /// True `camera_from_base`.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// True joint vectors per view.
+    pub true_joints: Vec<Vec<f64>>,
+    /// The noise model used.
+    pub noise: NoiseModel,
+    /// The seed.
+    pub seed: u64,
+}
+
+/// A random rigid perturbation with rotation angle and translation length drawn from ranges.
+pub fn perturb(
+    rng: &mut impl Rng,
+    pose: &Isometry3<f64>,
+    rot_deg: (f64, f64),
+    trans_m: (f64, f64),
+) -> Isometry3<f64> {
+    let axis = random_unit(rng);
+    let dir = random_unit(rng);
+    let angle = rng.random_range(rot_deg.0..=rot_deg.1).to_radians();
+    let dist = rng.random_range(trans_m.0..=trans_m.1);
+    // Rotation and translation errors are independent: R' = dR R, t' = t + d.
+    Isometry3::from_parts(
+        nalgebra::Translation3::from(pose.translation.vector + dir * dist),
+        UnitQuaternion::from_scaled_axis(axis * angle) * pose.rotation,
+    )
+}
+
+fn random_unit(rng: &mut impl Rng) -> Vector3<f64> {
+    let n = Normal::new(0.0, 1.0).expect("valid");
+    loop {
+        let v = Vector3::new(n.sample(rng), n.sample(rng), n.sample(rng));
+        if v.norm() > 1e-6 {
+            return v.normalize();
+        }
+    }
+}
+
+/// Robot centre used for aiming: the middle of its visual bounds at the zero pose.
+fn robot_centre(robot: &RobotModel) -> Vector3<f64> {
+    let q = vec![0.0; robot.actuated.len()];
+    let v = robot.posed_vertices(&q);
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for p in &v {
+        lo = lo.inf(&p.coords);
+        hi = hi.sup(&p.coords);
+    }
+    if v.is_empty() {
+        Vector3::zeros()
+    } else {
+        (lo + hi) / 2.0
+    }
+}
+
+fn random_joints(rng: &mut impl Rng, robot: &RobotModel) -> Vec<f64> {
+    robot
+        .joint_limits()
+        .iter()
+        .map(|&(lo, hi)| {
+            let (lo, hi) = (lo.max(-std::f64::consts::PI), hi.min(std::f64::consts::PI));
+            let mid = (lo + hi) / 2.0;
+            let half = (hi - lo) / 2.0 * 0.8;
+            rng.random_range(mid - half..=mid + half)
+        })
+        .collect()
+}
+
+/// Generates a scene in memory.
+pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let camera = Camera {
+        width: opts.width,
+        height: opts.height,
+        fx: opts.focal_px,
+        fy: opts.focal_px * rng.random_range(0.995..1.005),
+        cx: f64::from(opts.width) / 2.0 + rng.random_range(-8.0..8.0),
+        cy: f64::from(opts.height) / 2.0 + rng.random_range(-8.0..8.0),
+        distortion: opts.distortion,
+    };
+    let pinhole = camera.undistorted();
+    let centre = robot_centre(robot);
+    let renderer = CpuRenderer;
+    for _attempt in 0..50 {
+        let distance = rng.random_range(0.9..1.6);
+        let azimuth = rng.random_range(0.0..std::f64::consts::TAU);
+        let elevation = rng.random_range(10f64..50.0).to_radians();
+        let eye = centre
+            + Vector3::new(
+                elevation.cos() * azimuth.cos(),
+                elevation.cos() * azimuth.sin(),
+                elevation.sin(),
+            ) * distance;
+        let aim = centre + random_unit(&mut rng) * rng.random_range(0.0..0.05);
+        let roll = rng.random_range(-10f64..10.0).to_radians();
+        let look = look_at_camera_from_base(&eye, &aim, &Vector3::z());
+        let truth = Isometry3::from_parts(
+            nalgebra::Translation3::identity(),
+            UnitQuaternion::from_scaled_axis(Vector3::z() * roll),
+        ) * look;
+        let mut true_joints = Vec::new();
+        let mut masks = Vec::new();
+        let mut tries = 0;
+        while true_joints.len() < opts.views && tries < 400 {
+            tries += 1;
+            let q = random_joints(&mut rng, robot);
+            let posed = PosedRobot::new(robot, &q);
+            if posed.vertices_base.iter().any(|p| p.z < -0.005) {
+                continue;
+            }
+            let inside = posed
+                .vertices_base
+                .iter()
+                .filter(|p| {
+                    let c = truth * **p;
+                    let x = pinhole.project(&c);
+                    c.z > 0.05
+                        && x[0] >= 2.0
+                        && x[1] >= 2.0
+                        && x[0] <= f64::from(opts.width) - 3.0
+                        && x[1] <= f64::from(opts.height) - 3.0
+                })
+                .count();
+            if (inside as f64) < 0.97 * posed.vertices_base.len() as f64 {
+                continue;
+            }
+            let sil = renderer.render(&posed, &pinhole, &truth, None);
+            if sil.mask.count() < (opts.width * opts.height / 100) as usize {
+                continue;
+            }
+            let noisy = apply_mask_noise(&mut rng, &sil.mask, &opts.noise);
+            masks.push(camera.distort_mask(&noisy));
+            true_joints.push(q);
+        }
+        if true_joints.len() < opts.views {
+            continue;
+        }
+        let jn = Normal::new(0.0, opts.noise.joint_noise_rad.max(1e-300)).expect("valid");
+        let recorded_joints = true_joints
+            .iter()
+            .map(|q| {
+                q.iter()
+                    .map(|v| {
+                        if opts.noise.joint_noise_rad > 0.0 {
+                            v + jn.sample(&mut rng)
+                        } else {
+                            *v
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let initial_guess = opts
+            .initial_error
+            .map(|(r, t)| perturb(&mut rng, &truth, r, t));
+        return Ok(Scene {
+            camera,
+            camera_from_base: truth,
+            initial_guess,
+            true_joints,
+            recorded_joints,
+            masks,
+        });
+    }
+    Err(Error::Solve(format!(
+        "could not place a camera that sees robot '{}' in {} valid poses: the robot may be too large for a {}x{} image at 0.9-1.6 m",
+        robot.name, opts.views, opts.width, opts.height
+    )))
+}
+
+/// Applies boundary jitter and blobs (see module docs).
+pub fn apply_mask_noise(rng: &mut impl Rng, mask: &Mask, noise: &NoiseModel) -> Mask {
+    let mut out = mask.clone();
+    if noise.boundary_jitter_px > 0.0 {
+        let sdf = SignedDistance::of(mask);
+        // Six planar waves; the sum of six unit-amplitude cosines has RMS sqrt(3).
+        let waves: Vec<(f64, f64, f64)> = (0..6)
+            .map(|_| {
+                let angle = rng.random_range(0.0..std::f64::consts::TAU);
+                let k = std::f64::consts::TAU / rng.random_range(8.0..40.0);
+                (
+                    k * angle.cos(),
+                    k * angle.sin(),
+                    rng.random_range(0.0..std::f64::consts::TAU),
+                )
+            })
+            .collect();
+        let amp = noise.boundary_jitter_px / 3f64.sqrt();
+        for v in 0..mask.height {
+            for u in 0..mask.width {
+                let i = (v * mask.width + u) as usize;
+                let d = f64::from(sdf.data[i]);
+                if d.abs() > 4.0 * noise.boundary_jitter_px + 1.0 {
+                    continue;
+                }
+                let field: f64 = waves
+                    .iter()
+                    .map(|(kx, ky, ph)| (kx * f64::from(u) + ky * f64::from(v) + ph).cos())
+                    .sum::<f64>()
+                    * amp;
+                out.data[i] = u8::from(d < field);
+            }
+        }
+    }
+    if noise.blob_probability > 0.0 && rng.random_bool(noise.blob_probability.clamp(0.0, 1.0)) {
+        let boundary: Vec<(u32, u32)> = (0..mask.height)
+            .flat_map(|v| (0..mask.width).map(move |u| (u, v)))
+            .filter(|&(u, v)| {
+                mask.get(i64::from(u), i64::from(v)) && !mask.get(i64::from(u) + 1, i64::from(v))
+            })
+            .collect();
+        if !boundary.is_empty() {
+            for _ in 0..rng.random_range(1..=2) {
+                let (bu, bv) = boundary[rng.random_range(0..boundary.len())];
+                let (ra, rb) = (rng.random_range(3.0..12.0), rng.random_range(3.0..12.0));
+                let (cu, cv) = (
+                    f64::from(bu) + rng.random_range(-ra..ra),
+                    f64::from(bv) + rng.random_range(-rb..rb),
+                );
+                let value = rng.random_bool(0.5);
+                for v in
+                    (cv - rb).floor().max(0.0) as u32..((cv + rb).ceil() as u32).min(mask.height)
+                {
+                    for u in
+                        (cu - ra).floor().max(0.0) as u32..((cu + ra).ceil() as u32).min(mask.width)
+                    {
+                        let (du, dv) = ((f64::from(u) - cu) / ra, (f64::from(v) - cv) / rb);
+                        if du * du + dv * dv <= 1.0 {
+                            out.set(u, v, value);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Writes a scene as an `easyhec-run/1` directory plus `ground_truth.json`.
+pub fn write_scene(
+    scene: &Scene,
+    robot_entry: RobotEntry,
+    out: &Path,
+    seed: u64,
+    noise: &NoiseModel,
+) -> Result<()> {
+    std::fs::create_dir_all(out.join("views"))
+        .map_err(|e| Error::io(out, format!("cannot create run folder: {e}")))?;
+    let mut views = Vec::new();
+    for (i, (mask, q)) in scene.masks.iter().zip(&scene.recorded_joints).enumerate() {
+        let rel = format!("views/{i:03}.mask.png");
+        write_atomic(&out.join(&rel), &mask.to_png_bytes())?;
+        views.push(ViewEntry {
+            joints: q.clone(),
+            mask: Some(rel),
+            image: None,
+            captured_at: None,
+        });
+    }
+    let c = &scene.camera;
+    let run = RunFile {
+        format: RUN_FORMAT.into(),
+        robot: robot_entry,
+        camera: CameraEntry {
+            width: c.width,
+            height: c.height,
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+            distortion_model: c.distortion.map(|_| "plumb_bob".to_string()),
+            distortion: c.distortion.map(|d| d.to_vec()),
+        },
+        initial_guess: scene.initial_guess.map(|g| PoseEntry {
+            camera_from_base: to_rows(&g),
+        }),
+        views,
+    };
+    write_json_atomic(
+        &out.join("ground_truth.json"),
+        &GroundTruth {
+            format: "easyhec-truth/1".into(),
+            camera_from_base: to_rows(&scene.camera_from_base),
+            true_joints: scene.true_joints.clone(),
+            noise: noise.clone(),
+            seed,
+        },
+    )?;
+    write_json_atomic(&out.join("run.json"), &run)
+}
+
+/// Convenience for tests: a twist-sized perturbation.
+pub fn nudge(pose: &Isometry3<f64>, xi: &Twist) -> Isometry3<f64> {
+    exp_se3(xi) * pose
+}
+
+/// Projects a base-frame point for quick checks.
+pub fn project_point(
+    camera: &Camera,
+    camera_from_base: &Isometry3<f64>,
+    p: &Point3<f64>,
+) -> [f64; 2] {
+    camera.project(&(camera_from_base * p))
+}

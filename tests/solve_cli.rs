@@ -1,0 +1,216 @@
+//! End-to-end: `easyhec synth` then `easyhec solve`, export round-trips, bad input.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::run::ResultFile;
+use easyhec::synth::GroundTruth;
+
+fn synth(out: &Path, extra: &[&str]) {
+    let status = Command::new(common::easyhec_bin())
+        .args(["synth", "--robot"])
+        .arg(common::robot_urdf("xarm6"))
+        .arg("--out")
+        .arg(out)
+        .args(["--views", "3", "--seed", "5"])
+        .args(extra)
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+fn solve(run: &Path, extra: &[&str]) -> std::process::Output {
+    Command::new(common::easyhec_bin())
+        .arg("solve")
+        .arg(run)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn errors(run: &Path) -> (f64, f64) {
+    let truth: GroundTruth =
+        serde_json::from_str(&std::fs::read_to_string(run.join("ground_truth.json")).unwrap())
+            .unwrap();
+    let result = ResultFile::read(&run.join("result.json")).unwrap();
+    let t = from_rows(&truth.camera_from_base).unwrap();
+    (
+        rotation_error_deg(&result.camera_from_base(), &t),
+        translation_error_mm(&result.camera_from_base(), &t),
+    )
+}
+
+#[test]
+fn synth_then_solve_recovers_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &[]);
+    let out = solve(
+        &run,
+        &["--overlays", dir.path().join("ov").to_str().unwrap()],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (rot, trans) = errors(&run);
+    assert!(
+        rot < 0.15 && trans < 1.5,
+        "error {rot:.4} deg {trans:.3} mm"
+    );
+    let result = ResultFile::read(&run.join("result.json")).unwrap();
+    assert_eq!(result.views_used, vec![0, 1, 2]);
+    assert!(
+        result.per_view.iter().all(|v| v.iou > 0.95),
+        "{:?}",
+        result.per_view
+    );
+    let u = result.uncertainty.unwrap();
+    assert!(
+        u.rotation_deg.iter().all(|&s| s > 0.0 && s < 0.5)
+            && u.translation_mm.iter().all(|&s| s > 0.0 && s < 5.0),
+        "{u:?}"
+    );
+    for i in 0..3 {
+        let png = image::open(dir.path().join(format!("ov/{i:03}.overlay.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!((png.width(), png.height()), (640, 480));
+        // Agreement colour dominates a converged overlay.
+        let green = png
+            .pixels()
+            .filter(|p| p.0[1] > p.0[0] + 40 && p.0[1] > p.0[2] + 40)
+            .count();
+        assert!(green > 2000, "view {i}: only {green} agreeing pixels");
+    }
+}
+
+#[test]
+fn synth_is_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    synth(&a, &[]);
+    synth(&b, &[]);
+    for f in [
+        "run.json",
+        "ground_truth.json",
+        "views/000.mask.png",
+        "views/002.mask.png",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f} differs"
+        );
+    }
+}
+
+#[test]
+fn distorted_run_solves_like_an_undistorted_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &["--distortion=-0.25,0.08,0.001,-0.0008,-0.01"]);
+    let out = solve(&run, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (rot, trans) = errors(&run);
+    assert!(
+        rot < 0.15 && trans < 1.5,
+        "distorted run: error {rot:.4} deg {trans:.3} mm"
+    );
+}
+
+#[test]
+fn exports_parse_back_to_the_same_transform() {
+    let dir = tempfile::tempdir().unwrap();
+    let pose = easyhec::geometry::exp_se3(&easyhec::geometry::Twist::new(
+        0.3, -0.2, 1.1, 0.5, -1.2, 2.0,
+    ));
+    let result = ResultFile::new(&pose, "link_base");
+    let path = dir.path().join("result.json");
+    easyhec::io::write_json_atomic(&path, &result).unwrap();
+    let export = |fmt: &str| {
+        let out = Command::new(common::easyhec_bin())
+            .arg("export")
+            .arg(&path)
+            .args(["--format", fmt])
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let base_from_camera = pose.inverse();
+    let check = |t: [f64; 3], q: [f64; 4], what: &str| {
+        let got = nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::new(t[0], t[1], t[2]),
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                q[3], q[0], q[1], q[2],
+            )),
+        );
+        assert!(
+            rotation_error_deg(&got, &base_from_camera) < 1e-6
+                && translation_error_mm(&got, &base_from_camera) < 1e-6,
+            "{what}"
+        );
+    };
+    // OpenCV YAML (strip the %YAML directive line that serde_yaml does not take).
+    let cv = export("opencv");
+    let body: String = cv
+        .lines()
+        .filter(|l| !l.starts_with('%') && !l.starts_with("---"))
+        .collect::<Vec<_>>()
+        .join("\n")
+        .replace("!!opencv-matrix", "");
+    let y: serde_yaml::Value = serde_yaml::from_str(&body).unwrap();
+    let data: Vec<f64> = y["camera_from_base"]["data"]
+        .as_sequence()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let rows = [0, 1, 2, 3].map(|r| [0, 1, 2, 3].map(|c| data[r * 4 + c]));
+    let m = from_rows(&rows).unwrap();
+    assert!(rotation_error_deg(&m, &pose) < 1e-8 && translation_error_mm(&m, &pose) < 1e-6);
+    // ROS tf YAML.
+    let y: serde_yaml::Value = serde_yaml::from_str(&export("ros")).unwrap();
+    let tr = &y["transform"]["translation"];
+    let ro = &y["transform"]["rotation"];
+    check(
+        [
+            tr["x"].as_f64().unwrap(),
+            tr["y"].as_f64().unwrap(),
+            tr["z"].as_f64().unwrap(),
+        ],
+        ["x", "y", "z", "w"].map(|k| ro[k].as_f64().unwrap()),
+        "ros",
+    );
+    assert_eq!(y["header"]["frame_id"].as_str(), Some("link_base"));
+    // easy_handeye YAML.
+    let y: serde_yaml::Value = serde_yaml::from_str(&export("easy-handeye")).unwrap();
+    let t = &y["transformation"];
+    check(
+        ["x", "y", "z"].map(|k| t[k].as_f64().unwrap()),
+        ["qx", "qy", "qz", "qw"].map(|k| t[k].as_f64().unwrap()),
+        "easy_handeye",
+    );
+    assert_eq!(y["eye_on_hand"].as_bool(), Some(false));
+    // URDF snippet: parse the joint origin back.
+    let urdf = export("urdf");
+    let robot = urdf_rs::read_from_string(&format!(
+        "<robot name=\"r\"><link name=\"link_base\"/>{urdf}</robot>"
+    ))
+    .unwrap();
+    let o = &robot.joints[0].origin;
+    let got = easyhec::geometry::from_xyz_rpy(o.xyz.0, o.rpy.0);
+    assert!(
+        rotation_error_deg(&got, &base_from_camera) < 1e-6
+            && translation_error_mm(&got, &base_from_camera) < 1e-6
+    );
+}
