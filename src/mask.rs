@@ -64,6 +64,25 @@ impl Mask {
             + fy * ((1.0 - fx) * g(u, v + 1) + fx * g(u + 1, v + 1))
     }
 
+    /// Mid-points between 4-adjacent pixel centres where the mask changes: the outline's
+    /// crossings of the pixel grid, as the observed side of the boundary residual uses them.
+    pub fn outline_crossings(&self) -> Vec<[f64; 2]> {
+        let (w, h) = (i64::from(self.width), i64::from(self.height));
+        let mut out = Vec::new();
+        for v in 0..h {
+            for u in 0..w {
+                let here = self.get(u, v);
+                if u + 1 < w && self.get(u + 1, v) != here {
+                    out.push([u as f64 + 0.5, v as f64]);
+                }
+                if v + 1 < h && self.get(u, v + 1) != here {
+                    out.push([u as f64, v as f64 + 0.5]);
+                }
+            }
+        }
+        out
+    }
+
     /// Number of robot pixels.
     pub fn count(&self) -> usize {
         self.data.iter().filter(|&&v| v != 0).count()

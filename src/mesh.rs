@@ -74,7 +74,8 @@ impl TriMesh {
         mesh
     }
 
-    fn build_edges(&mut self) {
+    /// Recomputes `edges` from `triangles`.
+    pub fn build_edges(&mut self) {
         let mut slot: HashMap<(u32, u32), usize> = HashMap::with_capacity(self.triangles.len() * 2);
         let mut edges: Vec<Edge> = Vec::with_capacity(self.triangles.len() * 3 / 2);
         let mut count: Vec<u8> = Vec::new();

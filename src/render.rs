@@ -57,13 +57,15 @@ impl PosedRobot {
             .copied()
             .collect();
         let vertices_base = mesh.vertices.clone();
+        let mut topology = TriMesh {
+            vertices: mesh.vertices,
+            triangles,
+            edges: Vec::new(),
+        };
+        topology.build_edges();
         PosedRobot {
             vertices_base,
-            topology: Arc::new(TriMesh {
-                vertices: mesh.vertices,
-                triangles,
-                edges: Vec::new(),
-            }),
+            topology: Arc::new(topology),
         }
     }
 }
@@ -79,7 +81,15 @@ pub struct BoundarySample {
     pub normal: [f64; 2],
     /// Outline length this sample stands for, pixels.
     pub length_px: f64,
+    /// Which grid segment the outline crosses here: [`ROW_CROSSING`] (between horizontally
+    /// adjacent pixel centres) or [`COLUMN_CROSSING`].
+    pub axis: u8,
 }
+
+/// [`BoundarySample::axis`] of a crossing between horizontally adjacent pixel centres.
+pub const ROW_CROSSING: u8 = 0;
+/// [`BoundarySample::axis`] of a crossing between vertically adjacent pixel centres.
+pub const COLUMN_CROSSING: u8 = 1;
 
 impl BoundarySample {
     /// 2x6 derivative of the sample's pixel position with respect to a left se(3) increment
@@ -227,9 +237,15 @@ pub fn project_vertices(
 
 /// Rasterises the union silhouette from projected vertices.
 pub fn rasterize(topology: &TriMesh, pixels: &[[f64; 2]], width: u32, height: u32) -> Mask {
+    // One chunk per thread: each chunk costs a full-image buffer and an OR pass.
+    let chunk = topology
+        .triangles
+        .len()
+        .div_ceil(rayon::current_num_threads())
+        .max(RASTER_CHUNK);
     topology
         .triangles
-        .par_chunks(RASTER_CHUNK)
+        .par_chunks(chunk)
         .fold(
             || Mask::new(width, height),
             |mut m, tris| {
@@ -337,24 +353,28 @@ pub fn outline_samples(
             let (qa, qb) = (points_camera[e.a as usize], points_camera[e.b as usize]);
             let ds = 1.0 / (n[0].abs() + n[1].abs());
             let stride = step_px.round().max(1.0) as i64;
-            let mut emit =
-                |t: f64, x: [f64; 2], outside: (i64, i64), slot: i64, normal: [f64; 2]| {
-                    // Perspective-correct parameter along the 3D edge.
-                    let s = t * qa.z / ((1.0 - t) * qb.z + t * qa.z);
-                    let p = qa + (qb - qa) * s;
-                    let to_outside =
-                        (x[0] - outside.0 as f64).abs() + (x[1] - outside.1 as f64).abs();
-                    out.push(Crossing {
-                        slot: slot as u32,
-                        to_outside,
-                        sample: BoundarySample {
-                            pixel: x,
-                            point_camera: p,
-                            normal,
-                            length_px: ds * stride as f64,
-                        },
-                    });
-                };
+            let mut emit = |t: f64,
+                            x: [f64; 2],
+                            outside: (i64, i64),
+                            slot: i64,
+                            normal: [f64; 2],
+                            axis: u8| {
+                // Perspective-correct parameter along the 3D edge.
+                let s = t * qa.z / ((1.0 - t) * qb.z + t * qa.z);
+                let p = qa + (qb - qa) * s;
+                let to_outside = (x[0] - outside.0 as f64).abs() + (x[1] - outside.1 as f64).abs();
+                out.push(Crossing {
+                    slot: slot as u32,
+                    to_outside,
+                    sample: BoundarySample {
+                        pixel: x,
+                        point_camera: p,
+                        normal,
+                        length_px: ds * stride as f64,
+                        axis,
+                    },
+                });
+            };
             // Row crossings: y = integer between the endpoints.
             let thin = |i: i64| i % stride == 0;
             if d[1].abs() > 1e-12 {
@@ -393,7 +413,14 @@ pub fn outline_samples(
                     if normal[0] * toward <= 0.0 {
                         continue;
                     }
-                    emit(t, [xc, y as f64], outside, y * (w - 1) + u, normal);
+                    emit(
+                        t,
+                        [xc, y as f64],
+                        outside,
+                        y * (w - 1) + u,
+                        normal,
+                        ROW_CROSSING,
+                    );
                 }
             }
             if d[0].abs() > 1e-12 {
@@ -432,7 +459,14 @@ pub fn outline_samples(
                     if normal[1] * toward <= 0.0 {
                         continue;
                     }
-                    emit(t, [x as f64, yc], outside, row_slots + v * w + x, normal);
+                    emit(
+                        t,
+                        [x as f64, yc],
+                        outside,
+                        row_slots + v * w + x,
+                        normal,
+                        COLUMN_CROSSING,
+                    );
                 }
             }
             out.into_iter()

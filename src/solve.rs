@@ -15,9 +15,9 @@ use rayon::prelude::*;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::{exp_se3, skew, Twist};
-use crate::mask::{Mask, SignedDistance};
+use crate::mask::Mask;
 use crate::objective::{loss_gradient, mask_loss};
-use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::render::{BoundarySample, PosedRobot, SilhouetteRenderer, ROW_CROSSING};
 
 /// One observation: the robot posed at the view's joints and the observed mask in the
 /// undistorted pinhole image.
@@ -59,8 +59,12 @@ pub struct SolveOptions {
     pub pyramid: Vec<u32>,
     /// Iteration cap per pyramid level (LM).
     pub max_iterations_per_level: usize,
-    /// Cauchy scale of the boundary residual, pixels of the level's image (LM).
+    /// Cauchy scale of the boundary residual at coarse levels, pixels of the level's image
+    /// (LM): wide enough to pull in a rough start.
     pub robust_scale_px: f64,
+    /// Cauchy scale at full resolution (LM): tight, so segmentation noise and blobs lose
+    /// their pull (chosen by `easyhec bench accuracy`).
+    pub fine_robust_scale_px: f64,
     /// Outline sample spacing, pixels.
     pub boundary_step_px: f64,
     /// Adam steps.
@@ -74,6 +78,9 @@ pub struct SolveOptions {
     pub recover_below_iou: f64,
     /// Seed of the coarse search.
     pub search_seed: u64,
+    /// Vertex-clustering cell at coarse pyramid levels, as a fraction of the level's pixel
+    /// footprint at 1 m.
+    pub coarse_cell_fraction: f64,
 }
 
 impl Default for SolveOptions {
@@ -83,12 +90,14 @@ impl Default for SolveOptions {
             pyramid: vec![8, 4, 2, 1],
             max_iterations_per_level: 25,
             robust_scale_px: 2.0,
+            fine_robust_scale_px: 0.5,
             boundary_step_px: 1.0,
             adam_steps: 1000,
             adam_learning_rate: 3e-3,
-            correlation_length_px: 4.0,
+            correlation_length_px: 16.0,
             recover_below_iou: 0.8,
             search_seed: 0,
+            coarse_cell_fraction: 0.3,
         }
     }
 }
@@ -123,7 +132,88 @@ pub struct SolveReport {
 
 struct Level {
     camera: Camera,
-    sdf: Vec<SignedDistance>,
+    /// Cauchy scale at this level, pixels.
+    robust_scale_px: f64,
+    views: Vec<ObservedLevel>,
+}
+
+/// How far along a pixel row/column the observed transition is searched, pixels.
+const SCAN_REACH_PX: i64 = 12;
+
+/// Signed distance (outward positive, in the outline-normal direction) from a rendered outline
+/// crossing to the nearest observed transition of the same sense on the same pixel row or
+/// column; `None` when there is none within `reach` pixels.
+fn scanline_residual(observed: &Mask, s: &BoundarySample, reach: i64) -> Option<f64> {
+    let (along, normal_along, fixed) = if s.axis == ROW_CROSSING {
+        (s.pixel[0], s.normal[0], s.pixel[1].round() as i64)
+    } else {
+        (s.pixel[1], s.normal[1], s.pixel[0].round() as i64)
+    };
+    let dir: i64 = if normal_along >= 0.0 { 1 } else { -1 };
+    let at = |k: i64| {
+        if s.axis == ROW_CROSSING {
+            observed.get(k, fixed)
+        } else {
+            observed.get(fixed, k)
+        }
+    };
+    let (w, h) = (i64::from(observed.width), i64::from(observed.height));
+    let limit = if s.axis == ROW_CROSSING { w } else { h };
+    let base = along.floor() as i64;
+    let mut best: Option<f64> = None;
+    for offset in 0..=reach {
+        for k in [base + offset, base - offset] {
+            // Transition between k and k+1, robot on the inner side (opposite `dir`).
+            if k < 0 || k + 1 >= limit {
+                continue;
+            }
+            let (inner, outer) = if dir > 0 { (k, k + 1) } else { (k + 1, k) };
+            if at(inner) && !at(outer) {
+                let x = k as f64 + 0.5;
+                let d = (along - x) * f64::from(dir as i32);
+                if best.is_none_or(|b: f64| d.abs() < b.abs()) {
+                    best = Some(d);
+                }
+            }
+        }
+        if best.is_some() {
+            break;
+        }
+    }
+    best.map(|d| d * normal_along.abs())
+}
+
+/// One view's observation at one pyramid level.
+struct ObservedLevel {
+    mask: Mask,
+    /// Observed outline crossings: position, outline length they stand for.
+    outline: Vec<([f64; 2], f64)>,
+}
+
+impl ObservedLevel {
+    fn new(observed: &Mask, factor: u32) -> ObservedLevel {
+        let mask = observed.downsample(factor);
+        let outline = mask
+            .outline_crossings()
+            .into_iter()
+            .map(|x| {
+                // Outline normal from a 3x3 Sobel of the mask around the crossing; a crossing
+                // stands for 1 / (|n_x| + |n_y|) px of outline (see `render::outline_samples`).
+                let (u, v) = (x[0].round() as i64, x[1].round() as i64);
+                let m = |du: i64, dv: i64| f64::from(u8::from(mask.get(u + du, v + dv)));
+                let gx = m(1, -1) + 2.0 * m(1, 0) + m(1, 1) - m(-1, -1) - 2.0 * m(-1, 0) - m(-1, 1);
+                let gy = m(-1, 1) + 2.0 * m(0, 1) + m(1, 1) - m(-1, -1) - 2.0 * m(0, -1) - m(1, -1);
+                let norm = gx.hypot(gy);
+                let ds = if norm > 0.0 {
+                    norm / (gx.abs() + gy.abs())
+                } else {
+                    1.0
+                };
+                (x, ds)
+            })
+            .collect();
+        ObservedLevel { mask, outline }
+    }
 }
 
 struct Normal {
@@ -134,6 +224,117 @@ struct Normal {
     length: f64,
 }
 
+impl Normal {
+    fn zero() -> Normal {
+        Normal {
+            cost: 0.0,
+            h: Matrix6::zeros(),
+            g: Twist::zeros(),
+            weighted_sq: 0.0,
+            length: 0.0,
+        }
+    }
+
+    /// Adds one Cauchy-weighted residual `r` with Jacobian `j` standing for `ds` px of outline.
+    #[inline]
+    fn add(&mut self, r: f64, j: &Twist, ds: f64, c: f64) {
+        let u = (r / c) * (r / c);
+        let (w, cost) = (1.0 / (1.0 + u), 0.5 * c * c * (1.0 + u).ln());
+        self.cost += ds * cost;
+        self.h += j * j.transpose() * (w * ds);
+        self.g += j * (w * r * ds);
+        self.weighted_sq += w * r * r * ds;
+        self.length += ds;
+    }
+
+    /// A residual beyond the search reach: costs the capped amount, pulls nothing.
+    #[inline]
+    fn add_outlier(&mut self, cap: f64, ds: f64, c: f64) {
+        let u = (cap / c) * (cap / c);
+        self.cost += ds * 0.5 * c * c * (1.0 + u).ln();
+    }
+
+    fn merge(mut self, o: Normal) -> Normal {
+        self.cost += o.cost;
+        self.h += o.h;
+        self.g += o.g;
+        self.weighted_sq += o.weighted_sq;
+        self.length += o.length;
+        self
+    }
+}
+
+/// Bucket grid over the rendered outline samples for nearest-sample queries.
+struct SampleGrid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    starts: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl SampleGrid {
+    fn new(samples: &[BoundarySample], width: u32, height: u32, cell: f64) -> SampleGrid {
+        let cols = (f64::from(width) / cell).ceil() as usize + 1;
+        let rows = (f64::from(height) / cell).ceil() as usize + 1;
+        let key = |s: &BoundarySample| {
+            let cx = ((s.pixel[0] + 0.5) / cell)
+                .floor()
+                .clamp(0.0, (cols - 1) as f64) as usize;
+            let cy = ((s.pixel[1] + 0.5) / cell)
+                .floor()
+                .clamp(0.0, (rows - 1) as f64) as usize;
+            cy * cols + cx
+        };
+        let mut counts = vec![0u32; cols * rows + 1];
+        for s in samples {
+            counts[key(s) + 1] += 1;
+        }
+        for i in 1..counts.len() {
+            counts[i] += counts[i - 1];
+        }
+        let mut fill = counts.clone();
+        let mut items = vec![0u32; samples.len()];
+        for (i, s) in samples.iter().enumerate() {
+            let k = key(s);
+            items[fill[k] as usize] = i as u32;
+            fill[k] += 1;
+        }
+        SampleGrid {
+            cell,
+            cols,
+            rows,
+            starts: counts,
+            items,
+        }
+    }
+
+    /// Nearest sample within `reach` cells of `p`.
+    fn nearest(&self, samples: &[BoundarySample], p: [f64; 2], reach: i64) -> Option<usize> {
+        let cx = ((p[0] + 0.5) / self.cell).floor() as i64;
+        let cy = ((p[1] + 0.5) / self.cell).floor() as i64;
+        let mut best = (f64::INFINITY, None);
+        for y in (cy - reach).max(0)..=(cy + reach).min(self.rows as i64 - 1) {
+            for x in (cx - reach).max(0)..=(cx + reach).min(self.cols as i64 - 1) {
+                let k = y as usize * self.cols + x as usize;
+                for &i in &self.items[self.starts[k] as usize..self.starts[k + 1] as usize] {
+                    let s = &samples[i as usize];
+                    let d = (s.pixel[0] - p[0]).powi(2) + (s.pixel[1] - p[1]).powi(2);
+                    if d < best.0 {
+                        best = (d, Some(i as usize));
+                    }
+                }
+            }
+        }
+        best.1
+    }
+}
+
+/// Outline grid cell, pixels of the level's image.
+const GRID_CELL_PX: f64 = 8.0;
+/// Search reach of the observed→rendered match, cells (beyond it a residual counts as the cap).
+const GRID_REACH: i64 = 2;
+
 fn accumulate(
     renderer: &dyn SilhouetteRenderer,
     views: &[View],
@@ -141,60 +342,57 @@ fn accumulate(
     pose: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Normal {
-    let parts: Vec<Normal> = views
+    let c = level.robust_scale_px;
+    let cap = GRID_CELL_PX * GRID_REACH as f64;
+    views
         .par_iter()
-        .zip(&level.sdf)
-        .map(|(view, sdf)| {
+        .zip(&level.views)
+        .map(|(view, obs)| {
             let sil = renderer.render(
                 &view.robot,
                 &level.camera,
                 pose,
                 Some(opts.boundary_step_px),
             );
-            let c = opts.robust_scale_px;
-            let mut n = Normal {
-                cost: 0.0,
-                h: Matrix6::zeros(),
-                g: Twist::zeros(),
-                weighted_sq: 0.0,
-                length: 0.0,
-            };
+            let mut n = Normal::zero();
+            let mut jacobians = Vec::with_capacity(sil.boundary.len());
+            // Rendered outline -> observed outline along the same pixel row (or column): the
+            // observed transition of the same sense nearest the rendered crossing. Both sit on
+            // the same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).
             for s in &sil.boundary {
-                let Some((r, grad)) = sdf.sample(s.pixel[0], s.pixel[1]) else {
-                    continue;
-                };
                 let jp = s.pixel_jacobian(&level.camera);
-                let j = (jp.row(0) * grad[0] + jp.row(1) * grad[1]).transpose();
-                let u = (r / c) * (r / c);
-                let w = 1.0 / (1.0 + u);
-                let ds = s.length_px;
-                n.cost += ds * 0.5 * c * c * (1.0 + u).ln();
-                n.h += j * j.transpose() * (w * ds);
-                n.g += j * (w * r * ds);
-                n.weighted_sq += w * r * r * ds;
-                n.length += ds;
+                let jn = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+                jacobians.push(jn);
+                match scanline_residual(&obs.mask, s, SCAN_REACH_PX) {
+                    Some(r) => n.add(r, &jn, s.length_px, c),
+                    None => n.add_outlier(SCAN_REACH_PX as f64, s.length_px, c),
+                }
+            }
+            // Observed outline -> rendered outline: signed distance to the tangent of the
+            // nearest rendered sample; keeps the render from sliding out of view or shrinking.
+            let grid = SampleGrid::new(
+                &sil.boundary,
+                level.camera.width,
+                level.camera.height,
+                GRID_CELL_PX,
+            );
+            for &(y, ds) in &obs.outline {
+                match grid.nearest(&sil.boundary, y, GRID_REACH) {
+                    Some(i) => {
+                        let s = &sil.boundary[i];
+                        let r =
+                            s.normal[0] * (y[0] - s.pixel[0]) + s.normal[1] * (y[1] - s.pixel[1]);
+                        n.add(r, &(-jacobians[i]), ds, c);
+                    }
+                    None => n.add_outlier(cap, ds, c),
+                }
             }
             n
         })
-        .collect();
-    let mut total = Normal {
-        cost: 0.0,
-        h: Matrix6::zeros(),
-        g: Twist::zeros(),
-        weighted_sq: 0.0,
-        length: 0.0,
-    };
-    for p in parts {
-        total.cost += p.cost;
-        total.h += p.h;
-        total.g += p.g;
-        total.weighted_sq += p.weighted_sq;
-        total.length += p.length;
-    }
-    total
+        .reduce(Normal::zero, Normal::merge)
 }
 
-fn mean_cost(n: &Normal) -> f64 {
+fn total_cost(n: &Normal) -> f64 {
     if n.length > 0.0 {
         n.cost / n.length
     } else {
@@ -313,18 +511,41 @@ fn solve_lm(
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Result<(Isometry3<f64>, usize, Vec<Isometry3<f64>>)> {
+    let debug = std::env::var_os("EASYHEC_DEBUG").is_some();
     let mut pose = *initial;
     let mut iterations = 0;
     let mut trajectory = vec![pose];
     for &factor in &opts.pyramid {
+        let started = std::time::Instant::now();
         let level = Level {
             camera: camera.downsampled(factor),
-            sdf: views
+            robust_scale_px: if factor == 1 {
+                opts.fine_robust_scale_px
+            } else {
+                opts.robust_scale_px
+            },
+            views: views
                 .par_iter()
-                .map(|v| SignedDistance::of(&v.observed.downsample(factor)))
+                .map(|v| ObservedLevel::new(&v.observed, factor))
                 .collect(),
         };
-        let mut current = accumulate(renderer, views, &level, &pose, opts);
+        // Coarse levels see the robot through big pixels: a mesh clustered to a fraction of a
+        // pixel renders the same silhouette at a fraction of the cost.
+        let cell_m = opts.coarse_cell_fraction * f64::from(factor) / camera.fx.max(camera.fy);
+        let decimated: Vec<View>;
+        let level_views: &[View] = if factor > 1 && cell_m > 1e-3 {
+            decimated = views
+                .par_iter()
+                .map(|v| View {
+                    robot: v.robot.decimated(cell_m),
+                    observed: Mask::new(1, 1),
+                })
+                .collect();
+            &decimated
+        } else {
+            views
+        };
+        let mut current = accumulate(renderer, level_views, &level, &pose, opts);
         iterations += 1;
         if current.length == 0.0 {
             return Err(Error::Solve(
@@ -332,6 +553,9 @@ fn solve_lm(
             ));
         }
         let mut lambda = 1e-4;
+        let mut level_iterations = 0;
+        // Steps below ~1/100 pixel of the level are noise.
+        let tolerance = 1e-5 * f64::from(factor);
         for _ in 0..opts.max_iterations_per_level {
             let mut a = current.h;
             for k in 0..6 {
@@ -342,16 +566,17 @@ fn solve_lm(
                 continue;
             };
             let candidate = exp_se3(&step) * pose;
-            let next = accumulate(renderer, views, &level, &candidate, opts);
+            let next = accumulate(renderer, level_views, &level, &candidate, opts);
             iterations += 1;
-            if next.length > 0.0 && mean_cost(&next) <= mean_cost(&current) {
+            level_iterations += 1;
+            if next.length > 0.0 && total_cost(&next) <= total_cost(&current) {
                 pose = candidate;
                 current = next;
                 trajectory.push(pose);
                 lambda = (lambda / 3.0).max(1e-7);
                 let rot = step.fixed_rows::<3>(3).norm();
                 let trans = step.fixed_rows::<3>(0).norm();
-                if rot < 2e-6 && trans < 2e-6 {
+                if rot < tolerance && trans < tolerance {
                     break;
                 }
             } else {
@@ -361,20 +586,11 @@ fn solve_lm(
                 }
             }
         }
-        if std::env::var_os("EASYHEC_DEBUG").is_some() {
-            let iou: f64 = views
-                .iter()
-                .map(|v| {
-                    renderer
-                        .render(&v.robot, &level.camera, &pose, None)
-                        .mask
-                        .iou(&v.observed.downsample(factor))
-                })
-                .sum::<f64>()
-                / views.len() as f64;
+        if debug {
             eprintln!(
-                "level {factor}: mean cost {:.3} length {:.0} iou {iou:.3} lambda {lambda:.1e}",
-                mean_cost(&current),
+                "level {factor}: {level_iterations} iterations, {:.3} s, cost {:.1} over {:.0} px of outline",
+                started.elapsed().as_secs_f64(),
+                total_cost(&current),
                 current.length
             );
         }
@@ -433,9 +649,10 @@ fn finish(
 ) -> Result<SolveReport> {
     let level = Level {
         camera: camera.clone(),
-        sdf: views
+        robust_scale_px: opts.fine_robust_scale_px,
+        views: views
             .par_iter()
-            .map(|v| SignedDistance::of(&v.observed))
+            .map(|v| ObservedLevel::new(&v.observed, 1))
             .collect(),
     };
     let n = accumulate(renderer, views, &level, &pose, opts);
