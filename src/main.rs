@@ -286,7 +286,12 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
     let out = a.out.unwrap_or_else(|| run.dir.join("result.json"));
     easyhec::io::write_json_atomic(&out, &result)?;
     let mean_iou = report.per_view_iou.iter().sum::<f64>() / report.per_view_iou.len() as f64;
-    let poor: Vec<usize> = order.iter().zip(&report.per_view_iou).filter(|(_, &iou)| iou < 0.8).map(|(&v, _)| v).collect();
+    let poor: Vec<usize> = order
+        .iter()
+        .zip(&report.per_view_iou)
+        .filter(|(_, &iou)| iou < 0.8)
+        .map(|(&v, _)| v)
+        .collect();
     if !poor.is_empty() {
         eprintln!(
             "warning: views {poor:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF"
