@@ -189,30 +189,54 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
         return;
     }
     let s = area.signum();
-    let edges = [(a, b), (b, c), (c, a)];
+    // Edge functions E(x, y) = ka x + kb y + kc, >= 0 inside (for either winding).
+    let edge = |p: [f64; 2], q: [f64; 2]| {
+        let (ex, ey) = (q[0] - p[0], q[1] - p[1]);
+        [-s * ey, s * ex, s * (ey * p[0] - ex * p[1])]
+    };
+    let e = [edge(a, b), edge(b, c), edge(c, a)];
     let width = mask.width as usize;
-    let mut y = ymin;
-    while y <= ymax {
+    let (x0, x1, y0, y1) = (xmin as usize, xmax as usize, ymin as usize, ymax as usize);
+    if x1 - x0 <= 4 {
+        // Small triangles (most of a robot mesh): test pixel centres directly.
+        for y in y0..=y1 {
+            let yf = y as f64;
+            let row = y * width;
+            let base = [
+                e[0][1] * yf + e[0][2],
+                e[1][1] * yf + e[1][2],
+                e[2][1] * yf + e[2][2],
+            ];
+            for x in x0..=x1 {
+                let xf = x as f64;
+                if e[0][0] * xf + base[0] >= 0.0
+                    && e[1][0] * xf + base[1] >= 0.0
+                    && e[2][0] * xf + base[2] >= 0.0
+                {
+                    mask.data[row + x] = 1;
+                }
+            }
+        }
+        return;
+    }
+    for y in y0..=y1 {
+        let yf = y as f64;
         let (mut lo, mut hi) = (xmin, xmax);
-        for (p, q) in &edges {
-            // Inside: s * ((q-p) x (pt-p)) >= 0, linear in x: A + B x >= 0.
-            let ex = q[0] - p[0];
-            let ey = q[1] - p[1];
-            let a0 = s * (ex * (y - p[1]) + ey * p[0]);
-            let b0 = -s * ey;
-            if b0 > 0.0 {
-                lo = lo.max((-a0 / b0).ceil());
-            } else if b0 < 0.0 {
-                hi = hi.min((-a0 / b0).floor());
-            } else if a0 < 0.0 {
+        for k in &e {
+            // k0 x + (k1 y + k2) >= 0.
+            let rest = k[1] * yf + k[2];
+            if k[0] > 0.0 {
+                lo = lo.max((-rest / k[0]).ceil());
+            } else if k[0] < 0.0 {
+                hi = hi.min((-rest / k[0]).floor());
+            } else if rest < 0.0 {
                 hi = lo - 1.0;
             }
         }
         if lo <= hi {
-            let row = y as usize * width;
+            let row = y * width;
             mask.data[row + lo as usize..=row + hi as usize].fill(1);
         }
-        y += 1.0;
     }
 }
 

@@ -76,8 +76,14 @@ pub struct SolveOptions {
     pub correlation_length_px: f64,
     /// Below this mean IoU the LM result triggers a wide coarse search and a second solve.
     pub recover_below_iou: f64,
-    /// Seed of the coarse search.
+    /// Seed of the coarse search and the posterior refinement.
     pub search_seed: u64,
+    /// Poses drawn in the posterior refinement after LM (0 or 1 disables it).
+    pub refine_samples: usize,
+    /// Best-scoring samples averaged by the refinement.
+    pub refine_keep: usize,
+    /// Covariance inflation for the refinement's sampling.
+    pub refine_inflation: f64,
     /// Vertex-clustering cell at coarse pyramid levels, as a fraction of the level's pixel
     /// footprint at 1 m.
     pub coarse_cell_fraction: f64,
@@ -97,6 +103,9 @@ impl Default for SolveOptions {
             correlation_length_px: 16.0,
             recover_below_iou: 0.8,
             search_seed: 0,
+            refine_samples: 64,
+            refine_keep: 8,
+            refine_inflation: 4.0,
             coarse_cell_fraction: 0.3,
         }
     }
@@ -417,8 +426,11 @@ pub fn solve(
         Optimizer::Adam => solve_adam(renderer, &camera, views, initial, opts),
     };
     let report = finish(renderer, &camera, views, pose, iterations, trajectory, opts)?;
-    if opts.optimizer == Optimizer::Adam || mean(&report.per_view_iou) >= opts.recover_below_iou {
+    if opts.optimizer == Optimizer::Adam {
         return Ok(report);
+    }
+    if mean(&report.per_view_iou) >= opts.recover_below_iou {
+        return refine(renderer, &camera, views, report, opts);
     }
     // The fast path landed in a poor local minimum (or the guess was rough): search a wide
     // neighbourhood of the guess at low resolution, then refine from the best candidate.
@@ -433,11 +445,261 @@ pub fn solve(
         trajectory,
         opts,
     )?;
-    Ok(if mean(&retry.per_view_iou) > mean(&report.per_view_iou) {
+    let best = if mean(&retry.per_view_iou) > mean(&report.per_view_iou) {
         retry
     } else {
         report
-    })
+    };
+    refine(renderer, &camera, views, best, opts)
+}
+
+/// Largest band half-width (pixels) the refinement accepts; beyond it the posterior is too wide
+/// for a local refinement and the LM estimate stands.
+const REFINE_BAND_PX: i64 = 8;
+
+/// Largest image displacement of any robot bounding-box corner, over all views and offsets.
+fn max_displacement_px(
+    camera: &Camera,
+    views: &[View],
+    centre: &Isometry3<f64>,
+    offsets: &[Twist],
+) -> f64 {
+    let mut worst: f64 = 0.0;
+    for v in views {
+        let (mut lo, mut hi) = (
+            nalgebra::Point3::new(f64::MAX, f64::MAX, f64::MAX),
+            nalgebra::Point3::new(f64::MIN, f64::MIN, f64::MIN),
+        );
+        for p in &v.robot.vertices_base {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        for k in 0..8 {
+            let c = nalgebra::Point3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p0 = centre * c;
+            if p0.z <= 0.0 {
+                continue;
+            }
+            let x0 = camera.project(&p0);
+            for xi in offsets {
+                let p = exp_se3(xi) * p0;
+                if p.z > 0.0 {
+                    let x = camera.project(&p);
+                    worst = worst.max((x[0] - x0[0]).hypot(x[1] - x0[1]));
+                }
+            }
+        }
+    }
+    worst
+}
+
+/// The part of a view that poses near `centre` can change: pixels within `radius` of the
+/// rendered outline, and the triangles whose (dilated) bounds touch them.
+struct Band {
+    pixels: Vec<u32>,
+    robot: PosedRobot,
+    /// Disagreeing pixels outside the band (constant for nearby poses).
+    outside_wrong: usize,
+}
+
+impl Band {
+    fn new(
+        renderer: &dyn SilhouetteRenderer,
+        camera: &Camera,
+        view: &View,
+        centre: &Isometry3<f64>,
+        radius: i64,
+    ) -> Band {
+        let rendered = renderer.render(&view.robot, camera, centre, None).mask;
+        let (w, h) = (i64::from(camera.width), i64::from(camera.height));
+        // Band = pixels within `radius` (Chebyshev) of a rendered outline pixel.
+        let mut band = vec![0u8; (w * h) as usize];
+        for v in 0..h {
+            for u in 0..w {
+                let here = rendered.get(u, v);
+                let edge = (u + 1 < w && rendered.get(u + 1, v) != here)
+                    || (v + 1 < h && rendered.get(u, v + 1) != here);
+                if edge {
+                    for dv in (v - radius).max(0)..=(v + radius).min(h - 1) {
+                        let row = (dv * w) as usize;
+                        band[row + (u - radius).max(0) as usize
+                            ..=row + (u + radius).min(w - 1) as usize]
+                            .fill(1);
+                    }
+                }
+            }
+        }
+        // Summed-area table for rectangle queries.
+        let stride = (w + 1) as usize;
+        let mut sat = vec![0u32; stride * (h + 1) as usize];
+        for v in 0..h as usize {
+            let mut run = 0u32;
+            for u in 0..w as usize {
+                run += u32::from(band[v * w as usize + u]);
+                sat[(v + 1) * stride + u + 1] = sat[v * stride + u + 1] + run;
+            }
+        }
+        let any = |x0: i64, y0: i64, x1: i64, y1: i64| {
+            let (x0, y0) = (x0.clamp(0, w) as usize, y0.clamp(0, h) as usize);
+            let (x1, y1) = ((x1 + 1).clamp(0, w) as usize, (y1 + 1).clamp(0, h) as usize);
+            x0 < x1
+                && y0 < y1
+                && sat[y1 * stride + x1] + sat[y0 * stride + x0]
+                    > sat[y0 * stride + x1] + sat[y1 * stride + x0]
+        };
+        let (pixels_2d, _) =
+            crate::render::project_vertices(&view.robot.vertices_base, camera, centre);
+        let topology = &view.robot.topology;
+        let triangles: Vec<[u32; 3]> = topology
+            .triangles
+            .iter()
+            .filter(|t| {
+                let p = t.map(|i| pixels_2d[i as usize]);
+                if p.iter().any(|q| q[0].is_nan()) {
+                    return true;
+                }
+                let x0 = p[0][0].min(p[1][0]).min(p[2][0]).floor() as i64 - radius;
+                let x1 = p[0][0].max(p[1][0]).max(p[2][0]).ceil() as i64 + radius;
+                let y0 = p[0][1].min(p[1][1]).min(p[2][1]).floor() as i64 - radius;
+                let y1 = p[0][1].max(p[1][1]).max(p[2][1]).ceil() as i64 + radius;
+                any(x0, y0, x1, y1)
+            })
+            .copied()
+            .collect();
+        let pixels: Vec<u32> = band
+            .iter()
+            .enumerate()
+            .filter(|(_, &b)| b != 0)
+            .map(|(i, _)| i as u32)
+            .collect();
+        let outside_wrong = band
+            .iter()
+            .zip(rendered.data.iter().zip(&view.observed.data))
+            .filter(|(&b, (&r, &o))| b == 0 && (r != 0) != (o != 0))
+            .count();
+        let robot = PosedRobot {
+            vertices_base: view.robot.vertices_base.clone(),
+            topology: std::sync::Arc::new(crate::mesh::TriMesh {
+                vertices: Vec::new(),
+                triangles,
+                edges: Vec::new(),
+            }),
+        };
+        Band {
+            pixels,
+            robot,
+            outside_wrong,
+        }
+    }
+
+    /// The paper's mask loss of one view at `pose` (valid for poses near the band's centre).
+    fn mask_loss(
+        &self,
+        renderer: &dyn SilhouetteRenderer,
+        camera: &Camera,
+        view: &View,
+        pose: &Isometry3<f64>,
+    ) -> f64 {
+        let m = renderer.render(&self.robot, camera, pose, None).mask;
+        let inside_wrong = self
+            .pixels
+            .iter()
+            .filter(|&&i| (m.data[i as usize] != 0) != (view.observed.data[i as usize] != 0))
+            .count();
+        (self.outside_wrong + inside_wrong) as f64 / m.data.len() as f64
+    }
+}
+
+/// Posterior refinement: the mask loss is flat and rough along weakly observed directions
+/// (mostly depth), so its minimiser wanders within that valley. Sample poses from the LM's
+/// Gaussian posterior (inflated), score each by the paper's mask loss over all views, and
+/// average the best few in the tangent space — a cheap posterior mean under the mask loss.
+/// On the benchmark it cuts the median translation error by ~40% (README).
+fn refine(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    views: &[View],
+    report: SolveReport,
+    opts: &SolveOptions,
+) -> Result<SolveReport> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    if opts.refine_samples < 2 {
+        return Ok(report);
+    }
+    let Some(chol) = (report.covariance * opts.refine_inflation).cholesky() else {
+        return Ok(report);
+    };
+    let started = std::time::Instant::now();
+    let centre = report.camera_from_base;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.search_seed);
+    let keep = opts.refine_keep;
+    let offsets: Vec<Twist> = (0..opts.refine_samples)
+        .map(|i| {
+            if i == 0 {
+                Twist::zeros()
+            } else {
+                chol.l() * Twist::from_fn(|_, _| StandardNormal.sample(&mut rng))
+            }
+        })
+        .collect();
+    // The samples move the outline by a pixel or two: only a band around it can change, so
+    // each view is scored on that band with just the triangles that can reach it.
+    let radius = max_displacement_px(camera, views, &centre, &offsets).ceil() as i64 + 1;
+    if radius > REFINE_BAND_PX {
+        // Too uncertain for a local refinement to be meaningful.
+        return Ok(report);
+    }
+    let bands: Vec<Band> = views
+        .par_iter()
+        .map(|v| Band::new(renderer, camera, v, &centre, radius))
+        .collect();
+    let mut scored: Vec<(f64, Twist)> = offsets
+        .par_iter()
+        .map(|xi| {
+            let pose = exp_se3(xi) * centre;
+            let loss: f64 = bands
+                .iter()
+                .zip(views)
+                .map(|(b, v)| b.mask_loss(renderer, camera, v, &pose))
+                .sum();
+            (loss, *xi)
+        })
+        .collect();
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        let tris: usize = bands.iter().map(|b| b.robot.topology.triangles.len()).sum();
+        let px: usize = bands.iter().map(|b| b.pixels.len()).sum();
+        eprintln!(
+            "refine: {} samples, band {tris} triangles, {px} pixels over {} views",
+            offsets.len(),
+            views.len()
+        );
+    }
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let keep = keep.clamp(1, scored.len());
+    let mean_xi = scored[..keep]
+        .iter()
+        .fold(Twist::zeros(), |acc, s| acc + s.1)
+        / keep as f64;
+    let pose = exp_se3(&mean_xi) * centre;
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        eprintln!("refine: {:.3} s", started.elapsed().as_secs_f64());
+    }
+    let mut refined = finish(
+        renderer,
+        camera,
+        views,
+        pose,
+        report.iterations + 1,
+        report.trajectory,
+        opts,
+    )?;
+    refined.iterations = report.iterations + 1;
+    Ok(refined)
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -556,7 +818,16 @@ fn solve_lm(
         let mut level_iterations = 0;
         // Steps below ~1/100 pixel of the level are noise.
         let tolerance = 1e-5 * f64::from(factor);
-        for _ in 0..opts.max_iterations_per_level {
+        // Coarse levels only have to land in the next level's basin; at the finest, the
+        // posterior refinement ([`refine`]) finishes what LM's rough end-game would grind on.
+        // Fine levels get a render budget of ~40 view-renders (8 iterations at 5 views).
+        let fine_cap = (40 / views.len().max(1)).clamp(8, opts.max_iterations_per_level);
+        let cap = if factor >= 4 {
+            opts.max_iterations_per_level.min(10)
+        } else {
+            fine_cap
+        };
+        for _ in 0..cap {
             let mut a = current.h;
             for k in 0..6 {
                 a[(k, k)] += lambda * current.h[(k, k)].max(1e-12);
@@ -680,6 +951,27 @@ fn finish(
         iterations,
         trajectory,
     })
+}
+
+/// The default solver's full-resolution objective at `pose` (robust boundary cost, pixels);
+/// for diagnostics and comparing estimates.
+pub fn boundary_cost(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    views: &[View],
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> f64 {
+    let camera = camera.undistorted();
+    let level = Level {
+        camera: camera.clone(),
+        robust_scale_px: opts.fine_robust_scale_px,
+        views: views
+            .par_iter()
+            .map(|v| ObservedLevel::new(&v.observed, 1))
+            .collect(),
+    };
+    accumulate(renderer, views, &level, pose, opts).cost
 }
 
 /// 1-sigma rotation (about camera axes) and translation of `camera_from_base`'s translation
