@@ -309,10 +309,9 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn urdf_for_run(urdf: &Path, out: &Path) -> String {
+fn urdf_for_run(urdf: &Path) -> String {
     // Absolute paths keep the run directory valid wherever it is solved from.
     let abs = std::fs::canonicalize(urdf).unwrap_or_else(|_| urdf.to_path_buf());
-    let _ = out;
     abs.display().to_string()
 }
 
@@ -351,7 +350,7 @@ fn cmd_synth(a: SynthArgs) -> anyhow::Result<()> {
     };
     let scene = generate(&robot, &opts)?;
     let entry = RobotEntry {
-        urdf: urdf_for_run(&a.robot, &a.out),
+        urdf: urdf_for_run(&a.robot),
         package_dirs: Default::default(),
         base_link: None,
         ignore_links: a.ignore_links,
@@ -386,7 +385,7 @@ fn cmd_import(
     let run = import_easyhec(&EasyHecImport {
         source: dir,
         out: out.clone(),
-        urdf: urdf_for_run(&urdf, &out),
+        urdf: urdf_for_run(&urdf),
         joints,
         ignore_links,
         initial_guess: None,

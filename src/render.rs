@@ -321,7 +321,6 @@ pub fn outline_samples(
     topology: &TriMesh,
     pixels: &[[f64; 2]],
     points_camera: &[Point3<f64>],
-    camera: &Camera,
     mask: &Mask,
     step_px: f64,
 ) -> Vec<BoundarySample> {
@@ -502,7 +501,6 @@ pub fn outline_samples(
             .then(a.to_outside.total_cmp(&b.to_outside))
     });
     crossings.dedup_by_key(|c| c.slot);
-    let _ = camera;
     crossings.into_iter().map(|c| c.sample).collect()
 }
 
@@ -521,7 +519,7 @@ impl SilhouetteRenderer for CpuRenderer {
         let (pixels, points) = project_vertices(&robot.vertices_base, camera, camera_from_base);
         let mask = rasterize(&robot.topology, &pixels, camera.width, camera.height);
         let boundary = match boundary_step_px {
-            Some(step) => outline_samples(&robot.topology, &pixels, &points, camera, &mask, step),
+            Some(step) => outline_samples(&robot.topology, &pixels, &points, &mask, step),
             None => Vec::new(),
         };
         Silhouette { mask, boundary }

@@ -78,8 +78,6 @@ pub struct RobotModel {
     pub joints: Vec<Joint>,
     /// Joints in parent-before-child order.
     order: Vec<usize>,
-    /// Root link index.
-    root: usize,
     /// Base link index (`camera_from_base` refers to it).
     pub base: usize,
     /// Indices (into `joints`) of the actuated joints, in joint-vector order.
@@ -378,7 +376,6 @@ impl RobotModel {
             links,
             joints,
             order,
-            root,
             base,
             actuated,
             visual: Arc::new(visual),
@@ -440,7 +437,6 @@ impl RobotModel {
             root_from[j.child] = root_from[j.parent] * j.parent_from_joint * motion;
         }
         let base_from_root = root_from[self.base].inverse();
-        let _ = self.root;
         root_from.iter().map(|p| base_from_root * p).collect()
     }
 

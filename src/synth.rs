@@ -14,7 +14,7 @@
 
 use std::path::Path;
 
-use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::geometry::{exp_se3, look_at_camera_from_base, to_rows, Twist};
+use crate::geometry::{look_at_camera_from_base, to_rows};
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
@@ -407,18 +407,4 @@ pub fn write_scene(
         },
     )?;
     write_json_atomic(&out.join("run.json"), &run)
-}
-
-/// Convenience for tests: a twist-sized perturbation.
-pub fn nudge(pose: &Isometry3<f64>, xi: &Twist) -> Isometry3<f64> {
-    exp_se3(xi) * pose
-}
-
-/// Projects a base-frame point for quick checks.
-pub fn project_point(
-    camera: &Camera,
-    camera_from_base: &Isometry3<f64>,
-    p: &Point3<f64>,
-) -> [f64; 2] {
-    camera.project(&(camera_from_base * p))
 }
