@@ -7,6 +7,7 @@
 //! - [`render`]: silhouettes and their outline samples, behind [`render::SilhouetteRenderer`].
 //! - [`objective`]: the paper's loss and its exact boundary gradient.
 //! - [`solve`]: Levenberg–Marquardt (default) and Adam (baseline) solvers, uncertainty.
+//! - [`explore`]: consistency-based choice of the next view.
 //! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
 //! - [`synth`], [`interop`], [`overlay`], [`bench`]: synthetic runs, import/export, overlays,
 //!   benchmarks.
@@ -14,6 +15,7 @@
 pub mod bench;
 pub mod camera;
 pub mod error;
+pub mod explore;
 pub mod geometry;
 pub mod interop;
 pub mod io;

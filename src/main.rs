@@ -6,10 +6,9 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser, Subcommand};
-use rand::seq::SliceRandom;
-use rand::SeedableRng;
 
 use easyhec::bench;
+use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
 use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
@@ -52,7 +51,8 @@ struct SolveArgs {
     /// Number of views to use (default: all).
     #[arg(long)]
     views: Option<usize>,
-    /// How views are chosen: first (0..K-1), random (view 0 then random others).
+    /// How views are chosen: first (0..K-1); explore (view 0, then the view where the
+    /// camera hypotheses disagree most, re-solving each round); random (like explore, random).
     #[arg(long, default_value = "first")]
     select: String,
     /// Seed for --select random.
@@ -213,39 +213,50 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
     if k == 0 || k > total {
         bail!("--views {k}: the run has {total} views");
     }
-    let order: Vec<usize> = match a.select.as_str() {
-        "first" => (0..k).collect(),
-        "random" => {
-            let mut rest: Vec<usize> = (1..total).collect();
-            rest.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(a.seed));
-            std::iter::once(0).chain(rest.into_iter().take(k - 1)).collect()
-        }
-        "explore" => bail!("--select explore: consistency-based exploration is not built yet; use --select first or random"),
+    let selection = match a.select.as_str() {
+        "first" => Selection::First,
+        "random" => Selection::Random(a.seed),
+        "explore" => Selection::Explore,
         other => bail!("--select {other}: use first, random or explore"),
     };
     let initial = run.initial_guess.ok_or_else(|| {
         anyhow!("{}: initial_guess: missing; automatic initialisation is not built yet, so add initial_guess.camera_from_base", run.dir.join("run.json").display())
     })?;
-    let views: Vec<View> = order
+    // The pool: every recorded view (views beyond K are only candidates for explore/random).
+    let pool_size = if selection == Selection::First {
+        k
+    } else {
+        total
+    };
+    let pool: Vec<View> = run.views[..pool_size]
         .iter()
-        .map(|&i| View {
-            robot: PosedRobot::new(&run.robot, &run.views[i].joints),
-            observed: run.views[i].observed.clone(),
+        .map(|v| View {
+            robot: PosedRobot::new(&run.robot, &v.joints),
+            observed: v.observed.clone(),
         })
         .collect();
     let renderer = CpuRenderer;
-    let t = Instant::now();
-    let report = solve(
+    let selected = solve_selected(
         &renderer,
         &run.camera,
-        &views,
+        &pool,
         &initial,
+        k,
+        selection,
         &SolveOptions {
             optimizer,
             ..SolveOptions::default()
         },
+        &ExploreOptions {
+            seed: a.seed,
+            ..ExploreOptions::default()
+        },
+        &StopRule::default(),
     )?;
-    let solve_s = t.elapsed().as_secs_f64();
+    let report = selected.report;
+    let order = selected.order;
+    let views: Vec<&View> = order.iter().map(|&i| &pool[i]).collect();
+    let solve_s = selected.solve_s;
     let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
     result.views_used = order.clone();
     result.per_view = order
@@ -258,8 +269,11 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         translation_mm: report.uncertainty.translation_mm,
     });
     result.stop_reason = match optimizer {
-        Optimizer::Lm => format!("converged ({} renders)", report.iterations),
-        Optimizer::Adam => format!("adam: {} steps, best iterate", report.iterations),
+        Optimizer::Lm => selected.stop_reason,
+        Optimizer::Adam => format!(
+            "{}; adam: {} steps, best iterate",
+            selected.stop_reason, report.iterations
+        ),
     };
     if let Some(dir) = &a.overlays {
         let pinhole = run.camera.undistorted();
@@ -280,6 +294,11 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         }
     }
     result.timings_s.insert("solve".into(), solve_s);
+    if selection == Selection::Explore {
+        result
+            .timings_s
+            .insert("explore".into(), selected.explore_s);
+    }
     result
         .timings_s
         .insert("total".into(), started.elapsed().as_secs_f64());

@@ -214,3 +214,79 @@ fn exports_parse_back_to_the_same_transform() {
             && translation_error_mm(&got, &base_from_camera) < 1e-6
     );
 }
+
+#[test]
+fn explore_and_random_select_distinct_views_from_the_pool() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let status = Command::new(common::easyhec_bin())
+        .args(["synth", "--robot"])
+        .arg(common::robot_urdf("xarm6"))
+        .arg("--out")
+        .arg(&run)
+        .args(["--views", "8", "--seed", "9"])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for select in ["explore", "random"] {
+        let out = solve(&run, &["--views", "3", "--select", select]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let result = ResultFile::read(&run.join("result.json")).unwrap();
+        assert_eq!(result.views_used[0], 0, "{select} starts from view 0");
+        let mut used = result.views_used.clone();
+        used.sort_unstable();
+        used.dedup();
+        assert!(
+            used.len() == result.views_used.len() && (2..=3).contains(&used.len()),
+            "{select}: {:?}",
+            result.views_used
+        );
+        assert!(!result.stop_reason.is_empty());
+        assert_eq!(
+            result.timings_s.contains_key("explore"),
+            select == "explore"
+        );
+        let (rot, trans) = errors(&run);
+        assert!(
+            rot < 0.15 && trans < 1.5,
+            "{select}: {rot:.4} deg {trans:.3} mm"
+        );
+    }
+    // Random selection is seeded.
+    let a = solve(
+        &run,
+        &[
+            "--views",
+            "3",
+            "--select",
+            "random",
+            "--seed",
+            "4",
+            "--out",
+            dir.path().join("a.json").to_str().unwrap(),
+        ],
+    );
+    let b = solve(
+        &run,
+        &[
+            "--views",
+            "3",
+            "--select",
+            "random",
+            "--seed",
+            "4",
+            "--out",
+            dir.path().join("b.json").to_str().unwrap(),
+        ],
+    );
+    assert!(a.status.success() && b.status.success());
+    let (ra, rb) = (
+        ResultFile::read(&dir.path().join("a.json")).unwrap(),
+        ResultFile::read(&dir.path().join("b.json")).unwrap(),
+    );
+    assert_eq!(ra.views_used, rb.views_used);
+}

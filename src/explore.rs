@@ -1,0 +1,280 @@
+//! Consistency-based view selection (method.md §5): the next view is the one where the camera
+//! poses that still fit the data disagree most about the robot's silhouette.
+//!
+//! Candidates are drawn from the solver's Gaussian posterior (default) or taken from its
+//! optimisation trajectory (the paper's choice). A view's score is the per-pixel variance of
+//! the candidates' masks, `V = sum_p c_p (K - c_p) / K^2`, at reduced resolution; the paper
+//! shows the summed loss over candidates bounds it from above, so a high `V` is a view that
+//! will shrink the candidate set.
+
+use nalgebra::Isometry3;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::geometry::{exp_se3, Twist};
+use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::solve::SolveReport;
+
+/// Where camera candidates come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CandidateSource {
+    /// Samples of `N(estimate, covariance)` (default; needs no optimiser history).
+    #[default]
+    Posterior,
+    /// Iterates of the optimisation trajectory after its first fifth (the paper's choice).
+    Trajectory,
+}
+
+/// Exploration settings.
+#[derive(Clone, Debug)]
+pub struct ExploreOptions {
+    /// Number of camera candidates `K` (paper: 50).
+    pub candidates: usize,
+    /// Image downsampling for scoring.
+    pub downsample: u32,
+    /// Candidate source.
+    pub source: CandidateSource,
+    /// Sampling seed.
+    pub seed: u64,
+    /// Vertex-clustering cell for scoring meshes, metres (coarse masks need no detail).
+    pub cell_m: f64,
+}
+
+impl Default for ExploreOptions {
+    fn default() -> Self {
+        ExploreOptions {
+            candidates: 50,
+            downsample: 4,
+            source: CandidateSource::Posterior,
+            seed: 0,
+            cell_m: 0.004,
+        }
+    }
+}
+
+/// Camera-pose hypotheses that still fit the data.
+pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Isometry3<f64>> {
+    let k = opts.candidates.max(2);
+    match opts.source {
+        CandidateSource::Posterior => {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
+            let Some(chol) = report.covariance.cholesky() else {
+                return vec![report.camera_from_base; k];
+            };
+            (0..k)
+                .map(|i| {
+                    if i == 0 {
+                        return report.camera_from_base;
+                    }
+                    let z = Twist::from_fn(|_, _| StandardNormal.sample(&mut rng));
+                    exp_se3(&(chol.l() * z)) * report.camera_from_base
+                })
+                .collect()
+        }
+        CandidateSource::Trajectory => {
+            let t = &report.trajectory;
+            let start = t.len() / 5;
+            let tail = &t[start.min(t.len().saturating_sub(1))..];
+            (0..k).map(|i| tail[i * tail.len() / k]).collect()
+        }
+    }
+}
+
+/// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the
+/// scoring image.
+pub fn disagreement(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    robot: &PosedRobot,
+    candidates: &[Isometry3<f64>],
+) -> f64 {
+    let k = candidates.len() as f64;
+    let mut counts = vec![0u16; (camera.width * camera.height) as usize];
+    for pose in candidates {
+        let m = renderer.render(robot, camera, pose, None).mask;
+        for (c, &v) in counts.iter_mut().zip(&m.data) {
+            *c += u16::from(v);
+        }
+    }
+    counts
+        .iter()
+        .map(|&c| f64::from(c) * (k - f64::from(c)))
+        .sum::<f64>()
+        / (k * k)
+}
+
+/// Scores every pool entry (robot poses) and returns `(index into pool, score)` of the best,
+/// or `None` for an empty pool. Scoring uses decimated meshes at reduced resolution.
+pub fn choose_next(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    pool: &[&PosedRobot],
+    candidates: &[Isometry3<f64>],
+    opts: &ExploreOptions,
+) -> Option<(usize, f64)> {
+    let low = camera.undistorted().downsampled(opts.downsample.max(1));
+    pool.par_iter()
+        .enumerate()
+        .map(|(i, robot)| {
+            (
+                i,
+                disagreement(renderer, &low, &robot.decimated(opts.cell_m), candidates),
+            )
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// How `easyhec solve` picks views from a recorded run (formats.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Selection {
+    /// Views `0..K-1`.
+    First,
+    /// View 0, then views drawn at random (seeded).
+    Random(u64),
+    /// View 0, then the most disagreeing view each round.
+    Explore,
+}
+
+/// When incremental selection stops early.
+#[derive(Clone, Debug)]
+pub struct StopRule {
+    /// Stop when the best score changes by less than this fraction between rounds…
+    pub variance_rel_tol: f64,
+    /// …and the pose moved less than this rotation (degrees)…
+    pub pose_tol_deg: f64,
+    /// …and this translation (millimetres).
+    pub pose_tol_mm: f64,
+}
+
+impl Default for StopRule {
+    fn default() -> Self {
+        StopRule {
+            variance_rel_tol: 0.1,
+            pose_tol_deg: 0.02,
+            pose_tol_mm: 0.2,
+        }
+    }
+}
+
+/// Outcome of an incremental solve.
+#[derive(Clone, Debug)]
+pub struct Selected {
+    /// Indices into the pool, in the order they were added.
+    pub order: Vec<usize>,
+    /// The final solve.
+    pub report: SolveReport,
+    /// Why selection stopped.
+    pub stop_reason: String,
+    /// Seconds spent scoring views.
+    pub explore_s: f64,
+    /// Seconds spent solving.
+    pub solve_s: f64,
+}
+
+/// Solves from up to `max_views` views of `pool`, chosen by `selection`; `First` solves once,
+/// the others add one view per round and re-solve warm-started from the previous estimate.
+#[allow(clippy::too_many_arguments)]
+pub fn solve_selected(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    pool: &[crate::solve::View],
+    initial: &Isometry3<f64>,
+    max_views: usize,
+    selection: Selection,
+    solve_opts: &crate::solve::SolveOptions,
+    explore_opts: &ExploreOptions,
+    stop: &StopRule,
+) -> crate::Result<Selected> {
+    use rand::seq::SliceRandom;
+    use std::time::Instant;
+    let k = max_views.clamp(1, pool.len().max(1));
+    let solve_views = |order: &[usize], start: &Isometry3<f64>| {
+        let views: Vec<crate::solve::View> = order.iter().map(|&i| pool[i].clone()).collect();
+        crate::solve::solve(renderer, camera, &views, start, solve_opts)
+    };
+    let (mut explore_s, mut solve_s) = (0.0, 0.0);
+    if selection == Selection::First {
+        let order: Vec<usize> = (0..k).collect();
+        let t = Instant::now();
+        let report = solve_views(&order, initial)?;
+        return Ok(Selected {
+            order,
+            report,
+            stop_reason: format!("used the first {k} views"),
+            explore_s,
+            solve_s: t.elapsed().as_secs_f64(),
+        });
+    }
+    let mut random_order: Vec<usize> = (1..pool.len()).collect();
+    if let Selection::Random(seed) = selection {
+        random_order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+    }
+    let mut order = vec![0];
+    let t = Instant::now();
+    let mut report = solve_views(&order, initial)?;
+    solve_s += t.elapsed().as_secs_f64();
+    let mut previous_best: Option<f64> = None;
+    let mut stop_reason = format!("reached {k} views");
+    while order.len() < k {
+        let remaining: Vec<usize> = (0..pool.len()).filter(|i| !order.contains(i)).collect();
+        if remaining.is_empty() {
+            stop_reason = "no views left in the pool".into();
+            break;
+        }
+        let t = Instant::now();
+        let next = match selection {
+            Selection::Explore => {
+                let candidates = camera_candidates(
+                    &report,
+                    &ExploreOptions {
+                        seed: explore_opts.seed + order.len() as u64,
+                        ..explore_opts.clone()
+                    },
+                );
+                let robots: Vec<&PosedRobot> = remaining.iter().map(|&i| &pool[i].robot).collect();
+                let (best, score) =
+                    choose_next(renderer, camera, &robots, &candidates, explore_opts)
+                        .expect("pool not empty");
+                explore_s += t.elapsed().as_secs_f64();
+                if let Some(prev) = previous_best {
+                    let settled = (prev - score).abs() <= stop.variance_rel_tol * prev.max(1e-12);
+                    if settled && order.len() >= 2 && pose_settled(&report, stop) {
+                        stop_reason = format!("variance converged after {} views", order.len());
+                        break;
+                    }
+                }
+                previous_best = Some(score);
+                remaining[best]
+            }
+            _ => *random_order
+                .iter()
+                .find(|i| !order.contains(i))
+                .expect("pool not empty"),
+        };
+        order.push(next);
+        let previous_pose = report.camera_from_base;
+        let t = Instant::now();
+        report = solve_views(&order, &previous_pose)?;
+        report.trajectory.insert(0, previous_pose);
+        solve_s += t.elapsed().as_secs_f64();
+    }
+    Ok(Selected {
+        order,
+        report,
+        stop_reason,
+        explore_s,
+        solve_s,
+    })
+}
+
+/// Whether the last round moved the estimate less than the stop rule's pose tolerance (the
+/// trajectory of an incremental round starts with the previous round's estimate).
+fn pose_settled(report: &SolveReport, stop: &StopRule) -> bool {
+    let Some(first) = report.trajectory.first() else {
+        return false;
+    };
+    crate::geometry::rotation_error_deg(first, &report.camera_from_base) < stop.pose_tol_deg
+        && crate::geometry::translation_error_mm(first, &report.camera_from_base) < stop.pose_tol_mm
+}
