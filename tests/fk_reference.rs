@@ -99,3 +99,63 @@ fn ur5e_matches_reference() {
 fn panda_matches_reference() {
     check("panda");
 }
+
+/// Our own simplified descriptions (robots/) carry the vendors' kinematics exactly.
+fn check_own(robot: &str) {
+    let reference: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(shared().join(robot).join("fk_reference.json")).unwrap(),
+    )
+    .unwrap();
+    let joints: Vec<String> = reference["actuated_joints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j.as_str().unwrap().to_string())
+        .collect();
+    let model = RobotModel::load(&RobotSource {
+        urdf: PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("robots")
+            .join(robot)
+            .join("robot.urdf"),
+        base_link: Some(reference["base_link"].as_str().unwrap().to_string()),
+        joints: Some(joints.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let mut matched = 0;
+    for pose in reference["poses"].as_array().unwrap() {
+        let q: Vec<f64> = joints
+            .iter()
+            .map(|j| pose["q"][j].as_f64().unwrap())
+            .collect();
+        let fk = model.base_from_links(&q);
+        for (link, m) in pose["link_poses"].as_object().unwrap() {
+            let Some(li) = model.link_index(link) else {
+                continue;
+            };
+            let got = fk[li].to_homogeneous();
+            for r in 0..4 {
+                for c in 0..4 {
+                    let want = m[r][c].as_f64().unwrap();
+                    assert!(
+                        (got[(r, c)] - want).abs() < 1e-6,
+                        "own {robot} {link} [{r}][{c}]: {} vs {want}",
+                        got[(r, c)]
+                    );
+                }
+            }
+            matched += 1;
+        }
+    }
+    assert!(
+        matched >= 8 * reference["poses"].as_array().unwrap().len(),
+        "own {robot}: only {matched} link poses compared"
+    );
+}
+
+#[test]
+fn own_descriptions_carry_vendor_kinematics() {
+    for robot in ["xarm6", "ur5e", "panda"] {
+        check_own(robot);
+    }
+}
