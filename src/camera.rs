@@ -4,7 +4,9 @@
 //! into the ideal pinhole image with the same `fx fy cx cy` ([`Camera::undistort_mask`]), and
 //! everything downstream (rendering, gradients, exploration) works in that pinhole image.
 //! Rendering straight-edged triangles stays exact, and a distorted run then solves exactly as an
-//! undistorted one (tested in `tests/distortion.rs`).
+//! undistorted one (tested in `tests/solve_cli.rs`). Pinhole pixels whose ray falls outside the
+//! distorted image read as background (a pincushion lens can produce such pixels; barrel lenses
+//! do not).
 
 use nalgebra::Point3;
 

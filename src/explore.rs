@@ -60,7 +60,8 @@ pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Iso
     match opts.source {
         CandidateSource::Posterior => {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
-            let Some(chol) = report.covariance.cholesky() else {
+            let finite = report.covariance.iter().all(|v| v.is_finite());
+            let Some(chol) = report.covariance.cholesky().filter(|_| finite) else {
                 return vec![report.camera_from_base; k];
             };
             (0..k)
@@ -75,8 +76,10 @@ pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Iso
         }
         CandidateSource::Trajectory => {
             let t = &report.trajectory;
-            let start = t.len() / 5;
-            let tail = &t[start.min(t.len().saturating_sub(1))..];
+            if t.is_empty() {
+                return vec![report.camera_from_base; k];
+            }
+            let tail = &t[(t.len() / 5).min(t.len() - 1)..];
             (0..k).map(|i| tail[i * tail.len() / k]).collect()
         }
     }
@@ -105,8 +108,9 @@ pub fn disagreement(
         / (k * k)
 }
 
-/// Scores every pool entry (robot poses) and returns `(index into pool, score)` of the best,
-/// or `None` for an empty pool. Scoring uses decimated meshes at reduced resolution.
+/// Scores every pool entry (robot poses; pass meshes decimated with `opts.cell_m` — coarse
+/// masks need no detail) and returns `(index into pool, score)` of the best, or `None` for
+/// an empty pool. Scoring is at `opts.downsample` resolution.
 pub fn choose_next(
     renderer: &dyn SilhouetteRenderer,
     camera: &Camera,
@@ -216,6 +220,13 @@ pub fn solve_selected(
     let mut report = solve_views(&order, initial)?;
     solve_s += t.elapsed().as_secs_f64();
     let mut previous_best: Option<f64> = None;
+    let scoring: Vec<PosedRobot> = if selection == Selection::Explore {
+        pool.par_iter()
+            .map(|v| v.robot.decimated(explore_opts.cell_m))
+            .collect()
+    } else {
+        Vec::new()
+    };
     let mut stop_reason = format!("reached {k} views");
     while order.len() < k {
         let remaining: Vec<usize> = (0..pool.len()).filter(|i| !order.contains(i)).collect();
@@ -233,7 +244,7 @@ pub fn solve_selected(
                         ..explore_opts.clone()
                     },
                 );
-                let robots: Vec<&PosedRobot> = remaining.iter().map(|&i| &pool[i].robot).collect();
+                let robots: Vec<&PosedRobot> = remaining.iter().map(|&i| &scoring[i]).collect();
                 let (best, score) =
                     choose_next(renderer, camera, &robots, &candidates, explore_opts)
                         .expect("pool not empty");

@@ -18,6 +18,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .map_err(|e| Error::io(dir, format!("cannot create temp file: {e}")))?;
     tmp.write_all(bytes)
         .map_err(|e| Error::io(path, format!("write failed: {e}")))?;
+    // Temp files are created 0600; results and recordings are meant to be shared.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| Error::io(path, format!("cannot set permissions: {e}")))?;
+    }
     tmp.as_file()
         .sync_all()
         .map_err(|e| Error::io(path, format!("fsync failed: {e}")))?;

@@ -180,7 +180,30 @@ enum BenchCommand {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e)
+            if matches!(
+                e.kind(),
+                clap::error::ErrorKind::DisplayHelp
+                    | clap::error::ErrorKind::DisplayVersion
+                    | clap::error::ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) =>
+        {
+            e.exit()
+        }
+        Err(e) => {
+            // One line, as for every other bad input; `--help` has the details.
+            let text = e.render().to_string();
+            let first = text
+                .lines()
+                .next()
+                .unwrap_or("invalid arguments")
+                .trim_start_matches("error: ");
+            eprintln!("error: {first} (see easyhec --help)");
+            return ExitCode::FAILURE;
+        }
+    };
     let outcome = match cli.command {
         Command::Solve(a) => cmd_solve(a),
         Command::Synth(a) => cmd_synth(a),
@@ -264,10 +287,26 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         .zip(&report.per_view_iou)
         .map(|(&v, &iou)| PerView { view: v, iou })
         .collect();
-    result.uncertainty = Some(UncertaintyEntry {
-        rotation_deg: report.uncertainty.rotation_deg,
-        translation_mm: report.uncertainty.translation_mm,
-    });
+    // A degenerate fit has no meaningful curvature: leave the field out rather than write nulls.
+    let u = report.uncertainty;
+    if u.rotation_deg
+        .iter()
+        .chain(&u.translation_mm)
+        .all(|v| v.is_finite())
+    {
+        result.uncertainty = Some(UncertaintyEntry {
+            rotation_deg: u.rotation_deg,
+            translation_mm: u.translation_mm,
+        });
+    }
+    if !report
+        .camera_from_base
+        .to_homogeneous()
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        bail!("the solve diverged (non-finite pose): check the initial guess and the masks");
+    }
     result.stop_reason = match optimizer {
         Optimizer::Lm => selected.stop_reason,
         Optimizer::Adam => format!(

@@ -282,10 +282,30 @@ pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
             "mesh file not found: check the URDF <mesh filename> and package_dirs",
         ));
     }
-    let scene = mesh_loader::Loader::default()
-        .merge_meshes(true)
-        .load(path)
-        .map_err(|e| Error::input(path, "mesh", format!("cannot parse mesh: {e}")))?;
+    // The Collada reader can panic on inconsistent index streams: contain it as an input error,
+    // with the default hook silenced meanwhile so the user sees one line, not a backtrace.
+    let previous_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let loaded =
+        std::panic::catch_unwind(|| mesh_loader::Loader::default().merge_meshes(true).load(path));
+    std::panic::set_hook(previous_hook);
+    let scene = match loaded {
+        Ok(Ok(scene)) => scene,
+        Ok(Err(e)) => {
+            return Err(Error::input(
+                path,
+                "mesh",
+                format!("cannot parse mesh: {e}"),
+            ))
+        }
+        Err(_) => {
+            return Err(Error::input(
+                path,
+                "mesh",
+                "malformed mesh (inconsistent index data)",
+            ))
+        }
+    };
     let mut positions = Vec::new();
     let mut tris = Vec::new();
     for m in &scene.meshes {
@@ -303,6 +323,17 @@ pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
     }
     if tris.is_empty() {
         return Err(Error::input(path, "mesh", "mesh has no triangles"));
+    }
+    if tris
+        .iter()
+        .flatten()
+        .any(|&i| i as usize >= positions.len())
+    {
+        return Err(Error::input(
+            path,
+            "mesh",
+            "a face refers to a vertex that does not exist",
+        ));
     }
     if positions
         .iter()

@@ -102,12 +102,8 @@ fn resolve_mesh_uri(
         }
         if let Ok(paths) = std::env::var("ROS_PACKAGE_PATH") {
             for root in std::env::split_paths(&paths) {
-                for cand in [root.join(pkg), root.clone()] {
-                    if cand.file_name().and_then(|n| n.to_str()) == Some(pkg)
-                        && cand.join(rel).exists()
-                    {
-                        return Ok(cand.join(rel));
-                    }
+                if let Some(dir) = find_ros_package(&root, pkg, 6) {
+                    return Ok(dir.join(rel));
                 }
             }
         }
@@ -122,6 +118,35 @@ fn resolve_mesh_uri(
     } else {
         urdf_dir.join(p)
     })
+}
+
+/// Finds package `name` under `dir` as ROS does: a folder whose `package.xml` declares that
+/// `<name>` (or, lacking a manifest, a folder of that name); no descent below a package.
+fn find_ros_package(dir: &Path, name: &str, depth: usize) -> Option<PathBuf> {
+    let manifest = dir.join("package.xml");
+    if let Ok(text) = std::fs::read_to_string(&manifest) {
+        let declared = text
+            .split("<name>")
+            .nth(1)
+            .and_then(|t| t.split("</name>").next())
+            .map(str::trim);
+        return (declared == Some(name)).then(|| dir.to_path_buf());
+    }
+    if dir.file_name().and_then(|n| n.to_str()) == Some(name) && dir.is_dir() {
+        return Some(dir.to_path_buf());
+    }
+    if depth == 0 {
+        return None;
+    }
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    entries.sort();
+    entries
+        .into_iter()
+        .find_map(|sub| find_ros_package(&sub, name, depth - 1))
 }
 
 /// Largest sane robot-part extent; anything bigger is almost surely a unit mistake.
@@ -282,6 +307,13 @@ impl RobotModel {
                             format!("no joint named '{n}' in the URDF"),
                         )
                     })?;
+                    if joints[i].mimic.is_some() {
+                        return Err(Error::input(
+                            urdf_path,
+                            "robot.joints",
+                            format!("joint '{n}' mimics another joint: list its leader instead"),
+                        ));
+                    }
                     if joints[i].kind == JointKind::Fixed {
                         return Err(Error::input(
                             urdf_path,
@@ -415,9 +447,20 @@ impl RobotModel {
         for (k, &ji) in self.actuated.iter().enumerate() {
             pos[ji] = q[k];
         }
-        for (i, j) in self.joints.iter().enumerate() {
-            if let Some((leader, mul, off)) = j.mimic {
-                pos[i] = pos[leader] * mul + off;
+        // Leaders first, so a mimic of a mimic reads its leader's final value.
+        for _ in 0..self.joints.len() {
+            let mut changed = false;
+            for (i, j) in self.joints.iter().enumerate() {
+                if let Some((leader, mul, off)) = j.mimic {
+                    let v = pos[leader] * mul + off;
+                    if v != pos[i] {
+                        pos[i] = v;
+                        changed = true;
+                    }
+                }
+            }
+            if !changed {
+                break;
             }
         }
         let mut root_from = vec![Isometry3::identity(); self.links.len()];

@@ -631,6 +631,9 @@ fn refine(
     if opts.refine_samples < 2 {
         return Ok(report);
     }
+    if !report.covariance.iter().all(|v| v.is_finite()) {
+        return Ok(report);
+    }
     let Some(chol) = (report.covariance * opts.refine_inflation).cholesky() else {
         return Ok(report);
     };
@@ -649,11 +652,12 @@ fn refine(
         .collect();
     // The samples move the outline by a pixel or two: only a band around it can change, so
     // each view is scored on that band with just the triangles that can reach it.
-    let radius = max_displacement_px(camera, views, &centre, &offsets).ceil() as i64 + 1;
-    if radius > REFINE_BAND_PX {
+    let worst = max_displacement_px(camera, views, &centre, &offsets);
+    if !(worst.is_finite() && worst <= (REFINE_BAND_PX - 1) as f64) {
         // Too uncertain for a local refinement to be meaningful.
         return Ok(report);
     }
+    let radius = worst.ceil() as i64 + 1;
     let bands: Vec<Band> = views
         .par_iter()
         .map(|v| Band::new(renderer, camera, v, &centre, radius))
@@ -821,7 +825,9 @@ fn solve_lm(
         // Coarse levels only have to land in the next level's basin; at the finest, the
         // posterior refinement ([`refine`]) finishes what LM's rough end-game would grind on.
         // Fine levels get a render budget of ~40 view-renders (8 iterations at 5 views).
-        let fine_cap = (40 / views.len().max(1)).clamp(8, opts.max_iterations_per_level);
+        let fine_cap = (40 / views.len().max(1))
+            .max(8)
+            .min(opts.max_iterations_per_level.max(1));
         let cap = if factor >= 4 {
             opts.max_iterations_per_level.min(10)
         } else {

@@ -194,3 +194,41 @@ fn unknown_format_version() {
         &["run.json", "format", "easyhec-run/9", "easyhec-run/1"],
     );
 }
+
+#[test]
+fn bad_command_line_is_one_line() {
+    let out = Command::new(common::easyhec_bin())
+        .args(["solve", "--views", "abc", "x"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("--views") && stderr.contains("abc"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn malformed_collada_is_an_error_not_a_panic() {
+    let d = tempfile::tempdir().unwrap();
+    let run = make_run(d.path());
+    // Triangles whose index stream refers past the end of the position array.
+    let dae = r##"<?xml version="1.0"?>
+<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">
+  <asset><unit name="meter" meter="1"/><up_axis>Z_UP</up_axis></asset>
+  <library_geometries><geometry id="g"><mesh>
+    <source id="p"><float_array id="pa" count="9">0 0 0 0.1 0 0 0 0.1 0</float_array>
+      <technique_common><accessor source="#pa" count="3" stride="3"><param name="X" type="float"/><param name="Y" type="float"/><param name="Z" type="float"/></accessor></technique_common></source>
+    <vertices id="v"><input semantic="POSITION" source="#p"/></vertices>
+    <triangles count="1"><input semantic="VERTEX" source="#v" offset="0"/><p>0 1 7</p></triangles>
+  </mesh></geometry></library_geometries>
+  <library_visual_scenes><visual_scene id="s"><node id="n"><instance_geometry url="#g"/></node></visual_scene></library_visual_scenes>
+  <scene><instance_visual_scene url="#s"/></scene>
+</COLLADA>"##;
+    std::fs::write(run.join("bad.dae"), dae).unwrap();
+    let bad = run.join("bad.dae");
+    urdf_copy(&run, |t| replace_first_mesh(&t, &bad));
+    expect_error(&run, &["bad.dae", "mesh"]);
+}
