@@ -5,8 +5,7 @@
 //! everything downstream (rendering, gradients, exploration) works in that pinhole image.
 //! Rendering straight-edged triangles stays exact, and a distorted run then solves exactly as an
 //! undistorted one (tested in `tests/solve_cli.rs`). Pinhole pixels whose ray falls outside the
-//! distorted image read as background (a pincushion lens can produce such pixels; barrel lenses
-//! do not).
+//! distorted image (pincushion corners) repeat the image border.
 
 use nalgebra::Point3;
 
@@ -114,7 +113,8 @@ impl Camera {
 
     /// Resamples a mask taken through this (distorted) camera into the ideal pinhole image with
     /// the same intrinsics: each pinhole pixel looks up where its ray lands in the distorted
-    /// image and takes the bilinearly interpolated value there (>= 0.5 is robot).
+    /// image and takes the bilinearly interpolated value there (>= 0.5 is robot; rays past
+    /// the edge repeat the border).
     pub fn undistort_mask(&self, distorted: &Mask) -> Mask {
         if !self.is_distorted() {
             return distorted.clone();
@@ -125,8 +125,8 @@ impl Camera {
                 let xn = (f64::from(u) - self.cx) / self.fx;
                 let yn = (f64::from(v) - self.cy) / self.fy;
                 let (xd, yd) = self.distort_normalized(xn, yn);
-                let value =
-                    distorted.sample_bilinear(self.fx * xd + self.cx, self.fy * yd + self.cy);
+                let value = distorted
+                    .sample_bilinear_clamped(self.fx * xd + self.cx, self.fy * yd + self.cy);
                 out.set(u, v, value >= 0.5);
             }
         }
@@ -169,6 +169,21 @@ mod tests {
                 "{x},{y} -> {xu},{yu}"
             );
         }
+    }
+
+    #[test]
+    fn pincushion_corners_repeat_the_border_instead_of_inventing_background() {
+        let mut c = Camera::pinhole(64, 48, 40.0, 40.0, 31.5, 23.5);
+        c.distortion = Some([0.3, 0.1, 0.0, 0.0, 0.0]);
+        // Robot fills the whole distorted frame: the undistorted mask must too.
+        let full = Mask {
+            width: 64,
+            height: 48,
+            data: vec![1; 64 * 48],
+        };
+        assert_eq!(c.undistort_mask(&full).count(), 64 * 48);
+        // A robot-free frame stays robot-free.
+        assert_eq!(c.undistort_mask(&Mask::new(64, 48)).count(), 0);
     }
 
     #[test]

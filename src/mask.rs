@@ -54,6 +54,14 @@ impl Mask {
         if x < -0.5 || y < -0.5 || x > w as f64 - 0.5 || y > h as f64 - 0.5 {
             return 0.0;
         }
+        self.sample_bilinear_clamped(x, y)
+    }
+
+    /// Bilinear interpolation that extends the image by repeating its border pixels: outside
+    /// the image, the robot continues as it leaves the frame and background stays background.
+    pub fn sample_bilinear_clamped(&self, x: f64, y: f64) -> f64 {
+        let (w, h) = (i64::from(self.width), i64::from(self.height));
+        let (x, y) = (x.clamp(-0.5, w as f64 - 0.5), y.clamp(-0.5, h as f64 - 0.5));
         let x0 = x.floor();
         let y0 = y.floor();
         let (fx, fy) = (x - x0, y - y0);
