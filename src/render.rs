@@ -398,98 +398,73 @@ pub fn outline_samples(
                     },
                 });
             };
-            // Row crossings: y = integer between the endpoints.
+            // Row crossings (pixel-centre rows y = k, crossing along x), then column crossings.
             let thin = |i: i64| i % stride == 0;
-            if d[1].abs() > 1e-12 {
-                let (y0, y1) = (
-                    pa[1].min(pb[1]).ceil().max(0.0) as i64,
-                    pa[1].max(pb[1]).floor().min((h - 1) as f64) as i64,
-                );
-                for y in y0..=y1 {
-                    if !thin(y) {
-                        continue;
-                    }
-                    let t = (y as f64 - pa[1]) / d[1];
-                    if !(0.0..=1.0).contains(&t) {
-                        continue;
-                    }
-                    let xc = pa[0] + t * d[0];
-                    let u = xc.floor() as i64;
-                    if u < 0 || u + 1 >= w {
-                        continue;
-                    }
-                    let (l, r) = (mask.get(u, y), mask.get(u + 1, y));
-                    if l == r {
-                        continue;
-                    }
-                    let (inside, outside) = if l {
-                        ((u, y), (u + 1, y))
-                    } else {
-                        ((u + 1, y), (u, y))
-                    };
-                    let toward = (outside.0 - inside.0) as f64;
-                    let normal = if open && n[0] * toward < 0.0 {
-                        [-n[0], -n[1]]
-                    } else {
-                        n
-                    };
-                    if normal[0] * toward <= 0.0 {
-                        continue;
-                    }
-                    emit(
-                        t,
-                        [xc, y as f64],
-                        outside,
-                        y * (w - 1) + u,
-                        normal,
-                        ROW_CROSSING,
-                    );
+            for axis in [ROW_CROSSING, COLUMN_CROSSING] {
+                // `along`: the coordinate the crossing varies in; `fixed`: the scan line's.
+                let (along, fixed, along_len, fixed_len) = if axis == ROW_CROSSING {
+                    (0, 1, w, h)
+                } else {
+                    (1, 0, h, w)
+                };
+                if d[fixed].abs() <= 1e-12 {
+                    continue;
                 }
-            }
-            if d[0].abs() > 1e-12 {
-                let (x0, x1) = (
-                    pa[0].min(pb[0]).ceil().max(0.0) as i64,
-                    pa[0].max(pb[0]).floor().min((w - 1) as f64) as i64,
-                );
-                for x in x0..=x1 {
-                    if !thin(x) {
+                let k0 = pa[fixed].min(pb[fixed]).ceil().max(0.0) as i64;
+                let k1 = pa[fixed].max(pb[fixed]).floor().min((fixed_len - 1) as f64) as i64;
+                for k in k0..=k1 {
+                    if !thin(k) {
                         continue;
                     }
-                    let t = (x as f64 - pa[0]) / d[0];
+                    let t = (k as f64 - pa[fixed]) / d[fixed];
                     if !(0.0..=1.0).contains(&t) {
                         continue;
                     }
-                    let yc = pa[1] + t * d[1];
-                    let v = yc.floor() as i64;
-                    if v < 0 || v + 1 >= h {
+                    let c = pa[along] + t * d[along];
+                    let i = c.floor() as i64;
+                    if i < 0 || i + 1 >= along_len {
                         continue;
                     }
-                    let (top, bottom) = (mask.get(x, v), mask.get(x, v + 1));
-                    if top == bottom {
-                        continue;
-                    }
-                    let (inside, outside) = if top {
-                        ((x, v), (x, v + 1))
-                    } else {
-                        ((x, v + 1), (x, v))
+                    let at = |j: i64| {
+                        if axis == ROW_CROSSING {
+                            mask.get(j, k)
+                        } else {
+                            mask.get(k, j)
+                        }
                     };
-                    let toward = (outside.1 - inside.1) as f64;
-                    let normal = if open && n[1] * toward < 0.0 {
+                    let (first, second) = (at(i), at(i + 1));
+                    if first == second {
+                        continue;
+                    }
+                    let (inside, outside) = if first { (i, i + 1) } else { (i + 1, i) };
+                    let toward = (outside - inside) as f64;
+                    let normal = if open && n[along] * toward < 0.0 {
                         [-n[0], -n[1]]
                     } else {
                         n
                     };
-                    if normal[1] * toward <= 0.0 {
+                    if normal[along] * toward <= 0.0 {
                         continue;
                     }
-                    emit(
-                        t,
-                        [x as f64, yc],
-                        outside,
-                        row_slots + v * w + x,
-                        normal,
-                        COLUMN_CROSSING,
-                    );
+                    if axis == ROW_CROSSING {
+                        emit(
+                            t,
+                            [c, k as f64],
+                            (outside, k),
+                            k * (w - 1) + i,
+                            normal,
+                            axis,
+                        );
+                    } else {
+                        emit(
+                            t,
+                            [k as f64, c],
+                            (k, outside),
+                            row_slots + i * w + k,
+                            normal,
+                            axis,
+                        );
+                    }
                 }
             }
             out.into_iter()

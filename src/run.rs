@@ -20,6 +20,32 @@ pub const RUN_FORMAT: &str = "easyhec-run/1";
 /// Result format tag.
 pub const RESULT_FORMAT: &str = "easyhec-result/1";
 
+/// Reads a JSON file and checks its `format` tag; errors name the line or the field.
+fn read_tagged_json(path: &Path, tag: &str) -> Result<serde_json::Value> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+        Error::input(
+            path,
+            format!("line {} column {}", e.line(), e.column()),
+            format!("invalid JSON: {e} (NaN and Infinity are not JSON numbers)"),
+        )
+    })?;
+    match value.get("format").and_then(|f| f.as_str()) {
+        Some(t) if t == tag => Ok(value),
+        Some(other) => Err(Error::input(
+            path,
+            "format",
+            format!("unknown format version '{other}': this easyhec reads {tag}"),
+        )),
+        None => Err(Error::input(
+            path,
+            "format",
+            format!("missing: add \"format\": \"{tag}\""),
+        )),
+    }
+}
+
 /// `run.json` → `robot`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct RobotEntry {
@@ -103,32 +129,7 @@ pub struct RunFile {
 impl RunFile {
     /// Reads and parses `run.json` (format version checked; content checked by [`load_run`]).
     pub fn read(path: &Path) -> Result<RunFile> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
-        let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-            Error::input(
-                path,
-                format!("line {} column {}", e.line(), e.column()),
-                format!("invalid JSON: {e} (NaN and Infinity are not JSON numbers)"),
-            )
-        })?;
-        match value.get("format").and_then(|f| f.as_str()) {
-            Some(RUN_FORMAT) => {}
-            Some(other) => {
-                return Err(Error::input(
-                    path,
-                    "format",
-                    format!("unknown format version '{other}': this easyhec reads {RUN_FORMAT}"),
-                ))
-            }
-            None => {
-                return Err(Error::input(
-                    path,
-                    "format",
-                    format!("missing: add \"format\": \"{RUN_FORMAT}\""),
-                ))
-            }
-        }
+        let value = read_tagged_json(path, RUN_FORMAT)?;
         serde_json::from_value(value).map_err(|e| Error::input(path, "run", format!("{e}")))
     }
 
@@ -405,32 +406,7 @@ impl ResultFile {
 
     /// Reads a result file, checking the format tag and the transform.
     pub fn read(path: &Path) -> Result<ResultFile> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
-        let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-            Error::input(
-                path,
-                format!("line {} column {}", e.line(), e.column()),
-                format!("invalid JSON: {e}"),
-            )
-        })?;
-        match value.get("format").and_then(|f| f.as_str()) {
-            Some(RESULT_FORMAT) => {}
-            Some(other) => {
-                return Err(Error::input(
-                    path,
-                    "format",
-                    format!("unknown format version '{other}': this easyhec reads {RESULT_FORMAT}"),
-                ))
-            }
-            None => {
-                return Err(Error::input(
-                    path,
-                    "format",
-                    format!("missing: add \"format\": \"{RESULT_FORMAT}\""),
-                ))
-            }
-        }
+        let value = read_tagged_json(path, RESULT_FORMAT)?;
         let r: ResultFile = serde_json::from_value(value)
             .map_err(|e| Error::input(path, "result", format!("{e}")))?;
         from_rows(&r.camera_from_base).map_err(|m| Error::input(path, "camera_from_base", m))?;

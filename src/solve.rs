@@ -192,6 +192,20 @@ fn scanline_residual(observed: &Mask, s: &BoundarySample, reach: i64) -> Option<
     best.map(|d| d * normal_along.abs())
 }
 
+impl Level {
+    /// The observations of `views` at pyramid `factor` with Cauchy scale `robust_scale_px`.
+    fn new(camera: &Camera, views: &[View], factor: u32, robust_scale_px: f64) -> Level {
+        Level {
+            camera: camera.downsampled(factor),
+            robust_scale_px,
+            views: views
+                .par_iter()
+                .map(|v| ObservedLevel::new(&v.observed, factor))
+                .collect(),
+        }
+    }
+}
+
 /// One view's observation at one pyramid level.
 struct ObservedLevel {
     mask: Mask,
@@ -783,18 +797,12 @@ fn solve_lm(
     let mut trajectory = vec![pose];
     for &factor in &opts.pyramid {
         let started = std::time::Instant::now();
-        let level = Level {
-            camera: camera.downsampled(factor),
-            robust_scale_px: if factor == 1 {
-                opts.fine_robust_scale_px
-            } else {
-                opts.robust_scale_px
-            },
-            views: views
-                .par_iter()
-                .map(|v| ObservedLevel::new(&v.observed, factor))
-                .collect(),
+        let scale = if factor == 1 {
+            opts.fine_robust_scale_px
+        } else {
+            opts.robust_scale_px
         };
+        let level = Level::new(camera, views, factor, scale);
         // Coarse levels see the robot through big pixels: a mesh clustered to a fraction of a
         // pixel renders the same silhouette at a fraction of the cost.
         let cell_m = opts.coarse_cell_fraction * f64::from(factor) / camera.fx.max(camera.fy);
@@ -924,14 +932,7 @@ fn finish(
     trajectory: Vec<Isometry3<f64>>,
     opts: &SolveOptions,
 ) -> Result<SolveReport> {
-    let level = Level {
-        camera: camera.clone(),
-        robust_scale_px: opts.fine_robust_scale_px,
-        views: views
-            .par_iter()
-            .map(|v| ObservedLevel::new(&v.observed, 1))
-            .collect(),
-    };
+    let level = Level::new(camera, views, 1, opts.fine_robust_scale_px);
     let n = accumulate(renderer, views, &level, &pose, opts);
     let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
@@ -957,27 +958,6 @@ fn finish(
         iterations,
         trajectory,
     })
-}
-
-/// The default solver's full-resolution objective at `pose` (robust boundary cost, pixels);
-/// for diagnostics and comparing estimates.
-pub fn boundary_cost(
-    renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
-    views: &[View],
-    pose: &Isometry3<f64>,
-    opts: &SolveOptions,
-) -> f64 {
-    let camera = camera.undistorted();
-    let level = Level {
-        camera: camera.clone(),
-        robust_scale_px: opts.fine_robust_scale_px,
-        views: views
-            .par_iter()
-            .map(|v| ObservedLevel::new(&v.observed, 1))
-            .collect(),
-    };
-    accumulate(renderer, views, &level, pose, opts).cost
 }
 
 /// 1-sigma rotation (about camera axes) and translation of `camera_from_base`'s translation
