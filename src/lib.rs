@@ -17,6 +17,7 @@ pub mod camera;
 pub mod error;
 pub mod explore;
 pub mod geometry;
+pub mod init;
 pub mod interop;
 pub mod io;
 pub mod mask;

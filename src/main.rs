@@ -9,6 +9,7 @@ use clap::{Args, Parser, Subcommand};
 
 use easyhec::bench;
 use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
+use easyhec::init::{initialise, InitOptions};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
 use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
@@ -242,9 +243,6 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         "explore" => Selection::Explore,
         other => bail!("--select {other}: use first, random or explore"),
     };
-    let initial = run.initial_guess.ok_or_else(|| {
-        anyhow!("{}: initial_guess: missing; automatic initialisation is not built yet, so add initial_guess.camera_from_base", run.dir.join("run.json").display())
-    })?;
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
     let pool_size = if selection == Selection::First {
         k
@@ -259,6 +257,32 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         })
         .collect();
     let renderer = CpuRenderer;
+    let initial = match run.initial_guess {
+        Some(guess) => guess,
+        None => {
+            // No guess: search for one (method.md §6) over the first views.
+            let first = &pool[..pool.len().min(3)];
+            let found = initialise(
+                &renderer,
+                &run.camera,
+                first,
+                &SolveOptions::default(),
+                &InitOptions::default(),
+            )
+            .with_context(|| {
+                format!(
+                    "{}: initial_guess is absent",
+                    run.dir.join("run.json").display()
+                )
+            })?;
+            eprintln!(
+                "no initial_guess: automatic initialisation found a pose with mean IoU {:.3} over {} views",
+                found.per_view_iou.iter().sum::<f64>() / found.per_view_iou.len() as f64,
+                first.len()
+            );
+            found.camera_from_base
+        }
+    };
     let selected = solve_selected(
         &renderer,
         &run.camera,

@@ -290,3 +290,51 @@ fn explore_and_random_select_distinct_views_from_the_pool() {
     );
     assert_eq!(ra.views_used, rb.views_used);
 }
+
+#[test]
+fn no_initial_guess_is_found_automatically() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &["--no-initial-guess"]);
+    let run_json = std::fs::read_to_string(run.join("run.json")).unwrap();
+    assert!(!run_json.contains("initial_guess"));
+    let out = solve(&run, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("automatic initialisation"));
+    let (rot, trans) = errors(&run);
+    assert!(
+        rot < 0.15 && trans < 1.5,
+        "error {rot:.4} deg {trans:.3} mm without a guess"
+    );
+}
+
+#[test]
+fn failed_automatic_initialisation_is_reported_not_returned() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &["--no-initial-guess"]);
+    // Masks of something that is not this robot: a filled disc in a corner.
+    for i in 0..3 {
+        let img = image::GrayImage::from_fn(640, 480, |u, v| {
+            let (du, dv) = (f64::from(u) - 80.0, f64::from(v) - 80.0);
+            image::Luma([if du * du + dv * dv < 900.0 { 255 } else { 0 }])
+        });
+        img.save(run.join(format!("views/{i:03}.mask.png")))
+            .unwrap();
+    }
+    let out = solve(&run, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "a pose was returned for masks of a disc"
+    );
+    assert!(
+        stderr.contains("automatic initialisation failed") && stderr.contains("initial_guess"),
+        "{stderr}"
+    );
+    assert!(!run.join("result.json").exists());
+}
