@@ -388,6 +388,21 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         report.uncertainty.translation_mm,
         out.display()
     );
+    // Synthetic runs carry their truth beside run.json: report the error against it.
+    let truth_path = run.dir.join("ground_truth.json");
+    if let Ok(text) = std::fs::read_to_string(&truth_path) {
+        if let Some(truth) = serde_json::from_str::<easyhec::synth::GroundTruth>(&text)
+            .ok()
+            .and_then(|t| easyhec::geometry::from_rows(&t.camera_from_base).ok())
+        {
+            println!(
+                "error vs {}: rotation {:.4} deg, translation {:.3} mm",
+                truth_path.display(),
+                easyhec::geometry::rotation_error_deg(&report.camera_from_base, &truth),
+                easyhec::geometry::translation_error_mm(&report.camera_from_base, &truth)
+            );
+        }
+    }
     Ok(())
 }
 
