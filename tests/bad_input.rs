@@ -7,17 +7,13 @@ use std::process::Command;
 
 fn make_run(dir: &Path) -> std::path::PathBuf {
     let run = dir.join("run");
-    let status = Command::new(common::easyhec_bin())
-        .args(["synth", "--robot"])
-        .arg(common::robot_urdf("xarm6"))
-        .arg("--out")
-        .arg(&run)
-        .args([
+    common::synth_run(
+        &run,
+        "xarm6",
+        &[
             "--views", "2", "--seed", "1", "--width", "320", "--height", "240", "--focal", "300",
-        ])
-        .status()
-        .unwrap();
-    assert!(status.success());
+        ],
+    );
     run
 }
 

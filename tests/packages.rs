@@ -9,17 +9,13 @@ use std::process::Command;
 /// A run whose URDF refers to its meshes as `package://xarm_description/meshes/...`.
 fn packaged_run(dir: &Path) -> std::path::PathBuf {
     let run = dir.join("run");
-    let status = Command::new(common::easyhec_bin())
-        .args(["synth", "--robot"])
-        .arg(common::robot_urdf("xarm6"))
-        .arg("--out")
-        .arg(&run)
-        .args([
+    common::synth_run(
+        &run,
+        "xarm6",
+        &[
             "--views", "1", "--seed", "2", "--width", "320", "--height", "240", "--focal", "300",
-        ])
-        .status()
-        .unwrap();
-    assert!(status.success());
+        ],
+    );
     // A catkin-style workspace: ws/src/xarm_ros/xarm_description/{package.xml,meshes -> vendor meshes}.
     let pkg = dir.join("ws/src/xarm_ros/xarm_description");
     std::fs::create_dir_all(&pkg).unwrap();

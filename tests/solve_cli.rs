@@ -10,25 +10,16 @@ use easyhec::run::ResultFile;
 use easyhec::synth::GroundTruth;
 
 fn synth(out: &Path, extra: &[&str]) {
-    let status = Command::new(common::easyhec_bin())
-        .args(["synth", "--robot"])
-        .arg(common::robot_urdf("xarm6"))
-        .arg("--out")
-        .arg(out)
-        .args(["--views", "3", "--seed", "5"])
-        .args(extra)
-        .status()
-        .unwrap();
-    assert!(status.success());
+    let args: Vec<&str> = ["--views", "3", "--seed", "5"]
+        .iter()
+        .chain(extra)
+        .copied()
+        .collect();
+    common::synth_run(out, "xarm6", &args);
 }
 
 fn solve(run: &Path, extra: &[&str]) -> std::process::Output {
-    Command::new(common::easyhec_bin())
-        .arg("solve")
-        .arg(run)
-        .args(extra)
-        .output()
-        .unwrap()
+    common::solve_run(run, extra)
 }
 
 fn errors(run: &Path) -> (f64, f64) {
@@ -219,15 +210,7 @@ fn exports_parse_back_to_the_same_transform() {
 fn explore_and_random_select_distinct_views_from_the_pool() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
-    let status = Command::new(common::easyhec_bin())
-        .args(["synth", "--robot"])
-        .arg(common::robot_urdf("xarm6"))
-        .arg("--out")
-        .arg(&run)
-        .args(["--views", "8", "--seed", "9"])
-        .status()
-        .unwrap();
-    assert!(status.success());
+    common::synth_run(&run, "xarm6", &["--views", "8", "--seed", "9"]);
     for select in ["explore", "random"] {
         let out = solve(&run, &["--views", "3", "--select", select]);
         assert!(

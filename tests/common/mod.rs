@@ -26,3 +26,26 @@ pub fn load_robot(name: &str) -> RobotModel {
 pub fn easyhec_bin() -> PathBuf {
     PathBuf::from(env!("CARGO_BIN_EXE_easyhec"))
 }
+
+/// Runs `easyhec synth --robot <vendor NAME> --out OUT ARGS…` and checks it succeeded.
+pub fn synth_run(out: &std::path::Path, robot: &str, args: &[&str]) {
+    let status = std::process::Command::new(easyhec_bin())
+        .args(["synth", "--robot"])
+        .arg(robot_urdf(robot))
+        .arg("--out")
+        .arg(out)
+        .args(args)
+        .status()
+        .expect("easyhec runs");
+    assert!(status.success(), "synth failed");
+}
+
+/// Runs `easyhec solve RUN EXTRA…`.
+pub fn solve_run(run: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    std::process::Command::new(easyhec_bin())
+        .arg("solve")
+        .arg(run)
+        .args(extra)
+        .output()
+        .expect("easyhec runs")
+}
