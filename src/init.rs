@@ -1,7 +1,7 @@
 //! Automatic initial pose (method.md §6): no trained network, no hand-tuned guess.
 //!
 //! Camera hypotheses are placed on shells around the robot (0.6–2.5 m, every 15° of azimuth,
-//! five elevations, three rolls), each looking at the robot's centre, and scored by mask IoU at
+//! six elevations, three rolls), each looking at the robot's centre, and scored by mask IoU at
 //! 1/8 resolution with decimated meshes over the first views. The best few are refined by the
 //! cross-entropy search and the full solver; the best result wins. A low final IoU is reported
 //! as a failure, never returned as a pose.
@@ -42,7 +42,7 @@ impl Default for InitOptions {
         InitOptions {
             distances_m: vec![0.6, 0.8, 1.05, 1.4, 1.85, 2.5],
             azimuth_step_deg: 15.0,
-            elevations_deg: vec![-10.0, 10.0, 30.0, 50.0, 70.0],
+            elevations_deg: vec![-10.0, 10.0, 30.0, 50.0, 70.0, 85.0],
             rolls_deg: vec![-30.0, 0.0, 30.0],
             scoring_views: 3,
             refine_best: 6,

@@ -160,6 +160,22 @@ enum BenchCommand {
         #[arg(long, value_delimiter = ',', default_value = "lm")]
         optimizers: Vec<String>,
     },
+    /// Automatic initialisation (no guess): success rate, errors and time over seeded cells
+    /// with the camera anywhere on a hemisphere around the robot.
+    Init {
+        /// Robot URDF.
+        #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
+        robot: PathBuf,
+        /// Number of cells (seeds 0..N-1).
+        #[arg(long, default_value_t = 40)]
+        scenes: u64,
+        /// Views per cell.
+        #[arg(long, default_value_t = 3)]
+        views: usize,
+        /// Camera distance range, metres.
+        #[arg(long, value_delimiter = ',', default_value = "0.6,2.5")]
+        distance: Vec<f64>,
+    },
     /// Wall time of K-view solves, and peak memory.
     Speed {
         /// Robot URDF.
@@ -444,6 +460,7 @@ fn cmd_synth(a: SynthArgs) -> anyhow::Result<()> {
         } else {
             Some(((2.0, 6.0), (0.02, 0.08)))
         },
+        ..SynthOptions::default()
     };
     let scene = generate(&robot, &opts)?;
     let entry = RobotEntry {
@@ -533,6 +550,79 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 )?;
                 println!("{}", bench::summarize(&name, &trials, &views));
             }
+        }
+        BenchCommand::Init {
+            robot,
+            scenes,
+            views,
+            distance,
+        } => {
+            let model = RobotModel::load(&RobotSource {
+                urdf: robot,
+                ..Default::default()
+            })?;
+            let (lo, hi) = match distance.as_slice() {
+                [lo, hi] => (*lo, *hi),
+                _ => bail!("--distance takes MIN,MAX in metres"),
+            };
+            let (mut ok, mut rot, mut trans, mut secs) =
+                (0usize, Vec::new(), Vec::new(), Vec::new());
+            for seed in 0..scenes {
+                let synth = SynthOptions {
+                    seed,
+                    views,
+                    initial_error: None,
+                    camera_distance_m: (lo, hi),
+                    camera_elevation_deg: (0.0, 90.0),
+                    ..SynthOptions::default()
+                };
+                let scene = generate(&model, &synth)?;
+                let v = bench::scene_views(&model, &scene);
+                let t = Instant::now();
+                let outcome = initialise(
+                    &CpuRenderer,
+                    &scene.camera,
+                    &v,
+                    &SolveOptions::default(),
+                    &InitOptions::default(),
+                );
+                let dt = t.elapsed().as_secs_f64();
+                secs.push(dt);
+                match outcome {
+                    Ok(r) => {
+                        let (re, te) = (
+                            easyhec::geometry::rotation_error_deg(
+                                &r.camera_from_base,
+                                &scene.camera_from_base,
+                            ),
+                            easyhec::geometry::translation_error_mm(
+                                &r.camera_from_base,
+                                &scene.camera_from_base,
+                            ),
+                        );
+                        let good = re <= 0.1 && te <= 2.0;
+                        ok += usize::from(good);
+                        rot.push(re);
+                        trans.push(te);
+                        eprintln!(
+                            "seed {seed}: {re:.4} deg {te:.3} mm in {dt:.2} s{}",
+                            if good {
+                                ""
+                            } else {
+                                "  (outside 0.1 deg / 2 mm)"
+                            }
+                        );
+                    }
+                    Err(e) => eprintln!("seed {seed}: reported failure in {dt:.2} s: {e}"),
+                }
+            }
+            println!(
+                "auto init, {views} views, camera {lo}-{hi} m on a hemisphere: {ok}/{scenes} within 0.1 deg / 2 mm; median error {:.4} deg {:.3} mm; time median {:.2} s, max {:.2} s",
+                bench::median(&rot),
+                bench::median(&trans),
+                bench::median(&secs),
+                secs.iter().copied().fold(0.0, f64::max)
+            );
         }
         BenchCommand::Speed {
             robot,

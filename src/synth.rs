@@ -79,6 +79,10 @@ pub struct SynthOptions {
     pub noise: NoiseModel,
     /// Initial-guess error ranges: rotation (deg) and translation (m); `None` writes no guess.
     pub initial_error: Option<((f64, f64), (f64, f64))>,
+    /// Camera distance from the robot's centre, metres (min, max).
+    pub camera_distance_m: (f64, f64),
+    /// Camera elevation above the base plane, degrees (min, max).
+    pub camera_elevation_deg: (f64, f64),
 }
 
 impl Default for SynthOptions {
@@ -92,6 +96,8 @@ impl Default for SynthOptions {
             distortion: None,
             noise: NoiseModel::standard(),
             initial_error: Some(((2.0, 6.0), (0.02, 0.08))),
+            camera_distance_m: (0.9, 1.6),
+            camera_elevation_deg: (10.0, 50.0),
         }
     }
 }
@@ -202,9 +208,11 @@ pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
     let centre = robot_centre(robot);
     let renderer = CpuRenderer;
     for _attempt in 0..50 {
-        let distance = rng.random_range(0.9..1.6);
+        let distance = rng.random_range(opts.camera_distance_m.0..=opts.camera_distance_m.1);
         let azimuth = rng.random_range(0.0..std::f64::consts::TAU);
-        let elevation = rng.random_range(10f64..50.0).to_radians();
+        let elevation = rng
+            .random_range(opts.camera_elevation_deg.0..=opts.camera_elevation_deg.1)
+            .to_radians();
         let eye = centre
             + Vector3::new(
                 elevation.cos() * azimuth.cos(),
@@ -283,8 +291,8 @@ pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
         });
     }
     Err(Error::Solve(format!(
-        "could not place a camera that sees robot '{}' in {} valid poses: the robot may be too large for a {}x{} image at 0.9-1.6 m",
-        robot.name, opts.views, opts.width, opts.height
+        "could not place a camera that sees robot '{}' in {} valid poses: the robot may be too large for a {}x{} image at {:.1}-{:.1} m",
+        robot.name, opts.views, opts.width, opts.height, opts.camera_distance_m.0, opts.camera_distance_m.1
     )))
 }
 
