@@ -489,10 +489,7 @@ fn cmd_import(
     let joints = match joints {
         Some(j) => j,
         None => {
-            let robot = RobotModel::load(&RobotSource {
-                urdf: urdf.clone(),
-                ..Default::default()
-            })?;
+            let robot = RobotModel::from_urdf(urdf.clone())?;
             robot.joint_names().iter().map(|s| s.to_string()).collect()
         }
     };
@@ -528,10 +525,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             views,
             optimizers,
         } => {
-            let model = RobotModel::load(&RobotSource {
-                urdf: robot,
-                ..Default::default()
-            })?;
+            let model = RobotModel::from_urdf(robot)?;
             let seeds: Vec<u64> = (0..scenes).collect();
             for name in optimizers {
                 let optimizer: Optimizer = name.parse().map_err(|e: String| anyhow!(e))?;
@@ -557,10 +551,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             views,
             distance,
         } => {
-            let model = RobotModel::load(&RobotSource {
-                urdf: robot,
-                ..Default::default()
-            })?;
+            let model = RobotModel::from_urdf(robot)?;
             let (lo, hi) = match distance.as_slice() {
                 [lo, hi] => (*lo, *hi),
                 _ => bail!("--distance takes MIN,MAX in metres"),
@@ -631,10 +622,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             height,
             scenes,
         } => {
-            let model = RobotModel::load(&RobotSource {
-                urdf: robot,
-                ..Default::default()
-            })?;
+            let model = RobotModel::from_urdf(robot)?;
             let mut times = Vec::new();
             for seed in 0..scenes {
                 let scene = generate(

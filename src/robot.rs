@@ -415,6 +415,14 @@ impl RobotModel {
         })
     }
 
+    /// Loads a URDF with the defaults: root as base, every movable non-mimic joint actuated.
+    pub fn from_urdf(urdf: impl Into<PathBuf>) -> Result<RobotModel> {
+        RobotModel::load(&RobotSource {
+            urdf: urdf.into(),
+            ..Default::default()
+        })
+    }
+
     /// Names of the actuated joints, in joint-vector order.
     pub fn joint_names(&self) -> Vec<&str> {
         self.actuated

@@ -22,6 +22,23 @@ fn solve(run: &Path, extra: &[&str]) -> std::process::Output {
     common::solve_run(run, extra)
 }
 
+fn assert_ok(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The run's result is within 0.15° / 1.5 mm of its ground truth.
+fn assert_near_truth(run: &Path, context: &str) {
+    let (rot, trans) = errors(run);
+    assert!(
+        rot < 0.15 && trans < 1.5,
+        "{context}: error {rot:.4} deg {trans:.3} mm"
+    );
+}
+
 fn errors(run: &Path) -> (f64, f64) {
     let truth: GroundTruth =
         serde_json::from_str(&std::fs::read_to_string(run.join("ground_truth.json")).unwrap())
@@ -43,16 +60,8 @@ fn synth_then_solve_recovers_the_camera() {
         &run,
         &["--overlays", dir.path().join("ov").to_str().unwrap()],
     );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let (rot, trans) = errors(&run);
-    assert!(
-        rot < 0.15 && trans < 1.5,
-        "error {rot:.4} deg {trans:.3} mm"
-    );
+    assert_ok(&out);
+    assert_near_truth(&run, "synthetic run");
     let result = ResultFile::read(&run.join("result.json")).unwrap();
     assert_eq!(result.views_used, vec![0, 1, 2]);
     assert!(
@@ -106,16 +115,8 @@ fn distorted_run_solves_like_an_undistorted_one() {
     let run = dir.path().join("run");
     synth(&run, &["--distortion=-0.25,0.08,0.001,-0.0008,-0.01"]);
     let out = solve(&run, &[]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let (rot, trans) = errors(&run);
-    assert!(
-        rot < 0.15 && trans < 1.5,
-        "distorted run: error {rot:.4} deg {trans:.3} mm"
-    );
+    assert_ok(&out);
+    assert_near_truth(&run, "distorted run");
 }
 
 #[test]
@@ -212,12 +213,7 @@ fn explore_and_random_select_distinct_views_from_the_pool() {
     let run = dir.path().join("run");
     common::synth_run(&run, "xarm6", &["--views", "8", "--seed", "9"]);
     for select in ["explore", "random"] {
-        let out = solve(&run, &["--views", "3", "--select", select]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert_ok(&solve(&run, &["--views", "3", "--select", select]));
         let result = ResultFile::read(&run.join("result.json")).unwrap();
         assert_eq!(result.views_used[0], 0, "{select} starts from view 0");
         let mut used = result.views_used.clone();
@@ -233,11 +229,7 @@ fn explore_and_random_select_distinct_views_from_the_pool() {
             result.timings_s.contains_key("explore"),
             select == "explore"
         );
-        let (rot, trans) = errors(&run);
-        assert!(
-            rot < 0.15 && trans < 1.5,
-            "{select}: {rot:.4} deg {trans:.3} mm"
-        );
+        assert_near_truth(&run, select);
     }
     // Random selection is seeded.
     let a = solve(
@@ -282,17 +274,9 @@ fn no_initial_guess_is_found_automatically() {
     let run_json = std::fs::read_to_string(run.join("run.json")).unwrap();
     assert!(!run_json.contains("initial_guess"));
     let out = solve(&run, &[]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_ok(&out);
     assert!(String::from_utf8_lossy(&out.stderr).contains("automatic initialisation"));
-    let (rot, trans) = errors(&run);
-    assert!(
-        rot < 0.15 && trans < 1.5,
-        "error {rot:.4} deg {trans:.3} mm without a guess"
-    );
+    assert_near_truth(&run, "without a guess");
 }
 
 #[test]

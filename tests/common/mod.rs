@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use easyhec::robot::{RobotModel, RobotSource};
+use easyhec::robot::RobotModel;
 
 /// `../shared/robots/NAME/robot.urdf` beside the checkout.
 pub fn robot_urdf(name: &str) -> PathBuf {
@@ -15,11 +15,7 @@ pub fn robot_urdf(name: &str) -> PathBuf {
 
 /// Loads one of the vendor robots.
 pub fn load_robot(name: &str) -> RobotModel {
-    RobotModel::load(&RobotSource {
-        urdf: robot_urdf(name),
-        ..Default::default()
-    })
-    .expect("vendor robot loads")
+    RobotModel::from_urdf(robot_urdf(name)).expect("vendor robot loads")
 }
 
 /// The `easyhec` binary built for this test run.
