@@ -358,25 +358,21 @@ const GRID_CELL_PX: f64 = 8.0;
 /// Search reach of the observed→rendered match, cells (beyond it a residual counts as the cap).
 const GRID_REACH: i64 = 2;
 
+/// Normal equations of the boundary residuals of `robots` (one per observation in `level`).
 fn accumulate(
     renderer: &dyn SilhouetteRenderer,
-    views: &[View],
+    robots: &[&PosedRobot],
     level: &Level,
     pose: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Normal {
     let c = level.robust_scale_px;
     let cap = GRID_CELL_PX * GRID_REACH as f64;
-    views
+    robots
         .par_iter()
         .zip(&level.views)
-        .map(|(view, obs)| {
-            let sil = renderer.render(
-                &view.robot,
-                &level.camera,
-                pose,
-                Some(opts.boundary_step_px),
-            );
+        .map(|(robot, obs)| {
+            let sil = renderer.render(robot, &level.camera, pose, Some(opts.boundary_step_px));
             let mut n = Normal::zero();
             let mut jacobians = Vec::with_capacity(sil.boundary.len());
             // Rendered outline -> observed outline along the same pixel row (or column): the
@@ -806,20 +802,20 @@ fn solve_lm(
         // Coarse levels see the robot through big pixels: a mesh clustered to a fraction of a
         // pixel renders the same silhouette at a fraction of the cost.
         let cell_m = opts.coarse_cell_fraction * f64::from(factor) / camera.fx.max(camera.fy);
-        let decimated: Vec<View>;
-        let level_views: &[View] = if factor > 1 && cell_m > 1e-3 {
-            decimated = views
-                .par_iter()
-                .map(|v| View {
-                    robot: v.robot.decimated(cell_m),
-                    observed: Mask::new(1, 1),
-                })
-                .collect();
-            &decimated
-        } else {
+        let decimated: Vec<PosedRobot> = if factor > 1 && cell_m > 1e-3 {
             views
+                .par_iter()
+                .map(|v| v.robot.decimated(cell_m))
+                .collect()
+        } else {
+            Vec::new()
         };
-        let mut current = accumulate(renderer, level_views, &level, &pose, opts);
+        let level_views: Vec<&PosedRobot> = if decimated.is_empty() {
+            views.iter().map(|v| &v.robot).collect()
+        } else {
+            decimated.iter().collect()
+        };
+        let mut current = accumulate(renderer, &level_views, &level, &pose, opts);
         iterations += 1;
         if current.length == 0.0 {
             return Err(Error::Solve(
@@ -851,7 +847,7 @@ fn solve_lm(
                 continue;
             };
             let candidate = exp_se3(&step) * pose;
-            let next = accumulate(renderer, level_views, &level, &candidate, opts);
+            let next = accumulate(renderer, &level_views, &level, &candidate, opts);
             iterations += 1;
             level_iterations += 1;
             if next.length > 0.0 && total_cost(&next) <= total_cost(&current) {
@@ -933,7 +929,8 @@ fn finish(
     opts: &SolveOptions,
 ) -> Result<SolveReport> {
     let level = Level::new(camera, views, 1, opts.fine_robust_scale_px);
-    let n = accumulate(renderer, views, &level, &pose, opts);
+    let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.robot).collect();
+    let n = accumulate(renderer, &robots, &level, &pose, opts);
     let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
     let covariance = match n.h.try_inverse() {
