@@ -28,6 +28,9 @@ pub enum Error {
     /// A computation could not produce a trustworthy answer.
     #[error("{0}")]
     Solve(String),
+    /// An arm or camera failed or refused.
+    #[error("{0}")]
+    Hardware(String),
 }
 
 impl Error {

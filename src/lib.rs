@@ -13,6 +13,9 @@
 //!   benchmarks.
 
 pub mod bench;
+pub mod calibrate;
+pub mod cell;
+pub mod collision;
 pub mod camera;
 pub mod error;
 pub mod explore;
@@ -27,6 +30,9 @@ pub mod overlay;
 pub mod render;
 pub mod robot;
 pub mod run;
+pub mod safety;
+pub mod scene;
+pub mod segment;
 pub mod solve;
 pub mod synth;
 

@@ -31,6 +31,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the whole calibration loop on a configured cell (move, capture, solve, explore).
+    Calibrate(CalibrateArgs),
     /// Solve camera_from_base from a recorded run directory (easyhec-run/1).
     Solve(SolveArgs),
     /// Write a synthetic run directory with a separate ground-truth file.
@@ -68,6 +70,25 @@ struct SolveArgs {
     /// Write one agreement overlay PNG per view into this folder.
     #[arg(long)]
     overlays: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct CalibrateArgs {
+    /// Cell config (TOML), e.g. config/sim-xarm6.toml.
+    #[arg(long)]
+    config: PathBuf,
+    /// Run directory to record into (default: runs/<UTC time>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Plan and print the poses with their checks; never move.
+    #[arg(long)]
+    dry_run: bool,
+    /// Ask before each move.
+    #[arg(long)]
+    confirm: bool,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(Args)]
@@ -222,6 +243,7 @@ fn main() -> ExitCode {
         }
     };
     let outcome = match cli.command {
+        Command::Calibrate(a) => cmd_calibrate(a),
         Command::Solve(a) => cmd_solve(a),
         Command::Synth(a) => cmd_synth(a),
         Command::Import(ImportCommand::Easyhec {
@@ -242,6 +264,119 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
+    use easyhec::calibrate::{calibrate, rfc3339, PlannedPose, RunOptions};
+    use std::io::Write;
+    use std::sync::Arc;
+    let cell = easyhec::cell::Cell::open(&a.config)?;
+    let out = a.out.unwrap_or_else(|| {
+        PathBuf::from("runs").join(rfc3339(std::time::SystemTime::now()).replace(':', "-"))
+    });
+    let confirm: Option<Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>> = if a.confirm {
+        Some(Arc::new(|p: &PlannedPose| {
+            eprint!(
+                "move to {} (score {:.1}, {:.0}% in image, clearance {:.1} mm self / {:.1} mm environment)? [y/N] ",
+                fmt_joints(&p.joints),
+                p.score,
+                p.in_image * 100.0,
+                p.clearance.self_m * 1e3,
+                p.clearance.environment_m * 1e3
+            );
+            let _ = std::io::stderr().flush();
+            let mut line = String::new();
+            std::io::stdin().read_line(&mut line).is_ok() && line.trim().eq_ignore_ascii_case("y")
+        }))
+    } else {
+        None
+    };
+    let opts = RunOptions {
+        dry_run: a.dry_run,
+        confirm,
+        progress: !a.quiet,
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let outcome = runtime.block_on(calibrate(&cell, &out, &opts))?;
+    let r = &outcome.result;
+    if a.dry_run {
+        println!(
+            "dry run: {} poses planned from the first view's estimate (nothing moved); speed {:.2} rad/s",
+            outcome.planned.len(),
+            cell.config.calibration.speed_rad_s
+        );
+        for (i, p) in outcome.planned.iter().enumerate() {
+            println!(
+                "  {}: {}  score {:.1}  in image {:.0}%  path {} poses checked, clearance {:.1} mm self / {:.1} mm environment",
+                i + 1,
+                fmt_joints(&p.joints),
+                p.score,
+                p.in_image * 100.0,
+                p.path_samples,
+                p.clearance.self_m * 1e3,
+                p.clearance.environment_m * 1e3
+            );
+        }
+        for (a, b, why) in &cell.checker.skipped_pairs {
+            if *why == "always in contact" || *why == "allowed in config" || *why == "disabled in SRDF" {
+                println!("  not checked: {a} / {b} ({why})");
+            }
+        }
+        return Ok(());
+    }
+    let iou = outcome.report.per_view_iou.iter().sum::<f64>() / outcome.report.per_view_iou.len().max(1) as f64;
+    let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
+    eprintln!(
+        "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
+        r.views_used.len(),
+        t("total"),
+        t("solve"),
+        t("explore"),
+        t("motion"),
+        r.stop_reason,
+        iou,
+        outcome.run_dir.join("result.json").display()
+    );
+    if let Some(u) = &r.uncertainty {
+        eprintln!(
+            "1-sigma: rotation [{:.4}, {:.4}, {:.4}] deg, translation [{:.3}, {:.3}, {:.3}] mm",
+            u.rotation_deg[0], u.rotation_deg[1], u.rotation_deg[2],
+            u.translation_mm[0], u.translation_mm[1], u.translation_mm[2]
+        );
+    }
+    if let Some(truth) = cell.sim.camera_from_base {
+        let noise = match &cell.config.arm {
+            easyhec::cell::ArmConfig::Sim { encoder_noise_rad, .. } => *encoder_noise_rad,
+        };
+        let gt = easyhec::synth::GroundTruth {
+            format: "easyhec-truth/1".into(),
+            camera_from_base: easyhec::geometry::to_rows(&truth),
+            true_joints: Vec::new(),
+            noise: NoiseModel {
+                boundary_jitter_px: 0.0,
+                blob_probability: 0.0,
+                joint_noise_rad: noise,
+            },
+            seed: cell.config.calibration.seed,
+        };
+        easyhec::io::write_json_atomic(&outcome.run_dir.join("ground_truth.json"), &gt)?;
+        let est = r.camera_from_base();
+        println!(
+            "error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
+            easyhec::geometry::rotation_error_deg(&est, &truth),
+            easyhec::geometry::translation_error_mm(&est, &truth)
+        );
+    }
+    Ok(())
+}
+
+fn fmt_joints(q: &[f64]) -> String {
+    let parts: Vec<String> = q.iter().map(|v| format!("{v:+.3}")).collect();
+    format!("[{}]", parts.join(", "))
 }
 
 fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {

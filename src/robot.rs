@@ -86,6 +86,8 @@ pub struct RobotModel {
     pub visual: Arc<TriMesh>,
     /// For each vertex of `visual`, its link index.
     pub vertex_link: Vec<u32>,
+    /// Where it was loaded from (collision geometry is read from the same files).
+    pub source: RobotSource,
 }
 
 fn resolve_mesh_uri(
@@ -149,6 +151,65 @@ fn find_ros_package(dir: &Path, name: &str, depth: usize) -> Option<PathBuf> {
         .find_map(|sub| find_ros_package(&sub, name, depth - 1))
 }
 
+/// Loads one `<visual>`/`<collision>` geometry as a mesh in its own frame plus the scale to
+/// apply; mesh files are cached by path (robots reuse them across links).
+pub(crate) fn element_mesh(
+    geometry: &urdf_rs::Geometry,
+    field: &str,
+    urdf_path: &Path,
+    package_dirs: &BTreeMap<String, PathBuf>,
+    cache: &mut HashMap<PathBuf, Arc<TriMesh>>,
+) -> Result<(TriMesh, Vector3<f64>)> {
+    let urdf_dir = urdf_path.parent().unwrap_or(Path::new("."));
+    Ok(match geometry {
+        urdf_rs::Geometry::Mesh { filename, scale } => {
+            let path = resolve_mesh_uri(filename, urdf_dir, package_dirs)
+                .map_err(|m| Error::input(urdf_path, format!("{field} mesh"), m))?;
+            let mesh = match cache.get(&path) {
+                Some(m) => m.clone(),
+                None => {
+                    let m = Arc::new(load_mesh_file(&path)?);
+                    cache.insert(path.clone(), m.clone());
+                    m
+                }
+            };
+            let s = scale
+                .map(|s| Vector3::from(s.0))
+                .unwrap_or(Vector3::new(1.0, 1.0, 1.0));
+            let (lo, hi) = mesh
+                .bounds()
+                .unwrap_or((Point3::origin(), Point3::origin()));
+            let extent = (hi - lo).component_mul(&s.abs()).max();
+            if extent > MAX_LINK_EXTENT_M {
+                return Err(Error::input(
+                    &path,
+                    format!("{field} scale"),
+                    format!(
+                        "mesh spans {extent:.1} m, which looks like millimetres: add scale=\"0.001 0.001 0.001\" to the <mesh> element in {}",
+                        urdf_path.display()
+                    ),
+                ));
+            }
+            ((*mesh).clone(), s)
+        }
+        urdf_rs::Geometry::Box { size } => {
+            (TriMesh::cuboid(size.0), Vector3::new(1.0, 1.0, 1.0))
+        }
+        urdf_rs::Geometry::Cylinder { radius, length } => (
+            TriMesh::cylinder(*radius, *length, 32),
+            Vector3::new(1.0, 1.0, 1.0),
+        ),
+        urdf_rs::Geometry::Sphere { radius } => (
+            TriMesh::capsule(*radius, 0.0, 16, 32),
+            Vector3::new(1.0, 1.0, 1.0),
+        ),
+        urdf_rs::Geometry::Capsule { radius, length } => (
+            TriMesh::capsule(*radius, *length, 16, 32),
+            Vector3::new(1.0, 1.0, 1.0),
+        ),
+    })
+}
+
 /// Largest sane robot-part extent; anything bigger is almost surely a unit mistake.
 const MAX_LINK_EXTENT_M: f64 = 3.0;
 
@@ -160,7 +221,6 @@ impl RobotModel {
             .map_err(|e| Error::io(urdf_path, format!("cannot read URDF: {e}")))?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
-        let urdf_dir = urdf_path.parent().unwrap_or(Path::new("."));
         let links: Vec<String> = urdf.links.iter().map(|l| l.name.clone()).collect();
         let link_index: HashMap<&str, usize> = links
             .iter()
@@ -351,53 +411,7 @@ impl RobotModel {
             for (vi, v) in link.visual.iter().enumerate() {
                 let field = format!("link '{}' visual {vi}", link.name);
                 let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
-                let (mesh, scale) = match &v.geometry {
-                    urdf_rs::Geometry::Mesh { filename, scale } => {
-                        let path = resolve_mesh_uri(filename, urdf_dir, &src.package_dirs)
-                            .map_err(|m| Error::input(urdf_path, format!("{field} mesh"), m))?;
-                        let mesh = match cache.get(&path) {
-                            Some(m) => m.clone(),
-                            None => {
-                                let m = Arc::new(load_mesh_file(&path)?);
-                                cache.insert(path.clone(), m.clone());
-                                m
-                            }
-                        };
-                        let s = scale
-                            .map(|s| Vector3::from(s.0))
-                            .unwrap_or(Vector3::new(1.0, 1.0, 1.0));
-                        let (lo, hi) = mesh
-                            .bounds()
-                            .unwrap_or((Point3::origin(), Point3::origin()));
-                        let extent = (hi - lo).component_mul(&s.abs()).max();
-                        if extent > MAX_LINK_EXTENT_M {
-                            return Err(Error::input(
-                                &path,
-                                format!("{field} scale"),
-                                format!(
-                                    "mesh spans {extent:.1} m, which looks like millimetres: add scale=\"0.001 0.001 0.001\" to the <mesh> element in {}",
-                                    urdf_path.display()
-                                ),
-                            ));
-                        }
-                        ((*mesh).clone(), s)
-                    }
-                    urdf_rs::Geometry::Box { size } => {
-                        (TriMesh::cuboid(size.0), Vector3::new(1.0, 1.0, 1.0))
-                    }
-                    urdf_rs::Geometry::Cylinder { radius, length } => (
-                        TriMesh::cylinder(*radius, *length, 32),
-                        Vector3::new(1.0, 1.0, 1.0),
-                    ),
-                    urdf_rs::Geometry::Sphere { radius } => (
-                        TriMesh::capsule(*radius, 0.0, 16, 32),
-                        Vector3::new(1.0, 1.0, 1.0),
-                    ),
-                    urdf_rs::Geometry::Capsule { radius, length } => (
-                        TriMesh::capsule(*radius, *length, 16, 32),
-                        Vector3::new(1.0, 1.0, 1.0),
-                    ),
-                };
+                let (mesh, scale) = element_mesh(&v.geometry, &field, urdf_path, &src.package_dirs, &mut cache)?;
                 let placed = mesh.transformed(scale, &origin);
                 vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
                 visual.append(&placed);
@@ -412,6 +426,7 @@ impl RobotModel {
             actuated,
             visual: Arc::new(visual),
             vertex_link,
+            source: src.clone(),
         })
     }
 

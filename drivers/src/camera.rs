@@ -1,0 +1,52 @@
+//! The camera role.
+
+use std::time::SystemTime;
+
+use async_trait::async_trait;
+
+use crate::Result;
+
+/// Pinhole intrinsics with optional `plumb_bob` distortion (k1 k2 p1 p2 k3), pixels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Intrinsics {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Focal length x.
+    pub fx: f64,
+    /// Focal length y.
+    pub fy: f64,
+    /// Principal point x.
+    pub cx: f64,
+    /// Principal point y.
+    pub cy: f64,
+    /// `plumb_bob` coefficients, when the lens is modelled.
+    pub distortion: Option<[f64; 5]>,
+}
+
+/// One captured colour frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Row-major RGB8.
+    pub rgb: Vec<u8>,
+    /// When the exposure happened (sensor or host clock).
+    pub captured_at: SystemTime,
+    /// Ground-truth robot mask (row-major, 0 or 255), only from simulated cameras: a side
+    /// channel for tests and for running the loop before a segmenter exists.
+    pub truth_mask: Option<Vec<u8>>,
+}
+
+/// A camera that grabs colour frames on request.
+#[async_trait]
+pub trait Camera: Send + Sync {
+    /// Calibrated intrinsics of the frames it returns.
+    fn intrinsics(&self) -> &Intrinsics;
+
+    /// Grabs the next frame exposed after this call.
+    async fn grab(&self) -> Result<Frame>;
+}

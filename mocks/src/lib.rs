@@ -1,0 +1,13 @@
+//! Simulated hardware that implements the real [`easyhec_drivers`] traits, so the whole
+//! calibration loop runs in CI: a [`SimArm`] that moves at finite speed along the joint-space
+//! line the planner assumed, with encoder noise, injectable faults and a log of every command;
+//! and a [`SimCamera`] that asks a [`SceneRenderer`] for a frame of the arm's *true* joints.
+//!
+//! The renderer is injected rather than owned so this crate stays below the `easyhec` library
+//! (which owns robot models and rendering) in the dependency graph.
+
+mod sim_arm;
+mod sim_camera;
+
+pub use sim_arm::{CommandRecord, Fault, SimArm, SimArmConfig};
+pub use sim_camera::{SceneFrame, SceneRenderer, SimCamera};

@@ -1,0 +1,755 @@
+//! The closed loop (method.md §5): capture, solve, choose the next arm pose where the camera
+//! hypotheses that still fit disagree most, check it is safe, move, capture, solve again, and
+//! stop when more views stop helping. Everything is recorded into a run directory as it
+//! happens (`easyhec-run/1` plus `rounds.json`), so a crash loses nothing and `easyhec solve`
+//! can re-solve it offline.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use easyhec_drivers::{ArmStatus, Frame};
+use nalgebra::Isometry3;
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::Camera;
+use crate::cell::{Cell, LookAt};
+use crate::error::{Error, Result};
+use crate::explore::{camera_candidates, disagreement, CandidateSource, ExploreOptions};
+use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
+use crate::init::{initialise, InitOptions};
+use crate::io::{write_atomic, write_json_atomic};
+use crate::mask::Mask;
+use crate::render::{CpuRenderer, PosedRobot};
+use crate::run::{
+    CameraEntry, PerView, PoseEntry, ResultFile, RobotEntry, RunFile, UncertaintyEntry, ViewEntry,
+    RUN_FORMAT,
+};
+use crate::safety::{CheckedMove, Clearance, SafeArm};
+use crate::solve::{solve, SolveOptions, SolveReport, View};
+
+/// `[calibration]` in a cell config.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSettings {
+    /// A rough camera pose (tape measure); absent: automatic initialisation.
+    #[serde(default)]
+    pub initial_guess: Option<LookAt>,
+    /// Views at most (the first is taken where the arm stands).
+    #[serde(default = "default_max_views")]
+    pub max_views: usize,
+    /// Views before the variance rule may stop the loop.
+    #[serde(default = "default_min_views")]
+    pub min_views: usize,
+    /// Joint samples drawn per round (paper: 2000).
+    #[serde(default = "default_joint_samples")]
+    pub joint_samples: usize,
+    /// Camera candidates per round (paper: 50).
+    #[serde(default = "default_candidates")]
+    pub candidates: usize,
+    /// `posterior` (default) or `trajectory` (the paper's).
+    #[serde(default)]
+    pub candidate_source: SourceSetting,
+    /// Commanded speed of the fastest joint, rad/s (must be within the safety cap).
+    #[serde(default = "default_speed")]
+    pub speed_rad_s: f64,
+    /// Seed of joint sampling and candidates.
+    #[serde(default)]
+    pub seed: u64,
+    /// Variance rule: relative change of the best score between rounds.
+    #[serde(default = "default_variance_tol")]
+    pub variance_rel_tol: f64,
+    /// Variance rule also needs the estimate to move less than this, degrees…
+    #[serde(default = "default_pose_tol_deg")]
+    pub pose_tol_deg: f64,
+    /// …and this, millimetres.
+    #[serde(default = "default_pose_tol_mm")]
+    pub pose_tol_mm: f64,
+    /// Clear arm faults automatically and re-plan from where the arm stopped.
+    #[serde(default)]
+    pub clear_faults: bool,
+    /// Failed moves tolerated before the loop gives up.
+    #[serde(default = "default_max_failures")]
+    pub max_motion_failures: usize,
+    /// Image downsampling for scoring candidate poses.
+    #[serde(default = "default_score_downsample")]
+    pub score_downsample: u32,
+}
+
+fn default_max_views() -> usize {
+    5
+}
+fn default_min_views() -> usize {
+    3
+}
+fn default_joint_samples() -> usize {
+    2000
+}
+fn default_candidates() -> usize {
+    50
+}
+fn default_speed() -> f64 {
+    0.5
+}
+fn default_variance_tol() -> f64 {
+    0.1
+}
+fn default_pose_tol_deg() -> f64 {
+    0.02
+}
+fn default_pose_tol_mm() -> f64 {
+    0.2
+}
+fn default_max_failures() -> usize {
+    3
+}
+fn default_score_downsample() -> u32 {
+    8
+}
+
+impl Default for CalibrationSettings {
+    fn default() -> Self {
+        toml::from_str("").expect("every field has a default")
+    }
+}
+
+/// Where exploration's camera candidates come from.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum SourceSetting {
+    /// Posterior samples.
+    #[default]
+    Posterior,
+    /// Optimiser iterates (paper).
+    Trajectory,
+}
+
+impl CalibrationSettings {
+    /// Checks ranges, naming the key at fault.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let bad = |f: &str, m: &str| Err(Error::input(path, format!("calibration.{f}"), m));
+        if self.max_views == 0 {
+            return bad("max_views", "must be at least 1");
+        }
+        if self.min_views > self.max_views {
+            return bad("min_views", "must not exceed max_views");
+        }
+        if self.joint_samples == 0 {
+            return bad("joint_samples", "must be at least 1");
+        }
+        if self.candidates < 2 {
+            return bad("candidates", "must be at least 2");
+        }
+        if !(self.speed_rad_s > 0.0 && self.speed_rad_s.is_finite()) {
+            return bad("speed_rad_s", "must be a positive speed");
+        }
+        if self.score_downsample == 0 {
+            return bad("score_downsample", "must be at least 1");
+        }
+        Ok(())
+    }
+}
+
+/// One round of the loop, as `rounds.json` records it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RoundRecord {
+    /// 0-based round.
+    pub round: usize,
+    /// Views solved from.
+    pub views: usize,
+    /// The estimate after this round.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// Mean mask IoU at the estimate.
+    pub mean_iou: f64,
+    /// Mask loss at the estimate.
+    pub loss: f64,
+    /// Change from the previous round's estimate, degrees / millimetres.
+    pub pose_change: Option<[f64; 2]>,
+    /// Best disagreement score found when planning the next view (scoring pixels).
+    pub best_variance: Option<f64>,
+    /// The pose chosen next, when one was.
+    pub next_joints: Option<Vec<f64>>,
+    /// Events (faults, refusals, skipped candidates).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<String>,
+}
+
+/// A pose chosen by the planner, with its checks.
+#[derive(Clone, Debug)]
+pub struct PlannedPose {
+    /// Target joints.
+    pub joints: Vec<f64>,
+    /// Disagreement score.
+    pub score: f64,
+    /// Fraction of the robot inside the image under the current estimate.
+    pub in_image: f64,
+    /// Clearances along the path.
+    pub clearance: Clearance,
+    /// Poses checked on the path.
+    pub path_samples: usize,
+}
+
+/// How to run the loop.
+#[derive(Clone, Default)]
+pub struct RunOptions {
+    /// Plan and print, never move.
+    pub dry_run: bool,
+    /// Asked before each move; `false` ends the calibration.
+    pub confirm: Option<Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>>,
+    /// Draw progress bars on stderr.
+    pub progress: bool,
+}
+
+/// What a calibration produced.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// The result as written to `result.json` (not written on a dry run).
+    pub result: ResultFile,
+    /// The final solve.
+    pub report: SolveReport,
+    /// Every round.
+    pub rounds: Vec<RoundRecord>,
+    /// Dry run: the poses that would be visited.
+    pub planned: Vec<PlannedPose>,
+    /// Run directory.
+    pub run_dir: PathBuf,
+}
+
+/// Writes the run directory incrementally.
+pub struct Recorder {
+    dir: PathBuf,
+    run: RunFile,
+}
+
+/// RFC 3339 UTC time of `t` (seconds precision).
+pub fn rfc3339(t: SystemTime) -> String {
+    let secs = t.duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+impl Recorder {
+    /// Starts a run directory (refuses one that already holds a run).
+    pub fn create(dir: &Path, robot: RobotEntry, camera: CameraEntry, guess: Option<Isometry3<f64>>) -> Result<Recorder> {
+        if dir.join("run.json").exists() {
+            return Err(Error::input(
+                dir,
+                "--out",
+                "already holds a run.json: choose a new folder (nothing recorded is overwritten)",
+            ));
+        }
+        std::fs::create_dir_all(dir.join("views"))
+            .map_err(|e| Error::io(dir, format!("cannot create the run folder: {e}")))?;
+        Ok(Recorder {
+            dir: dir.to_path_buf(),
+            run: RunFile {
+                format: RUN_FORMAT.into(),
+                robot,
+                camera,
+                initial_guess: guess.map(|g| PoseEntry {
+                    camera_from_base: to_rows(&g),
+                }),
+                views: Vec::new(),
+            },
+        })
+    }
+
+    /// The run folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Writes a view's frame and mask, then `run.json`; returns its index.
+    pub fn add_view(&mut self, joints: &[f64], frame: &Frame, mask: &Mask) -> Result<usize> {
+        let i = self.run.views.len();
+        let image_rel = format!("views/{i:03}.png");
+        let mask_rel = format!("views/{i:03}.mask.png");
+        let img = image::RgbImage::from_raw(frame.width, frame.height, frame.rgb.clone())
+            .ok_or_else(|| {
+                Error::Hardware(format!(
+                    "camera frame has {} bytes for {}x{} RGB",
+                    frame.rgb.len(),
+                    frame.width,
+                    frame.height
+                ))
+            })?;
+        let mut png = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png, image::ImageFormat::Png)
+            .map_err(|e| Error::io(self.dir.join(&image_rel), e))?;
+        write_atomic(&self.dir.join(&image_rel), png.get_ref())?;
+        write_atomic(&self.dir.join(&mask_rel), &mask.to_png_bytes())?;
+        self.run.views.push(ViewEntry {
+            joints: joints.to_vec(),
+            mask: Some(mask_rel),
+            image: Some(image_rel),
+            captured_at: Some(rfc3339(frame.captured_at)),
+        });
+        write_json_atomic(&self.dir.join("run.json"), &self.run)?;
+        Ok(i)
+    }
+
+    /// Writes `rounds.json`.
+    pub fn write_rounds(&self, rounds: &[RoundRecord]) -> Result<()> {
+        #[derive(Serialize)]
+        struct Rounds<'a> {
+            format: &'static str,
+            rounds: &'a [RoundRecord],
+        }
+        write_json_atomic(
+            &self.dir.join("rounds.json"),
+            &Rounds {
+                format: "easyhec-rounds/1",
+                rounds,
+            },
+        )
+    }
+}
+
+fn camera_of(cell: &Cell) -> Camera {
+    let i = cell.camera.intrinsics();
+    Camera {
+        width: i.width,
+        height: i.height,
+        fx: i.fx,
+        fy: i.fy,
+        cx: i.cx,
+        cy: i.cy,
+        distortion: i.distortion,
+    }
+}
+
+fn absolute(p: &Path) -> String {
+    std::fs::canonicalize(p)
+        .unwrap_or_else(|_| p.to_path_buf())
+        .display()
+        .to_string()
+}
+
+/// Fraction of the robot's (decimated) surface points that land inside the image.
+pub fn in_image_fraction(robot: &PosedRobot, camera: &Camera, camera_from_base: &Isometry3<f64>) -> f64 {
+    if robot.vertices_base.is_empty() {
+        return 0.0;
+    }
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let inside = robot
+        .vertices_base
+        .iter()
+        .filter(|p| {
+            let c = camera_from_base * **p;
+            if c.z <= 0.05 {
+                return false;
+            }
+            let x = camera.project(&c);
+            x[0] >= 0.0 && x[1] >= 0.0 && x[0] <= w - 1.0 && x[1] <= h - 1.0
+        })
+        .count();
+    inside as f64 / robot.vertices_base.len() as f64
+}
+
+/// A scored joint sample that passed the static checks.
+#[derive(Clone, Debug)]
+pub struct Ranked {
+    /// Joints.
+    pub joints: Vec<f64>,
+    /// Disagreement score.
+    pub score: f64,
+    /// In-image fraction under the estimate.
+    pub in_image: f64,
+}
+
+/// Statistics of one planning pass.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PlanStats {
+    /// Joint samples drawn.
+    pub sampled: usize,
+    /// Samples that passed limits/collision/workspace.
+    pub safe: usize,
+    /// …and the in-image rule (scored).
+    pub scored: usize,
+}
+
+/// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
+/// by the candidates' disagreement, best first.
+pub fn rank_poses(
+    cell: &Cell,
+    camera: &Camera,
+    report: &SolveReport,
+    settings: &CalibrationSettings,
+    round: usize,
+) -> (Vec<Ranked>, PlanStats) {
+    let checker = &cell.checker;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(settings.seed.wrapping_mul(1000) + round as u64);
+    let samples: Vec<Vec<f64>> = (0..settings.joint_samples)
+        .map(|_| {
+            checker
+                .limits()
+                .iter()
+                .map(|&(lo, hi)| rng.random_range(lo..=hi))
+                .collect()
+        })
+        .collect();
+    let pinhole = camera.undistorted();
+    let low = pinhole.downsampled(settings.score_downsample);
+    let cell_m = 0.5 * f64::from(settings.score_downsample) / pinhole.fx.max(pinhole.fy);
+    let candidates = camera_candidates(
+        report,
+        &ExploreOptions {
+            candidates: settings.candidates,
+            source: match settings.candidate_source {
+                SourceSetting::Posterior => CandidateSource::Posterior,
+                SourceSetting::Trajectory => CandidateSource::Trajectory,
+            },
+            seed: settings.seed.wrapping_mul(7919) + round as u64,
+            ..ExploreOptions::default()
+        },
+    );
+    let estimate = report.camera_from_base;
+    let safe: Vec<(Vec<f64>, PosedRobot)> = samples
+        .into_par_iter()
+        .filter(|q| checker.check_pose(q).is_ok())
+        .map(|q| {
+            let posed = PosedRobot::new(&cell.robot, &q).decimated(cell_m);
+            (q, posed)
+        })
+        .collect();
+    let n_safe = safe.len();
+    let mut ranked: Vec<Ranked> = safe
+        .into_par_iter()
+        .filter_map(|(q, posed)| {
+            let in_image = in_image_fraction(&posed, &pinhole, &estimate);
+            if in_image < checker.min_in_image {
+                return None;
+            }
+            let score = disagreement(&CpuRenderer, &low, &posed, &candidates);
+            Some(Ranked {
+                joints: q,
+                score,
+                in_image,
+            })
+        })
+        .collect();
+    ranked.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let stats = PlanStats {
+        sampled: settings.joint_samples,
+        safe: n_safe,
+        scored: ranked.len(),
+    };
+    (ranked, stats)
+}
+
+/// Picks the best-ranked pose whose path from `from` passes the full move check.
+pub fn choose_reachable(
+    cell: &Cell,
+    ranked: &[Ranked],
+    from: &[f64],
+    speed_rad_s: f64,
+    skip: impl Fn(&[f64]) -> bool,
+    events: &mut Vec<String>,
+) -> Option<(PlannedPose, CheckedMove)> {
+    let mut rejected = 0;
+    for r in ranked.iter().filter(|r| !skip(&r.joints)).take(64) {
+        match cell.checker.check_move(from, &r.joints, speed_rad_s) {
+            Ok(mv) => {
+                if rejected > 0 {
+                    events.push(format!("{rejected} better-scored poses had unsafe paths"));
+                }
+                return Some((
+                    PlannedPose {
+                        joints: r.joints.clone(),
+                        score: r.score,
+                        in_image: r.in_image,
+                        clearance: mv.clearance,
+                        path_samples: mv.samples,
+                    },
+                    mv,
+                ));
+            }
+            Err(_) => rejected += 1,
+        }
+    }
+    events.push(format!("{rejected} candidate paths rejected"));
+    None
+}
+
+fn mean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        0.0
+    } else {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+}
+
+async fn capture(cell: &Cell, camera: &Camera, rec: &mut Recorder) -> Result<View> {
+    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
+    let joints = cell.arm.read_joints().await.map_err(hw)?;
+    let frame = cell.camera.grab().await.map_err(hw)?;
+    if frame.width != camera.width || frame.height != camera.height {
+        return Err(Error::Hardware(format!(
+            "camera returned a {}x{} frame; its intrinsics say {}x{}",
+            frame.width, frame.height, camera.width, camera.height
+        )));
+    }
+    let mask = cell.segmenter.segment(&frame)?;
+    rec.add_view(&joints, &frame, &mask)?;
+    Ok(View {
+        robot: PosedRobot::new(&cell.robot, &joints),
+        observed: camera.undistort_mask(&mask),
+    })
+}
+
+fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
+    if !opts.progress {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(max_views as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} views {pos}/{len} {wide_msg} [{elapsed}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pb.enable_steady_tick(std::time::Duration::from_millis(200));
+    pb
+}
+
+/// Runs the loop on `cell`, recording into `out`.
+pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Outcome> {
+    let started = Instant::now();
+    let s = &cell.config.calibration;
+    let camera = camera_of(cell);
+    let speed = s.speed_rad_s;
+    let cap = cell.checker.speed_cap_rad_s();
+    if speed > cap {
+        return Err(Error::input(
+            &cell.config_path,
+            "calibration.speed_rad_s",
+            format!("{speed} rad/s is above the safety cap of {cap} rad/s (safety.speed_cap_rad_s and the joints' velocity limits)"),
+        ));
+    }
+    let src = &cell.robot.source;
+    let robot_entry = RobotEntry {
+        urdf: absolute(&src.urdf),
+        package_dirs: src
+            .package_dirs
+            .iter()
+            .map(|(k, v)| (k.clone(), absolute(v)))
+            .collect(),
+        base_link: Some(cell.robot.links[cell.robot.base].clone()),
+        ignore_links: src.ignore_links.clone(),
+        joints: cell.robot.joint_names().iter().map(|s| s.to_string()).collect(),
+    };
+    let camera_entry = CameraEntry {
+        width: camera.width,
+        height: camera.height,
+        fx: camera.fx,
+        fy: camera.fy,
+        cx: camera.cx,
+        cy: camera.cy,
+        distortion_model: camera.distortion.map(|_| "plumb_bob".into()),
+        distortion: camera.distortion.map(|d| d.to_vec()),
+    };
+    let guess = s.initial_guess.as_ref().map(LookAt::camera_from_base);
+    let mut rec = Recorder::create(out, robot_entry, camera_entry, guess)?;
+    let pb = progress_bar(opts, s.max_views);
+    let renderer = CpuRenderer;
+    let solve_opts = SolveOptions::default();
+    let (mut solve_s, mut explore_s, mut motion_s) = (0.0, 0.0, 0.0);
+
+    let mut views = vec![capture(cell, &camera, &mut rec).await?];
+    pb.set_position(1);
+    let t = Instant::now();
+    let mut report = match guess {
+        Some(g) => solve(&renderer, &camera, &views, &g, &solve_opts)?,
+        None => initialise(&renderer, &camera, &views, &solve_opts, &InitOptions::default())?,
+    };
+    solve_s += t.elapsed().as_secs_f64();
+    let mut rounds = vec![RoundRecord {
+        round: 0,
+        views: 1,
+        camera_from_base: to_rows(&report.camera_from_base),
+        mean_iou: mean(&report.per_view_iou),
+        loss: report.loss,
+        pose_change: None,
+        best_variance: None,
+        next_joints: None,
+        events: Vec::new(),
+    }];
+    rec.write_rounds(&rounds)?;
+    let safe_arm = SafeArm::new(cell.arm.clone());
+    let mut previous_best: Option<f64> = None;
+    let mut failures = 0;
+    let mut planned = Vec::new();
+    let stop_reason;
+    loop {
+        let round = rounds.len() - 1;
+        if views.len() >= s.max_views && !opts.dry_run {
+            stop_reason = format!("reached the maximum of {} views", s.max_views);
+            break;
+        }
+        let t = Instant::now();
+        let (ranked, stats) = rank_poses(cell, &camera, &report, s, round);
+        let best = ranked.first().map(|r| r.score);
+        explore_s += t.elapsed().as_secs_f64();
+        let last = rounds.last_mut().expect("round 0 exists");
+        last.best_variance = best;
+        last.events.push(format!(
+            "{} joint samples: {} safe, {} show the robot",
+            stats.sampled, stats.safe, stats.scored
+        ));
+        if let (Some(prev), Some(best), Some([deg, mm])) = (previous_best, best, last.pose_change) {
+            let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
+            if settled && views.len() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm {
+                stop_reason = format!("variance converged after {} views", views.len());
+                break;
+            }
+        }
+        previous_best = best;
+        let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
+        let from = cell.arm.read_joints().await.map_err(hw)?;
+        if opts.dry_run {
+            // Plan the whole sequence from the first view's estimate, chaining paths.
+            let mut at = from.clone();
+            let mut events = Vec::new();
+            for _ in 1..s.max_views {
+                let far = |q: &[f64]| {
+                    planned.iter().any(|p: &PlannedPose| {
+                        p.joints.iter().zip(q).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max) < 0.3
+                    })
+                };
+                match choose_reachable(cell, &ranked, &at, speed, far, &mut events) {
+                    Some((p, _)) => {
+                        at = p.joints.clone();
+                        planned.push(p);
+                    }
+                    None => break,
+                }
+            }
+            rounds.last_mut().expect("round").events.extend(events);
+            stop_reason = format!("dry run: planned {} poses, nothing moved", planned.len());
+            break;
+        }
+        let mut events = Vec::new();
+        let Some((pose, mv)) = choose_reachable(cell, &ranked, &from, speed, |_| false, &mut events) else {
+            rounds.last_mut().expect("round").events.extend(events);
+            stop_reason = format!("no safe, reachable pose left after {} views", views.len());
+            break;
+        };
+        rounds.last_mut().expect("round").events.extend(events);
+        if let Some(confirm) = &opts.confirm {
+            let ok = pb.suspend(|| confirm(&pose));
+            if !ok {
+                stop_reason = format!("operator declined a move after {} views", views.len());
+                break;
+            }
+        }
+        rounds.last_mut().expect("round").next_joints = Some(pose.joints.clone());
+        pb.set_message(format!("moving to view {}", views.len() + 1));
+        let t = Instant::now();
+        let moved = match safe_arm.execute(&mv).await {
+            Ok(motion) => motion.wait().await.map_err(|e| Error::Hardware(e.to_string())),
+            Err(e) => Err(e),
+        };
+        motion_s += t.elapsed().as_secs_f64();
+        if let Err(e) = moved {
+            failures += 1;
+            let note = format!("move failed: {e}");
+            rounds.last_mut().expect("round").events.push(note.clone());
+            rec.write_rounds(&rounds)?;
+            let _ = cell.arm.stop().await;
+            let status = cell.arm.status().await.map_err(hw)?;
+            let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
+            if failures > s.max_motion_failures {
+                stop_reason = format!("gave up after {failures} failed moves ({note})");
+                break;
+            }
+            if faulted {
+                if !s.clear_faults {
+                    stop_reason = format!("arm fault, not cleared (calibration.clear_faults = false): {e}");
+                    break;
+                }
+                cell.arm.clear_fault().await.map_err(hw)?;
+            }
+            // Re-plan from wherever the arm stopped.
+            continue;
+        }
+        views.push(capture(cell, &camera, &mut rec).await?);
+        pb.set_position(views.len() as u64);
+        let previous = report.camera_from_base;
+        let t = Instant::now();
+        report = solve(&renderer, &camera, &views, &previous, &solve_opts)?;
+        report.trajectory.insert(0, previous);
+        solve_s += t.elapsed().as_secs_f64();
+        let change = [
+            rotation_error_deg(&previous, &report.camera_from_base),
+            translation_error_mm(&previous, &report.camera_from_base),
+        ];
+        rounds.push(RoundRecord {
+            round: round + 1,
+            views: views.len(),
+            camera_from_base: to_rows(&report.camera_from_base),
+            mean_iou: mean(&report.per_view_iou),
+            loss: report.loss,
+            pose_change: Some(change),
+            best_variance: None,
+            next_joints: None,
+            events: Vec::new(),
+        });
+        rec.write_rounds(&rounds)?;
+        pb.set_message(format!(
+            "round {} loss {:.5} IoU {:.4} best var {:.1} px change {:.3} deg / {:.2} mm",
+            round + 1,
+            report.loss,
+            mean(&report.per_view_iou),
+            best.unwrap_or(0.0),
+            change[0],
+            change[1]
+        ));
+    }
+    pb.finish_and_clear();
+    rec.write_rounds(&rounds)?;
+    let mut result = ResultFile::new(&report.camera_from_base, &cell.robot.links[cell.robot.base]);
+    result.views_used = (0..views.len()).collect();
+    result.per_view = report
+        .per_view_iou
+        .iter()
+        .enumerate()
+        .map(|(view, &iou)| PerView { view, iou })
+        .collect();
+    let u = &report.uncertainty;
+    if u.rotation_deg.iter().chain(&u.translation_mm).all(|v| v.is_finite()) {
+        result.uncertainty = Some(UncertaintyEntry {
+            rotation_deg: u.rotation_deg,
+            translation_mm: u.translation_mm,
+        });
+    }
+    result.stop_reason = stop_reason;
+    result.timings_s.insert("total".into(), started.elapsed().as_secs_f64());
+    result.timings_s.insert("solve".into(), solve_s);
+    result.timings_s.insert("explore".into(), explore_s);
+    result.timings_s.insert("motion".into(), motion_s);
+    if !opts.dry_run {
+        write_json_atomic(&rec.dir().join("result.json"), &result)?;
+    }
+    Ok(Outcome {
+        result,
+        report,
+        rounds,
+        planned,
+        run_dir: rec.dir().to_path_buf(),
+    })
+}

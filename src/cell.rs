@@ -1,0 +1,359 @@
+//! Cell configuration (`config/*.toml`): which arm, camera and segmenter to drive, the robot
+//! description, the safety envelope and the calibration settings. Backends are picked by each
+//! table's `kind`, so the calibration loop only ever sees `Arc<dyn Arm>` / `Arc<dyn Camera>`.
+//!
+//! Relative paths in a config are relative to the config file.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use easyhec_drivers::{Arm, Camera as CameraDevice, JointLimit};
+use easyhec_mocks::{Fault, SimArm, SimArmConfig, SimCamera};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::CalibrationSettings;
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::look_at_camera_from_base;
+use crate::robot::{RobotModel, RobotSource};
+use crate::safety::{SafetyChecker, SafetyConfig};
+use crate::scene::{SceneSettings, SimScene};
+use crate::segment::{Segmenter, SegmenterConfig};
+
+/// A whole cell config file.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellConfig {
+    /// The robot description.
+    pub robot: RobotConfig,
+    /// The arm backend.
+    pub arm: ArmConfig,
+    /// The camera backend.
+    pub camera: CameraConfig,
+    /// How frames become masks.
+    pub segmenter: SegmenterConfig,
+    /// Loop settings.
+    #[serde(default)]
+    pub calibration: CalibrationSettings,
+    /// Safety envelope.
+    #[serde(default)]
+    pub safety: SafetyConfig,
+}
+
+/// `[robot]`, as in a run's `robot` entry.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// URDF file.
+    pub urdf: PathBuf,
+    /// `package://NAME` roots.
+    #[serde(default)]
+    pub package_dirs: BTreeMap<String, PathBuf>,
+    /// Frame `camera_from_base` refers to.
+    #[serde(default)]
+    pub base_link: Option<String>,
+    /// Links not rendered (and not expected in masks).
+    #[serde(default)]
+    pub ignore_links: Vec<String>,
+    /// Actuated joints in the arm's order; default every movable joint in URDF order.
+    #[serde(default)]
+    pub joints: Option<Vec<String>>,
+}
+
+/// A camera pose given the way people measure one: where it is and what it looks at.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LookAt {
+    /// Camera centre in the base frame, metres.
+    pub eye: [f64; 3],
+    /// A point the optical axis passes through, base frame, metres.
+    pub look_at: [f64; 3],
+    /// Rotation about the optical axis, degrees.
+    #[serde(default)]
+    pub roll_deg: f64,
+}
+
+impl LookAt {
+    /// As `camera_from_base` (OpenCV optical frame, base z up).
+    pub fn camera_from_base(&self) -> Isometry3<f64> {
+        let look = look_at_camera_from_base(
+            &Vector3::from(self.eye),
+            &Vector3::from(self.look_at),
+            &Vector3::z(),
+        );
+        Isometry3::from_parts(
+            nalgebra::Translation3::identity(),
+            UnitQuaternion::from_scaled_axis(Vector3::z() * self.roll_deg.to_radians()),
+        ) * look
+    }
+}
+
+/// `[arm]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum ArmConfig {
+    /// The simulated arm.
+    Sim {
+        /// True joints at start.
+        start: Vec<f64>,
+        /// Reported joint noise, radians.
+        #[serde(default)]
+        encoder_noise_rad: f64,
+        /// Simulated seconds per wall second (omit for no waiting).
+        #[serde(default)]
+        speedup: Option<f64>,
+        /// Injected faults.
+        #[serde(default)]
+        faults: Vec<FaultConfig>,
+        /// Encoder-noise seed.
+        #[serde(default)]
+        seed: u64,
+    },
+}
+
+/// A fault for the simulated arm.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum FaultConfig {
+    /// Reject move `on_move`.
+    Refuse {
+        /// 0-based move count.
+        on_move: usize,
+    },
+    /// Fault partway through move `on_move`.
+    Error {
+        /// 0-based move count.
+        on_move: usize,
+        /// Fraction of the path covered.
+        at_fraction: f64,
+    },
+    /// Stall partway through move `on_move`.
+    Stall {
+        /// 0-based move count.
+        on_move: usize,
+        /// Fraction of the path covered.
+        at_fraction: f64,
+    },
+}
+
+/// `[camera]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum CameraConfig {
+    /// The simulated camera.
+    Sim {
+        /// Image width.
+        width: u32,
+        /// Image height.
+        height: u32,
+        /// Focal length x, pixels.
+        fx: f64,
+        /// Focal length y, pixels.
+        fy: f64,
+        /// Principal point x.
+        cx: f64,
+        /// Principal point y.
+        cy: f64,
+        /// `plumb_bob` k1 k2 p1 p2 k3.
+        #[serde(default)]
+        distortion: Option<[f64; 5]>,
+        /// The true pose, which only the simulator sees.
+        truth: LookAt,
+        /// Scene dressing.
+        #[serde(default)]
+        scene: SceneSettings,
+    },
+}
+
+/// Handles into the simulated hardware, for tests and the truth report.
+#[derive(Clone)]
+pub struct SimHandles {
+    /// The simulated arm (its command log).
+    pub arm: Option<SimArm>,
+    /// The simulated camera's true pose.
+    pub camera_from_base: Option<Isometry3<f64>>,
+}
+
+/// A built cell.
+pub struct Cell {
+    /// The parsed config.
+    pub config: CellConfig,
+    /// Where it was read from.
+    pub config_path: PathBuf,
+    /// Robot model (rendering, FK).
+    pub robot: Arc<RobotModel>,
+    /// The arm.
+    pub arm: Arc<dyn Arm>,
+    /// The camera.
+    pub camera: Arc<dyn CameraDevice>,
+    /// The segmenter.
+    pub segmenter: Box<dyn Segmenter>,
+    /// The safety checker.
+    pub checker: SafetyChecker,
+    /// Simulator handles (absent on real hardware).
+    pub sim: SimHandles,
+}
+
+/// Reads and parses a cell config, with one-line errors naming the key.
+pub fn read_config(path: &Path) -> Result<CellConfig> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::io(path, format!("cannot read cell config: {e}")))?;
+    toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
+            .unwrap_or(0);
+        Error::input(
+            path,
+            format!("line {line}"),
+            e.message().replace('\n', " "),
+        )
+    })
+}
+
+impl Cell {
+    /// Builds every backend named in the config at `path`.
+    pub fn open(path: &Path) -> Result<Cell> {
+        let config = read_config(path)?;
+        Cell::build(config, path)
+    }
+
+    /// Builds from an already parsed config (`path` resolves relative paths).
+    pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let r = &config.robot;
+        let source = RobotSource {
+            urdf: dir.join(&r.urdf),
+            package_dirs: r
+                .package_dirs
+                .iter()
+                .map(|(k, v)| (k.clone(), dir.join(v)))
+                .collect(),
+            base_link: r.base_link.clone(),
+            ignore_links: r.ignore_links.clone(),
+            joints: r.joints.clone(),
+        };
+        let robot = Arc::new(RobotModel::load(&source)?);
+        let n = robot.actuated.len();
+        let urdf_limits = robot.joint_limits();
+        let (arm, sim_arm): (Arc<dyn Arm>, Option<SimArm>) = match &config.arm {
+            ArmConfig::Sim {
+                start,
+                encoder_noise_rad,
+                speedup,
+                faults,
+                seed,
+            } => {
+                if start.len() != n {
+                    return Err(Error::input(
+                        path,
+                        "arm.start",
+                        format!("{} values for the {n} actuated joints", start.len()),
+                    ));
+                }
+                let joints: Vec<JointLimit> = robot
+                    .joint_names()
+                    .iter()
+                    .enumerate()
+                    .map(|(k, name)| {
+                        let v = robot.joints[robot.actuated[k]].velocity;
+                        JointLimit {
+                            name: name.to_string(),
+                            lower: urdf_limits[k].0,
+                            upper: urdf_limits[k].1,
+                            max_velocity: if v > 0.0 { v } else { 1.0 },
+                        }
+                    })
+                    .collect();
+                let faults = faults
+                    .iter()
+                    .map(|f| match *f {
+                        FaultConfig::Refuse { on_move } => Fault::Refuse { on_move },
+                        FaultConfig::Error {
+                            on_move,
+                            at_fraction,
+                        } => Fault::ErrorMidMove {
+                            on_move,
+                            at_fraction,
+                        },
+                        FaultConfig::Stall {
+                            on_move,
+                            at_fraction,
+                        } => Fault::Stall {
+                            on_move,
+                            at_fraction,
+                        },
+                    })
+                    .collect();
+                let sim = SimArm::new(SimArmConfig {
+                    joints,
+                    start: start.clone(),
+                    encoder_noise_rad: *encoder_noise_rad,
+                    speedup: speedup.unwrap_or(f64::INFINITY),
+                    faults,
+                    seed: *seed,
+                });
+                (Arc::new(sim.clone()), Some(sim))
+            }
+        };
+        let (camera, truth): (Arc<dyn CameraDevice>, Option<Isometry3<f64>>) = match &config.camera
+        {
+            CameraConfig::Sim {
+                width,
+                height,
+                fx,
+                fy,
+                cx,
+                cy,
+                distortion,
+                truth,
+                scene,
+            } => {
+                let Some(sim_arm) = &sim_arm else {
+                    return Err(Error::input(
+                        path,
+                        "camera.kind",
+                        "a simulated camera needs a simulated arm to film: set [arm] kind = \"sim\"",
+                    ));
+                };
+                let cam = Camera {
+                    width: *width,
+                    height: *height,
+                    fx: *fx,
+                    fy: *fy,
+                    cx: *cx,
+                    cy: *cy,
+                    distortion: *distortion,
+                };
+                let pose = truth.camera_from_base();
+                let scene = SimScene::new(robot.clone(), cam, pose, scene.clone());
+                (
+                    Arc::new(SimCamera::new(sim_arm.clone(), Arc::new(scene))),
+                    Some(pose),
+                )
+            }
+        };
+        let controller: Vec<(f64, f64, f64)> = arm
+            .joints()
+            .iter()
+            .map(|j| (j.lower, j.upper, j.max_velocity))
+            .collect();
+        let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
+        config.calibration.validate(path)?;
+        Ok(Cell {
+            segmenter: config.segmenter.build(),
+            config,
+            config_path: path.to_path_buf(),
+            robot,
+            arm,
+            camera,
+            checker,
+            sim: SimHandles {
+                arm: sim_arm,
+                camera_from_base: truth,
+            },
+        })
+    }
+}
