@@ -18,7 +18,10 @@ fn main() {
                 for j in 0..7 {
                     q[j] += offs[j];
                 }
-                View { robot: PosedRobot::new(&run.robot, &q), observed: v.observed.clone() }
+                View {
+                    robot: PosedRobot::new(&run.robot, &q),
+                    observed: v.observed.clone(),
+                }
             })
             .collect()
     };
@@ -34,18 +37,28 @@ fn main() {
         let rep = solve(&r, &cam, &views, &pose, &SolveOptions::default()).unwrap();
         pose = rep.camera_from_base;
         let (s, _) = score(&views, &pose);
-        println!("round {round} after solve: mean IoU {s:.4} offs {:?}", offs.iter().map(|o| o.to_degrees()).collect::<Vec<_>>());
+        println!(
+            "round {round} after solve: mean IoU {s:.4} offs {:?}",
+            offs.iter().map(|o| o.to_degrees()).collect::<Vec<_>>()
+        );
         for j in 0..7 {
             let mut best = (score(&views_with(&offs), &pose).0, offs[j]);
             for k in -20..=20 {
                 let mut o = offs.clone();
                 o[j] = offs[j] + (k as f64) * 0.75f64.to_radians();
                 let s = score(&views_with(&o), &pose).0;
-                if s > best.0 { best = (s, o[j]); }
+                if s > best.0 {
+                    best = (s, o[j]);
+                }
             }
             offs[j] = best.1;
         }
         let (s, ious) = score(&views_with(&offs), &pose);
-        println!("round {round} after offsets: mean IoU {s:.4} {:?}", ious.iter().map(|x| (x*100.0).round()/100.0).collect::<Vec<_>>());
+        println!(
+            "round {round} after offsets: mean IoU {s:.4} {:?}",
+            ious.iter()
+                .map(|x| (x * 100.0).round() / 100.0)
+                .collect::<Vec<_>>()
+        );
     }
 }

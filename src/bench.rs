@@ -139,3 +139,173 @@ pub fn peak_rss_bytes() -> Option<u64> {
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
 }
+
+/// One simulated calibration in the closed-loop benchmark.
+#[derive(Clone, Debug)]
+pub struct LoopTrial {
+    /// Cell seed.
+    pub seed: u64,
+    /// `explore` or `random`.
+    pub selection: String,
+    /// Error after each view count `(views, rotation deg, translation mm)`.
+    pub errors: Vec<(usize, f64, f64)>,
+    /// Seconds per planning round (joint sampling, checks, scoring).
+    pub explore_round_s: Vec<f64>,
+    /// Compute seconds of the whole calibration (total minus simulated motion).
+    pub compute_s: f64,
+}
+
+/// A seeded variant of a simulated cell config: true camera anywhere on a band of the
+/// hemisphere around the robot, a random safe visible start pose, a guess 2–6° / 2–8 cm off.
+pub fn seeded_sim_cell(
+    base: &crate::cell::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+) -> Result<crate::cell::CellConfig> {
+    use crate::calibrate::InitialGuess;
+    use crate::cell::{ArmConfig, CameraConfig, Cell, LookAt};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
+    let mut cfg = base.clone();
+    let distance = rng.random_range(1.1..1.6);
+    let azimuth: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+    let elevation: f64 = rng.random_range(15f64..45.0).to_radians();
+    let centre = [0.1 * azimuth.cos(), 0.1 * azimuth.sin(), 0.3];
+    let truth = LookAt {
+        eye: [
+            centre[0] + distance * elevation.cos() * azimuth.cos(),
+            centre[1] + distance * elevation.cos() * azimuth.sin(),
+            centre[2] + distance * elevation.sin(),
+        ],
+        look_at: [
+            centre[0] + rng.random_range(-0.05..0.05),
+            centre[1] + rng.random_range(-0.05..0.05),
+            centre[2] + rng.random_range(-0.05..0.05),
+        ],
+        roll_deg: rng.random_range(-5.0..5.0),
+    };
+    let pose = truth.camera_from_base();
+    let CameraConfig::Sim {
+        truth: t, scene, ..
+    } = &mut cfg.camera;
+    *t = truth;
+    scene.seed = seed;
+    cfg.calibration.seed = seed;
+    cfg.calibration.initial_guess = Some(InitialGuess::Matrix {
+        camera_from_base: crate::geometry::to_rows(&crate::synth::perturb(
+            &mut rng,
+            &pose,
+            (2.0, 6.0),
+            (0.02, 0.08),
+        )),
+    });
+    let crate::segment::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter;
+    *s = seed;
+    // A start pose that is safe and shows the robot to the true camera.
+    let cell = Cell::build(cfg.clone(), config_path)?;
+    let camera = match &cfg.camera {
+        CameraConfig::Sim {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            ..
+        } => crate::camera::Camera::pinhole(*width, *height, *fx, *fy, *cx, *cy),
+    };
+    for _ in 0..10_000 {
+        let q: Vec<f64> = cell
+            .checker
+            .limits()
+            .iter()
+            .map(|&(lo, hi)| rng.random_range(lo..=hi))
+            .collect();
+        if cell.checker.check_pose(&q).is_err() {
+            continue;
+        }
+        let posed = PosedRobot::new(&cell.robot, &q).decimated(0.01);
+        if crate::calibrate::in_image_fraction(&posed, &camera, &pose) < 0.97 {
+            continue;
+        }
+        let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm;
+        *start = q;
+        *s = seed;
+        return Ok(cfg);
+    }
+    Err(crate::Error::Solve(format!(
+        "seed {seed}: no safe start pose shows the robot"
+    )))
+}
+
+/// Runs the simulated calibration of `cfg` with `selection`, `views` views, no early stop.
+pub fn run_loop_trial(
+    cfg: &crate::cell::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    selection: crate::calibrate::SelectionSetting,
+    views: usize,
+) -> Result<LoopTrial> {
+    use crate::calibrate::{calibrate, RunOptions};
+    let mut cfg = cfg.clone();
+    cfg.calibration.selection = selection;
+    cfg.calibration.max_views = views;
+    cfg.calibration.min_views = views;
+    let cell = crate::cell::Cell::build(cfg, config_path)?;
+    let truth = cell
+        .sim
+        .camera_from_base
+        .ok_or_else(|| crate::Error::Solve("benchmark needs a simulated camera".into()))?;
+    let dir = tempfile::tempdir().map_err(|e| crate::Error::io(std::env::temp_dir(), e))?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| crate::Error::Solve(format!("async runtime: {e}")))?;
+    let outcome = runtime.block_on(calibrate(
+        &cell,
+        &dir.path().join("run"),
+        &RunOptions::default(),
+    ))?;
+    let errors = outcome
+        .rounds
+        .iter()
+        .map(|r| {
+            let est = crate::geometry::from_rows(&r.camera_from_base).expect("valid rows");
+            (
+                r.views,
+                rotation_error_deg(&est, &truth),
+                translation_error_mm(&est, &truth),
+            )
+        })
+        .collect();
+    let t = &outcome.result.timings_s;
+    let get = |k: &str| t.get(k).copied().unwrap_or(0.0);
+    let rounds_planned = outcome
+        .rounds
+        .iter()
+        .filter(|r| r.best_variance.is_some())
+        .count();
+    Ok(LoopTrial {
+        seed,
+        selection: format!("{selection:?}").to_lowercase(),
+        errors,
+        explore_round_s: vec![get("explore") / rounds_planned.max(1) as f64],
+        compute_s: get("total") - get("motion"),
+    })
+}
+
+/// Median of `(views → rotation, translation)` over trials.
+pub fn loop_medians(trials: &[LoopTrial], views: usize) -> Option<(f64, f64)> {
+    let mut r: Vec<f64> = Vec::new();
+    let mut t: Vec<f64> = Vec::new();
+    for trial in trials {
+        if let Some(&(_, a, b)) = trial.errors.iter().find(|e| e.0 == views) {
+            r.push(a);
+            t.push(b);
+        }
+    }
+    if r.is_empty() {
+        return None;
+    }
+    Some((median(&r), median(&t)))
+}

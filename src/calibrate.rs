@@ -16,8 +16,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::cell::{Cell, LookAt};
+
 use crate::error::{Error, Result};
-use crate::explore::{camera_candidates, disagreement, CandidateSource, ExploreOptions};
+use crate::explore::{camera_candidates, disagreement_cpu, CandidateSource, ExploreOptions};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::io::{write_atomic, write_json_atomic};
@@ -34,9 +35,13 @@ use crate::solve::{solve, SolveOptions, SolveReport, View};
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationSettings {
-    /// A rough camera pose (tape measure); absent: automatic initialisation.
+    /// A rough camera pose (tape measure, or a previous calibration); absent: automatic
+    /// initialisation.
     #[serde(default)]
-    pub initial_guess: Option<LookAt>,
+    pub initial_guess: Option<InitialGuess>,
+    /// `explore` (default: method.md §5) or `random` (a random safe pose; the baseline).
+    #[serde(default)]
+    pub selection: SelectionSetting,
     /// Views at most (the first is taken where the arm stands).
     #[serde(default = "default_max_views")]
     pub max_views: usize,
@@ -115,6 +120,42 @@ impl Default for CalibrationSettings {
     }
 }
 
+/// A starting pose, as measured or as a matrix.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum InitialGuess {
+    /// Eye / look-at / roll.
+    LookAt(LookAt),
+    /// `camera_from_base`, row-major 4x4.
+    Matrix {
+        /// Base frame → OpenCV optical frame.
+        camera_from_base: [[f64; 4]; 4],
+    },
+}
+
+impl InitialGuess {
+    /// As `camera_from_base`.
+    pub fn camera_from_base(&self) -> std::result::Result<Isometry3<f64>, String> {
+        match self {
+            InitialGuess::LookAt(l) => Ok(l.camera_from_base()),
+            InitialGuess::Matrix { camera_from_base } => {
+                crate::geometry::from_rows(camera_from_base)
+            }
+        }
+    }
+}
+
+/// How the next pose is chosen.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum SelectionSetting {
+    /// Where the camera hypotheses disagree most.
+    #[default]
+    Explore,
+    /// A random safe pose that shows the robot (baseline).
+    Random,
+}
+
 /// Where exploration's camera candidates come from.
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
@@ -147,6 +188,11 @@ impl CalibrationSettings {
         }
         if self.score_downsample == 0 {
             return bad("score_downsample", "must be at least 1");
+        }
+        if let Some(g) = &self.initial_guess {
+            if let Err(m) = g.camera_from_base() {
+                return bad("initial_guess", &m);
+            }
         }
         Ok(())
     }
@@ -191,13 +237,16 @@ pub struct PlannedPose {
     pub path_samples: usize,
 }
 
+/// Asked before each move with the planned pose; `false` ends the calibration.
+pub type ConfirmMove = Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>;
+
 /// How to run the loop.
 #[derive(Clone, Default)]
 pub struct RunOptions {
     /// Plan and print, never move.
     pub dry_run: bool,
     /// Asked before each move; `false` ends the calibration.
-    pub confirm: Option<Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>>,
+    pub confirm: Option<ConfirmMove>,
     /// Draw progress bars on stderr.
     pub progress: bool,
 }
@@ -225,7 +274,10 @@ pub struct Recorder {
 
 /// RFC 3339 UTC time of `t` (seconds precision).
 pub fn rfc3339(t: SystemTime) -> String {
-    let secs = t.duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0) as i64;
+    let secs = t
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0) as i64;
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
     let z = days + 719_468;
@@ -247,7 +299,12 @@ pub fn rfc3339(t: SystemTime) -> String {
 
 impl Recorder {
     /// Starts a run directory (refuses one that already holds a run).
-    pub fn create(dir: &Path, robot: RobotEntry, camera: CameraEntry, guess: Option<Isometry3<f64>>) -> Result<Recorder> {
+    pub fn create(
+        dir: &Path,
+        robot: RobotEntry,
+        camera: CameraEntry,
+        guess: Option<Isometry3<f64>>,
+    ) -> Result<Recorder> {
         if dir.join("run.json").exists() {
             return Err(Error::input(
                 dir,
@@ -343,7 +400,11 @@ fn absolute(p: &Path) -> String {
 }
 
 /// Fraction of the robot's (decimated) surface points that land inside the image.
-pub fn in_image_fraction(robot: &PosedRobot, camera: &Camera, camera_from_base: &Isometry3<f64>) -> f64 {
+pub fn in_image_fraction(
+    robot: &PosedRobot,
+    camera: &Camera,
+    camera_from_base: &Isometry3<f64>,
+) -> f64 {
     if robot.vertices_base.is_empty() {
         return 0.0;
     }
@@ -395,7 +456,8 @@ pub fn rank_poses(
     round: usize,
 ) -> (Vec<Ranked>, PlanStats) {
     let checker = &cell.checker;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(settings.seed.wrapping_mul(1000) + round as u64);
+    let mut rng =
+        rand_chacha::ChaCha8Rng::seed_from_u64(settings.seed.wrapping_mul(1000) + round as u64);
     let samples: Vec<Vec<f64>> = (0..settings.joint_samples)
         .map(|_| {
             checker
@@ -407,9 +469,32 @@ pub fn rank_poses(
         .collect();
     let pinhole = camera.undistorted();
     let low = pinhole.downsampled(settings.score_downsample);
-    let cell_m = 0.5 * f64::from(settings.score_downsample) / pinhole.fx.max(pinhole.fy);
+    // Vertex clustering at one scoring pixel (at 1 m): coarse masks need no finer mesh.
+    let cell_m = f64::from(settings.score_downsample) / pinhole.fx.max(pinhole.fy);
+    // The variance of binary masks only measures disagreement once the hypotheses' outlines
+    // differ by whole scoring pixels; a converged posterior moves them by a fraction of one,
+    // which leaves the score as quantisation noise. In the linear regime the ranking of views
+    // does not depend on the covariance's scale, so the samples come from the posterior
+    // inflated until its typical outline displacement is about two scoring pixels.
+    let mut widened = report.clone();
+    let u = &report.uncertainty;
+    let rot_rad = u
+        .rotation_deg
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
+        .to_radians();
+    let trans_m = u.translation_mm.iter().map(|v| v * v).sum::<f64>().sqrt() * 1e-3;
+    let depth = report.camera_from_base.translation.vector.norm().max(0.1);
+    let typical_px = pinhole.fx * (rot_rad + trans_m / depth);
+    let wanted_px = 2.0 * f64::from(settings.score_downsample);
+    if typical_px.is_finite() && typical_px > 0.0 && typical_px < wanted_px {
+        let k = wanted_px / typical_px;
+        widened.covariance *= k * k;
+    }
     let candidates = camera_candidates(
-        report,
+        &widened,
         &ExploreOptions {
             candidates: settings.candidates,
             source: match settings.candidate_source {
@@ -421,6 +506,7 @@ pub fn rank_poses(
         },
     );
     let estimate = report.camera_from_base;
+    let t_start = std::time::Instant::now();
     let safe: Vec<(Vec<f64>, PosedRobot)> = samples
         .into_par_iter()
         .filter(|q| checker.check_pose(q).is_ok())
@@ -430,26 +516,76 @@ pub fn rank_poses(
         })
         .collect();
     let n_safe = safe.len();
-    let mut ranked: Vec<Ranked> = safe
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        eprintln!(
+            "rank_poses: static checks {:.2} s",
+            t_start.elapsed().as_secs_f64()
+        );
+    }
+    let t_checked = std::time::Instant::now();
+    // Two passes: every sample against the first fifth of the candidates, then the best
+    // quarter against all of them (the argmax is almost always in that quarter; this halves
+    // the planning time).
+    let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
+    let score = |posed: &PosedRobot, q: &[f64], cands: &[Isometry3<f64>]| match settings.selection {
+        SelectionSetting::Explore => disagreement_cpu(&low, posed, cands),
+        // Random order: a hash of the joints, so the choice is seeded and repeatable.
+        SelectionSetting::Random => {
+            let mut h = rand_chacha::ChaCha8Rng::seed_from_u64(
+                q.iter()
+                    .fold(settings.seed, |a, v| a.rotate_left(7) ^ v.to_bits()),
+            );
+            h.random::<f64>()
+        }
+    };
+    let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = safe
         .into_par_iter()
         .filter_map(|(q, posed)| {
             let in_image = in_image_fraction(&posed, &pinhole, &estimate);
             if in_image < checker.min_in_image {
                 return None;
             }
-            let score = disagreement(&CpuRenderer, &low, &posed, &candidates);
-            Some(Ranked {
-                joints: q,
-                score,
-                in_image,
-            })
+            let s = score(&posed, &q, quick);
+            Some((s, in_image, q, posed))
+        })
+        .collect();
+    let n_scored = first.len();
+    first.sort_by(|a, b| b.0.total_cmp(&a.0));
+    if settings.selection == SelectionSetting::Explore {
+        first.truncate((n_scored / 4).max(64.min(n_scored)));
+    }
+    let mut ranked: Vec<Ranked> = first
+        .into_par_iter()
+        .map(|(s, in_image, q, posed)| Ranked {
+            score: if settings.selection == SelectionSetting::Explore {
+                score(&posed, &q, &candidates)
+            } else {
+                s
+            },
+            joints: q,
+            in_image,
         })
         .collect();
     ranked.sort_by(|a, b| b.score.total_cmp(&a.score));
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        eprintln!(
+            "rank_poses: scoring {:.2} s, {} scored, {} triangles per coarse robot",
+            t_checked.elapsed().as_secs_f64(),
+            ranked.len(),
+            PosedRobot::new(
+                &cell.robot,
+                &ranked.first().map(|r| r.joints.clone()).unwrap_or_default()
+            )
+            .decimated(cell_m)
+            .topology
+            .triangles
+            .len()
+        );
+    }
     let stats = PlanStats {
         sampled: settings.joint_samples,
         safe: n_safe,
-        scored: ranked.len(),
+        scored: n_scored,
     };
     (ranked, stats)
 }
@@ -520,8 +656,10 @@ fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
     }
     let pb = indicatif::ProgressBar::new(max_views as u64);
     pb.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} views {pos}/{len} {wide_msg} [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "{spinner} views {pos}/{len} {wide_msg} [{elapsed}]",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     pb.enable_steady_tick(std::time::Duration::from_millis(200));
     pb
@@ -551,7 +689,12 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             .collect(),
         base_link: Some(cell.robot.links[cell.robot.base].clone()),
         ignore_links: src.ignore_links.clone(),
-        joints: cell.robot.joint_names().iter().map(|s| s.to_string()).collect(),
+        joints: cell
+            .robot
+            .joint_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
     };
     let camera_entry = CameraEntry {
         width: camera.width,
@@ -563,7 +706,13 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         distortion_model: camera.distortion.map(|_| "plumb_bob".into()),
         distortion: camera.distortion.map(|d| d.to_vec()),
     };
-    let guess = s.initial_guess.as_ref().map(LookAt::camera_from_base);
+    let guess = match &s.initial_guess {
+        Some(g) => Some(
+            g.camera_from_base()
+                .map_err(|m| Error::input(&cell.config_path, "calibration.initial_guess", m))?,
+        ),
+        None => None,
+    };
     let mut rec = Recorder::create(out, robot_entry, camera_entry, guess)?;
     let pb = progress_bar(opts, s.max_views);
     let renderer = CpuRenderer;
@@ -575,7 +724,13 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let t = Instant::now();
     let mut report = match guess {
         Some(g) => solve(&renderer, &camera, &views, &g, &solve_opts)?,
-        None => initialise(&renderer, &camera, &views, &solve_opts, &InitOptions::default())?,
+        None => initialise(
+            &renderer,
+            &camera,
+            &views,
+            &solve_opts,
+            &InitOptions::default(),
+        )?,
     };
     solve_s += t.elapsed().as_secs_f64();
     let mut rounds = vec![RoundRecord {
@@ -628,7 +783,12 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             for _ in 1..s.max_views {
                 let far = |q: &[f64]| {
                     planned.iter().any(|p: &PlannedPose| {
-                        p.joints.iter().zip(q).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max) < 0.3
+                        p.joints
+                            .iter()
+                            .zip(q)
+                            .map(|(a, b)| (a - b).abs())
+                            .fold(0.0, f64::max)
+                            < 0.3
                     })
                 };
                 match choose_reachable(cell, &ranked, &at, speed, far, &mut events) {
@@ -644,7 +804,9 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             break;
         }
         let mut events = Vec::new();
-        let Some((pose, mv)) = choose_reachable(cell, &ranked, &from, speed, |_| false, &mut events) else {
+        let Some((pose, mv)) =
+            choose_reachable(cell, &ranked, &from, speed, |_| false, &mut events)
+        else {
             rounds.last_mut().expect("round").events.extend(events);
             stop_reason = format!("no safe, reachable pose left after {} views", views.len());
             break;
@@ -661,7 +823,10 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         pb.set_message(format!("moving to view {}", views.len() + 1));
         let t = Instant::now();
         let moved = match safe_arm.execute(&mv).await {
-            Ok(motion) => motion.wait().await.map_err(|e| Error::Hardware(e.to_string())),
+            Ok(motion) => motion
+                .wait()
+                .await
+                .map_err(|e| Error::Hardware(e.to_string())),
             Err(e) => Err(e),
         };
         motion_s += t.elapsed().as_secs_f64();
@@ -679,7 +844,8 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             }
             if faulted {
                 if !s.clear_faults {
-                    stop_reason = format!("arm fault, not cleared (calibration.clear_faults = false): {e}");
+                    stop_reason =
+                        format!("arm fault, not cleared (calibration.clear_faults = false): {e}");
                     break;
                 }
                 cell.arm.clear_fault().await.map_err(hw)?;
@@ -731,14 +897,20 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         .map(|(view, &iou)| PerView { view, iou })
         .collect();
     let u = &report.uncertainty;
-    if u.rotation_deg.iter().chain(&u.translation_mm).all(|v| v.is_finite()) {
+    if u.rotation_deg
+        .iter()
+        .chain(&u.translation_mm)
+        .all(|v| v.is_finite())
+    {
         result.uncertainty = Some(UncertaintyEntry {
             rotation_deg: u.rotation_deg,
             translation_mm: u.translation_mm,
         });
     }
     result.stop_reason = stop_reason;
-    result.timings_s.insert("total".into(), started.elapsed().as_secs_f64());
+    result
+        .timings_s
+        .insert("total".into(), started.elapsed().as_secs_f64());
     result.timings_s.insert("solve".into(), solve_s);
     result.timings_s.insert("explore".into(), explore_s);
     result.timings_s.insert("motion".into(), motion_s);

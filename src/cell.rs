@@ -205,11 +205,7 @@ pub fn read_config(path: &Path) -> Result<CellConfig> {
             .span()
             .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
             .unwrap_or(0);
-        Error::input(
-            path,
-            format!("line {line}"),
-            e.message().replace('\n', " "),
-        )
+        Error::input(path, format!("line {line}"), e.message().replace('\n', " "))
     })
 }
 

@@ -104,7 +104,11 @@ impl CollisionModel {
                         .iter()
                         .enumerate()
                         .map(|(i, v)| {
-                            (&v.geometry, &v.origin, format!("link '{}' visual {i}", link.name))
+                            (
+                                &v.geometry,
+                                &v.origin,
+                                format!("link '{}' visual {i}", link.name),
+                            )
                         })
                         .collect()
                 } else {

@@ -108,6 +108,46 @@ pub fn disagreement(
         / (k * k)
 }
 
+/// [`disagreement`] for the CPU rasteriser, single-threaded with reused buffers: callers
+/// score many poses in parallel, where per-render thread fan-out and allocation would cost
+/// more than the rasterisation of a coarse mesh at scoring resolution.
+pub fn disagreement_cpu(camera: &Camera, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {
+    let k = candidates.len() as f64;
+    let mut counts = vec![0u16; (camera.width * camera.height) as usize];
+    let mut mask = crate::mask::Mask::new(camera.width, camera.height);
+    let mut pixels = vec![[0.0f64; 2]; robot.vertices_base.len()];
+    for pose in candidates {
+        mask.data.fill(0);
+        for (px, v) in pixels.iter_mut().zip(&robot.vertices_base) {
+            let p = pose * v;
+            *px = if p.z > crate::render::NEAR_PLANE_M {
+                camera.project(&p)
+            } else {
+                [f64::NAN, f64::NAN]
+            };
+        }
+        for t in &robot.topology.triangles {
+            let (a, b, c) = (
+                pixels[t[0] as usize],
+                pixels[t[1] as usize],
+                pixels[t[2] as usize],
+            );
+            if a[0].is_nan() || b[0].is_nan() || c[0].is_nan() {
+                continue;
+            }
+            crate::render::fill_triangle(&mut mask, a, b, c);
+        }
+        for (c, &v) in counts.iter_mut().zip(&mask.data) {
+            *c += u16::from(v);
+        }
+    }
+    counts
+        .iter()
+        .map(|&c| f64::from(c) * (k - f64::from(c)))
+        .sum::<f64>()
+        / (k * k)
+}
+
 /// Scores every pool entry (robot poses; pass meshes decimated with `opts.cell_m` — coarse
 /// masks need no detail) and returns `(index into pool, score)` of the best, or `None` for
 /// an empty pool. Scoring is at `opts.downsample` resolution.
@@ -124,7 +164,11 @@ pub fn choose_next(
         .map(|(i, robot)| {
             (
                 i,
-                disagreement(renderer, &low, &robot.decimated(opts.cell_m), candidates),
+                if renderer.name() == "cpu" {
+                    disagreement_cpu(&low, &robot.decimated(opts.cell_m), candidates)
+                } else {
+                    disagreement(renderer, &low, &robot.decimated(opts.cell_m), candidates)
+                },
             )
         })
         .max_by(|a, b| a.1.total_cmp(&b.1))

@@ -14,9 +14,9 @@
 
 pub mod bench;
 pub mod calibrate;
+pub mod camera;
 pub mod cell;
 pub mod collision;
-pub mod camera;
 pub mod error;
 pub mod explore;
 pub mod geometry;

@@ -197,6 +197,22 @@ enum BenchCommand {
         #[arg(long, value_delimiter = ',', default_value = "0.6,2.5")]
         distance: Vec<f64>,
     },
+    /// Closed loop on seeded simulated cells: exploration vs random pose selection (median
+    /// error after each view), planning time per round and compute per calibration.
+    Loop {
+        /// Base cell config (seeded variants move the camera, start pose and guess).
+        #[arg(long, default_value = "config/sim-xarm6.toml")]
+        config: PathBuf,
+        /// Number of cells (seeds 0..N-1).
+        #[arg(long, default_value_t = 20)]
+        cells: u64,
+        /// Views per calibration (no early stop).
+        #[arg(long, default_value_t = 5)]
+        views: usize,
+        /// Selections to run.
+        #[arg(long, value_delimiter = ',', default_value = "explore,random")]
+        selections: Vec<String>,
+    },
     /// Wall time of K-view solves, and peak memory.
     Speed {
         /// Robot URDF.
@@ -274,7 +290,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     let out = a.out.unwrap_or_else(|| {
         PathBuf::from("runs").join(rfc3339(std::time::SystemTime::now()).replace(':', "-"))
     });
-    let confirm: Option<Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>> = if a.confirm {
+    let confirm: Option<easyhec::calibrate::ConfirmMove> = if a.confirm {
         Some(Arc::new(|p: &PlannedPose| {
             eprint!(
                 "move to {} (score {:.1}, {:.0}% in image, clearance {:.1} mm self / {:.1} mm environment)? [y/N] ",
@@ -322,13 +338,17 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
             );
         }
         for (a, b, why) in &cell.checker.skipped_pairs {
-            if *why == "always in contact" || *why == "allowed in config" || *why == "disabled in SRDF" {
+            if *why == "always in contact"
+                || *why == "allowed in config"
+                || *why == "disabled in SRDF"
+            {
                 println!("  not checked: {a} / {b} ({why})");
             }
         }
         return Ok(());
     }
-    let iou = outcome.report.per_view_iou.iter().sum::<f64>() / outcome.report.per_view_iou.len().max(1) as f64;
+    let iou = outcome.report.per_view_iou.iter().sum::<f64>()
+        / outcome.report.per_view_iou.len().max(1) as f64;
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
     eprintln!(
         "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
@@ -344,13 +364,19 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(u) = &r.uncertainty {
         eprintln!(
             "1-sigma: rotation [{:.4}, {:.4}, {:.4}] deg, translation [{:.3}, {:.3}, {:.3}] mm",
-            u.rotation_deg[0], u.rotation_deg[1], u.rotation_deg[2],
-            u.translation_mm[0], u.translation_mm[1], u.translation_mm[2]
+            u.rotation_deg[0],
+            u.rotation_deg[1],
+            u.rotation_deg[2],
+            u.translation_mm[0],
+            u.translation_mm[1],
+            u.translation_mm[2]
         );
     }
     if let Some(truth) = cell.sim.camera_from_base {
         let noise = match &cell.config.arm {
-            easyhec::cell::ArmConfig::Sim { encoder_noise_rad, .. } => *encoder_noise_rad,
+            easyhec::cell::ArmConfig::Sim {
+                encoder_noise_rad, ..
+            } => *encoder_noise_rad,
         };
         let gt = easyhec::synth::GroundTruth {
             format: "easyhec-truth/1".into(),
@@ -654,6 +680,80 @@ fn cmd_export(a: ExportArgs) -> anyhow::Result<()> {
 
 fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
     match b {
+        BenchCommand::Loop {
+            config,
+            cells,
+            views,
+            selections,
+        } => {
+            use easyhec::calibrate::SelectionSetting;
+            let base = easyhec::cell::read_config(&config)?;
+            let mut all: Vec<(String, Vec<bench::LoopTrial>)> = Vec::new();
+            for name in &selections {
+                let selection = match name.as_str() {
+                    "explore" => SelectionSetting::Explore,
+                    "random" => SelectionSetting::Random,
+                    other => bail!("--selections {other}: use explore or random"),
+                };
+                let mut trials = Vec::new();
+                for seed in 0..cells {
+                    let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
+                    let t = bench::run_loop_trial(&cfg, &config, seed, selection, views)?;
+                    let last = t.errors.last().copied().unwrap_or((0, f64::NAN, f64::NAN));
+                    eprintln!(
+                        "{name} seed {seed}: {} views {:.4} deg {:.3} mm; planning {:.2} s/round; compute {:.1} s",
+                        last.0, last.1, last.2, t.explore_round_s[0], t.compute_s
+                    );
+                    trials.push(t);
+                }
+                all.push((name.clone(), trials));
+            }
+            println!(
+                "| selection | {} |",
+                (1..=views)
+                    .map(|k| format!("{k} views"))
+                    .collect::<Vec<_>>()
+                    .join(" | ")
+            );
+            println!("|---|{}", "---|".repeat(views));
+            for (name, trials) in &all {
+                let cells: Vec<String> = (1..=views)
+                    .map(|k| match bench::loop_medians(trials, k) {
+                        Some((r, t)) => format!("{r:.3}° / {t:.2} mm"),
+                        None => "-".into(),
+                    })
+                    .collect();
+                println!("| {name} | {} |", cells.join(" | "));
+            }
+            for (name, trials) in &all {
+                let plan: Vec<f64> = trials
+                    .iter()
+                    .flat_map(|t| t.explore_round_s.clone())
+                    .collect();
+                let compute: Vec<f64> = trials.iter().map(|t| t.compute_s).collect();
+                println!(
+                    "{name}: planning per round median {:.2} s (max {:.2}); compute per {views}-view calibration median {:.1} s (max {:.1})",
+                    bench::median(&plan),
+                    plan.iter().cloned().fold(0.0, f64::max),
+                    bench::median(&compute),
+                    compute.iter().cloned().fold(0.0, f64::max)
+                );
+            }
+            if all.len() == 2 {
+                if let (Some(e), Some(r)) = (
+                    bench::loop_medians(&all[0].1, 3),
+                    bench::loop_medians(&all[1].1, 3),
+                ) {
+                    println!(
+                        "3 views, {} / {}: rotation {:.2}x, translation {:.2}x",
+                        all[0].0,
+                        all[1].0,
+                        e.0 / r.0,
+                        e.1 / r.1
+                    );
+                }
+            }
+        }
         BenchCommand::Accuracy {
             robot,
             scenes,

@@ -192,9 +192,7 @@ pub(crate) fn element_mesh(
             }
             ((*mesh).clone(), s)
         }
-        urdf_rs::Geometry::Box { size } => {
-            (TriMesh::cuboid(size.0), Vector3::new(1.0, 1.0, 1.0))
-        }
+        urdf_rs::Geometry::Box { size } => (TriMesh::cuboid(size.0), Vector3::new(1.0, 1.0, 1.0)),
         urdf_rs::Geometry::Cylinder { radius, length } => (
             TriMesh::cylinder(*radius, *length, 32),
             Vector3::new(1.0, 1.0, 1.0),
@@ -411,7 +409,13 @@ impl RobotModel {
             for (vi, v) in link.visual.iter().enumerate() {
                 let field = format!("link '{}' visual {vi}", link.name);
                 let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
-                let (mesh, scale) = element_mesh(&v.geometry, &field, urdf_path, &src.package_dirs, &mut cache)?;
+                let (mesh, scale) = element_mesh(
+                    &v.geometry,
+                    &field,
+                    urdf_path,
+                    &src.package_dirs,
+                    &mut cache,
+                )?;
                 let placed = mesh.transformed(scale, &origin);
                 vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
                 visual.append(&placed);

@@ -417,7 +417,10 @@ impl SafetyChecker {
                 return Err(Error::input(
                     config_path,
                     field("joint_ranges"),
-                    format!("no actuated joint named '{name}' (joints: {})", names.join(", ")),
+                    format!(
+                        "no actuated joint named '{name}' (joints: {})",
+                        names.join(", ")
+                    ),
                 ));
             }
         }
@@ -521,7 +524,7 @@ impl SafetyChecker {
                     size,
                     rpy_deg,
                 } => {
-                    if size.iter().any(|s| !(*s > 0.0)) {
+                    if size.iter().any(|s| s.is_nan() || *s <= 0.0) {
                         return Err(bad("box size must be positive"));
                     }
                     (
@@ -535,7 +538,7 @@ impl SafetyChecker {
                     centre,
                     radius_m,
                 } => {
-                    if !(*radius_m > 0.0) {
+                    if radius_m.is_nan() || *radius_m <= 0.0 {
                         return Err(bad("sphere radius must be positive"));
                     }
                     (
@@ -592,7 +595,7 @@ impl SafetyChecker {
 
         let workspace = match &cfg.workspace {
             Some(w) => {
-                if !(w.radius_m > 0.0) {
+                if w.radius_m.is_nan() || w.radius_m <= 0.0 {
                     return Err(Error::input(
                         config_path,
                         field("workspace.radius_m"),
@@ -624,6 +627,7 @@ impl SafetyChecker {
         // "Always in collision" pairs (MoveIt's setup-assistant rule): in contact in nearly
         // every random pose, so the geometry overlaps by construction (simplified shapes).
         let mut candidates = Vec::new();
+        #[allow(clippy::needless_range_loop)] // a symmetric pair table, indexed both ways
         for a in 0..n_links {
             for b in a + 1..n_links {
                 let has = |l: usize| !checker.collision.link_elements[l].is_empty();
@@ -726,7 +730,10 @@ impl SafetyChecker {
         }
         for (k, (&v, &(lo, hi))) in q.iter().zip(&self.limits).enumerate() {
             if !v.is_finite() {
-                return Err(Violation::Malformed(format!("joint {} is {v}", self.names[k])));
+                return Err(Violation::Malformed(format!(
+                    "joint {} is {v}",
+                    self.names[k]
+                )));
             }
             if v < lo || v > hi {
                 return Err(Violation::JointLimit {
@@ -809,7 +816,11 @@ impl SafetyChecker {
     }
 
     /// Checks every pose on the joint-space line `from → to` (both ends included).
-    pub fn check_path(&self, from: &[f64], to: &[f64]) -> std::result::Result<(usize, Clearance), Violation> {
+    pub fn check_path(
+        &self,
+        from: &[f64],
+        to: &[f64],
+    ) -> std::result::Result<(usize, Clearance), Violation> {
         self.check_limits(from)?;
         self.check_limits(to)?;
         let n = self.path_samples(from, to);

@@ -141,8 +141,14 @@ impl SimScene {
                     // Wood: grain along x, warped by noise, with darker plank seams.
                     let warp = fractal(p.x * 3.0, p.y * 3.0, 11) * 2.0;
                     let grain = 0.5 + 0.5 * (p.y * 90.0 + warp * 6.0).sin();
-                    let seam = if (p.y * 5.0).fract().abs() < 0.02 { 0.6 } else { 1.0 };
-                    let k = (0.78 + 0.22 * grain) * seam * (0.9 + 0.2 * fractal(p.x * 20.0, p.y * 2.0, 12));
+                    let seam = if (p.y * 5.0).fract().abs() < 0.02 {
+                        0.6
+                    } else {
+                        1.0
+                    };
+                    let k = (0.78 + 0.22 * grain)
+                        * seam
+                        * (0.9 + 0.2 * fractal(p.x * 20.0, p.y * 2.0, 12));
                     return [0.66 * k, 0.49 * k, 0.33 * k];
                 }
             }
@@ -150,14 +156,19 @@ impl SimScene {
             if t > 0.0 {
                 let p = eye + ray_base * t;
                 let tile = ((p.x * 2.0).floor() as i64 + (p.y * 2.0).floor() as i64).rem_euclid(2);
-                let k = if tile == 0 { 0.42 } else { 0.36 } + 0.08 * fractal(p.x * 8.0, p.y * 8.0, 13);
+                let k =
+                    if tile == 0 { 0.42 } else { 0.36 } + 0.08 * fractal(p.x * 8.0, p.y * 8.0, 13);
                 return [k, k * 0.98, k * 0.95];
             }
         }
         // Walls: a cylinder of radius 3 m around the base, painted panels with noise.
         let az = ray_base.y.atan2(ray_base.x);
         let el = ray_base.z.atan2(ray_base.xy().norm());
-        let panel = if ((az * 6.0 / std::f64::consts::PI).fract().abs()) < 0.015 { 0.7 } else { 1.0 };
+        let panel = if ((az * 6.0 / std::f64::consts::PI).fract().abs()) < 0.015 {
+            0.7
+        } else {
+            1.0
+        };
         let k = (0.72 + 0.18 * fractal(az * 8.0, el * 8.0, 14)) * panel;
         [k * 0.92, k * 0.9, k * 0.85]
     }
@@ -172,7 +183,11 @@ impl SimScene {
         let mut rgb: Vec<[f64; 3]> = Vec::with_capacity(w * h);
         for v in 0..h {
             for u in 0..w {
-                let d = Vector3::new((u as f64 - cam.cx) / cam.fx, (v as f64 - cam.cy) / cam.fy, 1.0);
+                let d = Vector3::new(
+                    (u as f64 - cam.cx) / cam.fx,
+                    (v as f64 - cam.cy) / cam.fy,
+                    1.0,
+                );
                 rgb.push(self.background(&(rot * d), &eye));
             }
         }
@@ -197,7 +212,11 @@ impl SimScene {
                 n = -n;
             }
             let link = self.robot.vertex_link[tri[0] as usize] as usize;
-            let albedo = if link % 2 == 0 { [0.86, 0.86, 0.84] } else { [0.22, 0.22, 0.24] };
+            let albedo = if link % 2 == 0 {
+                [0.86, 0.86, 0.84]
+            } else {
+                [0.22, 0.22, 0.24]
+            };
             let view = -a.coords.normalize();
             let half = (light + view).normalize();
             let diffuse = n.dot(&light).max(0.0);
@@ -236,7 +255,9 @@ impl SimScene {
             }
         }
         let robot = PosedRobot::new(&self.robot, q);
-        let mask = CpuRenderer.render(&robot, &cam, &self.camera_from_base, None).mask;
+        let mask = CpuRenderer
+            .render(&robot, &cam, &self.camera_from_base, None)
+            .mask;
         (rgb, mask)
     }
 
@@ -260,8 +281,10 @@ impl SimScene {
             }
             out
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(self.settings.seed ^ frame_index.wrapping_mul(0x9E37_79B9));
-        let noise = Normal::new(0.0, self.settings.noise_sigma.max(0.0) + 1e-12).expect("finite sigma");
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(self.settings.seed ^ frame_index.wrapping_mul(0x9E37_79B9));
+        let noise =
+            Normal::new(0.0, self.settings.noise_sigma.max(0.0) + 1e-12).expect("finite sigma");
         let mut rgb = Vec::with_capacity(w * h * 3);
         for v in 0..h {
             for u in 0..w {
@@ -282,7 +305,11 @@ impl SimScene {
         let mask = cam.distort_mask(&mask);
         SceneFrame {
             rgb,
-            mask: mask.data.iter().map(|&m| if m != 0 { 255 } else { 0 }).collect(),
+            mask: mask
+                .data
+                .iter()
+                .map(|&m| if m != 0 { 255 } else { 0 })
+                .collect(),
         }
     }
 }

@@ -21,21 +21,37 @@ pub trait Segmenter: Send + Sync {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum SegmenterConfig {
-    /// The simulated camera's ground-truth mask.
-    SimTruth,
+    /// The simulated camera's ground-truth mask, optionally with the synthetic segmentation
+    /// noise of `easyhec synth` (boundary jitter and blobs), seeded per frame.
+    SimTruth {
+        /// Noise to add; absent: exact masks.
+        #[serde(default)]
+        noise: Option<crate::synth::NoiseModel>,
+        /// Noise seed.
+        #[serde(default)]
+        seed: u64,
+    },
 }
 
 impl SegmenterConfig {
     /// Builds the segmenter.
     pub fn build(&self) -> Box<dyn Segmenter> {
         match self {
-            SegmenterConfig::SimTruth => Box::new(SimTruth),
+            SegmenterConfig::SimTruth { noise, seed } => Box::new(SimTruth {
+                noise: noise.clone(),
+                seed: *seed,
+                frames: std::sync::atomic::AtomicU64::new(0),
+            }),
         }
     }
 }
 
 /// Uses [`Frame::truth_mask`].
-pub struct SimTruth;
+pub struct SimTruth {
+    noise: Option<crate::synth::NoiseModel>,
+    seed: u64,
+    frames: std::sync::atomic::AtomicU64,
+}
 
 impl Segmenter for SimTruth {
     fn name(&self) -> &str {
@@ -56,10 +72,22 @@ impl Segmenter for SimTruth {
                 frame.height
             )));
         }
-        Ok(Mask {
+        let mask = Mask {
             width: frame.width,
             height: frame.height,
             data: truth.iter().map(|&v| u8::from(v >= 128)).collect(),
+        };
+        Ok(match &self.noise {
+            None => mask,
+            Some(noise) => {
+                use rand::SeedableRng;
+                let n = self
+                    .frames
+                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let mut rng =
+                    rand_chacha::ChaCha8Rng::seed_from_u64(self.seed.wrapping_mul(1_000_003) + n);
+                crate::synth::apply_mask_noise(&mut rng, &mask, noise)
+            }
         })
     }
 }

@@ -325,7 +325,12 @@ mod tests {
     #[tokio::test]
     async fn moves_along_the_joint_line_and_arrives() {
         let a = arm(vec![]);
-        a.move_to(&[0.5, -0.25], 0.5).await.unwrap().wait().await.unwrap();
+        a.move_to(&[0.5, -0.25], 0.5)
+            .await
+            .unwrap()
+            .wait()
+            .await
+            .unwrap();
         assert_eq!(a.true_joints(), vec![0.5, -0.25]);
         assert_eq!(a.commands()[0].outcome.as_deref(), Some("arrived"));
         assert_eq!(a.status().await.unwrap(), ArmStatus::Idle);
@@ -361,12 +366,18 @@ mod tests {
         let e = a.move_to(&[0.8, 0.4], 1.0).await.unwrap().wait().await;
         assert!(matches!(e, Err(DriverError::MotionFailed(_))));
         let q = a.true_joints();
-        assert!((q[0] - 0.4).abs() < 1e-9 && (q[1] - 0.2).abs() < 1e-9, "{q:?}");
+        assert!(
+            (q[0] - 0.4).abs() < 1e-9 && (q[1] - 0.2).abs() < 1e-9,
+            "{q:?}"
+        );
         assert!(matches!(a.status().await.unwrap(), ArmStatus::Fault(_)));
         a.reset();
         let e = a.move_to(&[0.0, 0.0], 1.0).await.unwrap().wait().await;
         assert!(matches!(e, Err(DriverError::Stalled(_))));
         let q = a.true_joints();
-        assert!((q[0] - 0.3).abs() < 1e-9 && (q[1] - 0.15).abs() < 1e-9, "{q:?}");
+        assert!(
+            (q[0] - 0.3).abs() < 1e-9 && (q[1] - 0.15).abs() < 1e-9,
+            "{q:?}"
+        );
     }
 }

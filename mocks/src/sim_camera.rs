@@ -26,7 +26,11 @@ pub trait SceneRenderer: Send + Sync {
     fn intrinsics(&self) -> &Intrinsics;
 
     /// Renders a frame.
-    fn render(&self, true_joints: &[f64], frame_index: u64) -> std::result::Result<SceneFrame, String>;
+    fn render(
+        &self,
+        true_joints: &[f64],
+        frame_index: u64,
+    ) -> std::result::Result<SceneFrame, String>;
 }
 
 /// Simulated camera watching a [`SimArm`].

@@ -1,0 +1,419 @@
+//! The closed loop on simulated cells: calibrations reach the simulated truth, record
+//! everything, and no command that reaches the simulated arm is unsafe — including in an
+//! obstacle-heavy cell and with an arm that refuses, faults and stalls.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use easyhec::calibrate::{calibrate, Outcome, RunOptions};
+use easyhec::cell::{read_config, ArmConfig, Cell, CellConfig, FaultConfig};
+use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::run::load_run;
+use easyhec::safety::ObstacleConfig;
+
+fn config_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(name)
+}
+
+fn run(cell: &Cell, out: &Path, opts: &RunOptions) -> easyhec::Result<Outcome> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(calibrate(cell, out, opts))
+}
+
+/// Every command the simulated arm received was accepted by it and passes the checker from
+/// where the arm truly was; each executed path is also re-checked 20x finer than the
+/// checker's own sampling. Returns the number of commands.
+fn assert_every_command_safe(cell: &Cell) -> usize {
+    let sim = cell.sim.arm.as_ref().expect("simulated arm");
+    let commands = sim.commands();
+    let speed_cap = cell.checker.speed_cap_rad_s();
+    for (i, c) in commands.iter().enumerate() {
+        assert!(
+            c.accepted,
+            "command {i} was refused by the arm: {:?}",
+            c.outcome
+        );
+        assert!(
+            c.speed_rad_s <= speed_cap,
+            "command {i} speed {}",
+            c.speed_rad_s
+        );
+        cell.checker
+            .check_move(&c.from, &c.target, c.speed_rad_s)
+            .unwrap_or_else(|v| panic!("command {i} unsafe: {v}"));
+        let n = cell.checker.path_samples(&c.from, &c.target) * 20;
+        for k in 0..=n {
+            let s = k as f64 / n as f64;
+            let q: Vec<f64> = c
+                .from
+                .iter()
+                .zip(&c.target)
+                .map(|(a, b)| a + (b - a) * s)
+                .collect();
+            cell.checker
+                .check_pose(&q)
+                .unwrap_or_else(|v| panic!("command {i} at {s:.4} of its path: {v}"));
+        }
+    }
+    commands.len()
+}
+
+fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
+    cfg.calibration.max_views = views;
+    cfg.calibration.joint_samples = 600;
+    cfg.calibration.candidates = 24;
+    cfg
+}
+
+#[test]
+fn every_shipped_config_parses_and_builds() {
+    let mut n = 0;
+    for entry in
+        std::fs::read_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config")).unwrap()
+    {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) == Some("toml") {
+            Cell::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 3, "expected the sim configs, found {n}");
+}
+
+#[test]
+fn simulated_xarm6_calibration_reaches_the_truth_and_records_a_solvable_run() {
+    let path = config_path("sim-xarm6.toml");
+    let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let outcome = run(&cell, &out, &RunOptions::default()).unwrap();
+    let truth = cell.sim.camera_from_base.unwrap();
+    let est = outcome.result.camera_from_base();
+    let (r, t) = (
+        rotation_error_deg(&est, &truth),
+        translation_error_mm(&est, &truth),
+    );
+    assert!(r < 0.15 && t < 1.5, "error {r:.4} deg {t:.3} mm");
+    let views = outcome.result.views_used.len();
+    assert!(
+        (3..=4).contains(&views),
+        "{views} views: {}",
+        outcome.result.stop_reason
+    );
+    // The run directory is complete and re-solvable offline.
+    let loaded = load_run(&out).unwrap();
+    assert_eq!(loaded.views.len(), views);
+    assert!(out.join("result.json").is_file() && out.join("rounds.json").is_file());
+    for v in &loaded.file.views {
+        assert!(out.join(v.image.as_ref().unwrap()).is_file());
+    }
+    assert_eq!(outcome.rounds.len(), views);
+    let moves = assert_every_command_safe(&cell);
+    assert_eq!(moves, views - 1, "one move per added view");
+}
+
+#[test]
+fn ur5e_and_panda_cells_calibrate() {
+    for name in ["sim-ur5e.toml", "sim-panda.toml"] {
+        let path = config_path(name);
+        let cell = Cell::build(quick(read_config(&path).unwrap(), 3), &path).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
+        let truth = cell.sim.camera_from_base.unwrap();
+        let est = outcome.result.camera_from_base();
+        let (r, t) = (
+            rotation_error_deg(&est, &truth),
+            translation_error_mm(&est, &truth),
+        );
+        assert!(r < 0.2 && t < 2.0, "{name}: error {r:.4} deg {t:.3} mm");
+        assert_every_command_safe(&cell);
+    }
+}
+
+#[test]
+fn obstacle_heavy_cell_never_commands_an_unsafe_move() {
+    let path = config_path("sim-xarm6.toml");
+    let mut cfg = quick(read_config(&path).unwrap(), 4);
+    let obstacles = [
+        r#"kind = "box"
+name = "fixture"
+centre = [0.45, 0.0, 0.1]
+size = [0.2, 0.5, 0.2]"#,
+        r#"kind = "box"
+name = "thin glass panel"
+centre = [0.0, -0.45, 0.4]
+size = [1.2, 0.002, 0.8]"#,
+        r#"kind = "sphere"
+name = "lamp"
+centre = [0.0, 0.4, 0.75]
+radius_m = 0.12"#,
+        r#"kind = "keep-out"
+name = "operator side"
+min = [-1.0, 0.45, 0.0]
+max = [1.0, 1.5, 2.0]"#,
+        r#"kind = "box"
+name = "ceiling"
+centre = [0.0, 0.0, 1.05]
+size = [2.0, 2.0, 0.02]"#,
+    ];
+    for o in obstacles {
+        cfg.safety
+            .obstacles
+            .push(toml::from_str::<ObstacleConfig>(o).unwrap());
+    }
+    let cell = Cell::build(cfg, &path).unwrap();
+    // The start pose itself is clear (otherwise the test would prove nothing).
+    let start = match &cell.config.arm {
+        ArmConfig::Sim { start, .. } => start.clone(),
+    };
+    cell.checker.check_pose(&start).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
+    let moves = assert_every_command_safe(&cell);
+    assert!(
+        moves >= 2,
+        "the cell still leaves room to calibrate: {}",
+        outcome.result.stop_reason
+    );
+    // Many joint samples were rejected by the environment.
+    let first = &outcome.rounds[0].events[0];
+    assert!(first.contains("safe"), "{first}");
+}
+
+#[test]
+fn fault_injecting_arm_is_handled_and_stays_safe() {
+    let path = config_path("sim-xarm6.toml");
+    let mut cfg = quick(read_config(&path).unwrap(), 4);
+    let ArmConfig::Sim { faults, .. } = &mut cfg.arm;
+    *faults = vec![
+        FaultConfig::Refuse { on_move: 0 },
+        FaultConfig::Error {
+            on_move: 1,
+            at_fraction: 0.4,
+        },
+        FaultConfig::Stall {
+            on_move: 3,
+            at_fraction: 0.7,
+        },
+    ];
+    cfg.calibration.clear_faults = true;
+    let cell = Cell::build(cfg.clone(), &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
+    let events: Vec<&String> = outcome.rounds.iter().flat_map(|r| &r.events).collect();
+    assert!(
+        events.iter().filter(|e| e.contains("move failed")).count() >= 3,
+        "{events:?}"
+    );
+    let sim = cell.sim.arm.as_ref().unwrap();
+    let commands = sim.commands();
+    // The refused command is logged as refused; every accepted one was safe, including the
+    // moves re-planned from where a fault left the arm mid-path.
+    assert!(!commands[0].accepted);
+    let accepted: Vec<_> = commands.iter().filter(|c| c.accepted).cloned().collect();
+    for c in &accepted {
+        cell.checker
+            .check_move(&c.from, &c.target, c.speed_rad_s)
+            .unwrap();
+    }
+    assert!(accepted.len() >= 4, "{commands:?}");
+    let truth = cell.sim.camera_from_base.unwrap();
+    let est = outcome.result.camera_from_base();
+    assert!(rotation_error_deg(&est, &truth) < 0.2);
+
+    // Without clearing faults, the loop stops at the first fault but keeps what it recorded.
+    cfg.calibration.clear_faults = false;
+    let ArmConfig::Sim { faults, .. } = &mut cfg.arm;
+    *faults = vec![FaultConfig::Error {
+        on_move: 1,
+        at_fraction: 0.5,
+    }];
+    let cell = Cell::build(cfg, &path).unwrap();
+    let out = dir.path().join("run2");
+    let outcome = run(&cell, &out, &RunOptions::default()).unwrap();
+    assert!(
+        outcome.result.stop_reason.contains("fault"),
+        "{}",
+        outcome.result.stop_reason
+    );
+    assert_eq!(outcome.result.views_used.len(), 2);
+    assert_eq!(load_run(&out).unwrap().views.len(), 2);
+    assert!(out.join("result.json").is_file());
+    assert_every_command_safe_accepted_only(&cell);
+}
+
+fn assert_every_command_safe_accepted_only(cell: &Cell) {
+    for c in cell
+        .sim
+        .arm
+        .as_ref()
+        .unwrap()
+        .commands()
+        .iter()
+        .filter(|c| c.accepted)
+    {
+        cell.checker
+            .check_move(&c.from, &c.target, c.speed_rad_s)
+            .unwrap();
+    }
+}
+
+#[test]
+fn dry_run_plans_checked_poses_and_never_moves() {
+    let path = config_path("sim-xarm6.toml");
+    let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let outcome = run(
+        &cell,
+        &dir.path().join("run"),
+        &RunOptions {
+            dry_run: true,
+            ..RunOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(cell.sim.arm.as_ref().unwrap().commands().is_empty());
+    assert_eq!(outcome.planned.len(), 3);
+    let mut at = match &cell.config.arm {
+        ArmConfig::Sim { start, .. } => start.clone(),
+    };
+    for p in &outcome.planned {
+        cell.checker.check_move(&at, &p.joints, 0.5).unwrap();
+        at = p.joints.clone();
+    }
+    assert!(!dir.path().join("run/result.json").exists());
+}
+
+#[test]
+fn bad_cell_configs_get_one_line_errors_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(config_path("sim-xarm6.toml")).unwrap();
+    let cases = [
+        (
+            base.replace("kind = \"sim-truth\"", "kind = \"magic\""),
+            "line",
+        ),
+        (
+            base.replace("max_views = 5", "max_views = 5\nmax_veiws = 3"),
+            "max_veiws",
+        ),
+        (
+            base.replace("margin_m = 0.01", "margin_m = -1.0"),
+            "safety.margin_m",
+        ),
+        (
+            base.replace("joint1 = [-2.0, 2.0]", "joint9 = [-2.0, 2.0]"),
+            "joint9",
+        ),
+        (
+            base.replace(
+                "start = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0]",
+                "start = [0.0]",
+            ),
+            "arm.start",
+        ),
+    ];
+    for (i, (text, needle)) in cases.iter().enumerate() {
+        let p = dir.path().join(format!("bad{i}.toml"));
+        std::fs::write(&p, text).unwrap();
+        // Relative paths resolve against the config's folder: point the URDF at the checkout.
+        let fixed = text.replace(
+            "../robots/xarm6/robot.urdf",
+            &config_path("../robots/xarm6/robot.urdf")
+                .display()
+                .to_string(),
+        );
+        std::fs::write(&p, fixed).unwrap();
+        let e = match Cell::open(&p) {
+            Ok(_) => panic!("case {i} accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains(&format!("bad{i}.toml")) && e.contains(needle),
+            "case {i}: {e}"
+        );
+        assert!(!e.contains('\n'), "case {i}: {e}");
+    }
+}
+
+#[test]
+fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
+    let path = config_path("sim-panda.toml");
+    let cell = Cell::open(&path).unwrap();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let (a, b) = rt.block_on(async {
+        (
+            cell.camera.grab().await.unwrap(),
+            cell.camera.grab().await.unwrap(),
+        )
+    });
+    let mask = a.truth_mask.as_ref().unwrap();
+    let n = mask.len();
+    let robot = mask.iter().filter(|&&m| m >= 128).count();
+    assert!(
+        robot > n / 100 && robot < n / 2,
+        "{robot} robot pixels of {n}"
+    );
+    // Sensor noise: two frames of the same pose differ a little everywhere.
+    let diff = a
+        .rgb
+        .iter()
+        .zip(&b.rgb)
+        .map(|(x, y)| (f64::from(*x) - f64::from(*y)).abs())
+        .sum::<f64>()
+        / a.rgb.len() as f64;
+    assert!(
+        diff > 0.5 && diff < 8.0,
+        "mean frame-to-frame difference {diff}"
+    );
+    // Texture: the background is not flat.
+    let grey: Vec<f64> = a
+        .rgb
+        .chunks(3)
+        .map(|p| p.iter().map(|&c| f64::from(c)).sum::<f64>() / 3.0)
+        .collect();
+    let bg: Vec<f64> = grey
+        .iter()
+        .zip(mask)
+        .filter(|(_, &m)| m < 128)
+        .map(|(g, _)| *g)
+        .collect();
+    let mean = bg.iter().sum::<f64>() / bg.len() as f64;
+    let sd = (bg.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / bg.len() as f64).sqrt();
+    assert!(
+        sd > 8.0,
+        "background standard deviation {sd} (flat with sensor noise: about 2.5)"
+    );
+    // The lens is distorted: the mask is the pinhole silhouette warped, not the pinhole one.
+    let cam = easyhec::camera::Camera {
+        width: a.width,
+        height: a.height,
+        fx: 610.0,
+        fy: 609.0,
+        cx: 324.0,
+        cy: 236.0,
+        distortion: None,
+    };
+    let sim = cell.sim.arm.as_ref().unwrap();
+    let posed = easyhec::render::PosedRobot::new(&cell.robot, &sim.true_joints());
+    use easyhec::render::SilhouetteRenderer;
+    let pinhole = easyhec::render::CpuRenderer
+        .render(&posed, &cam, &cell.sim.camera_from_base.unwrap(), None)
+        .mask;
+    let observed = easyhec::mask::Mask {
+        width: a.width,
+        height: a.height,
+        data: mask.iter().map(|&m| u8::from(m >= 128)).collect(),
+    };
+    let iou = pinhole.iou(&observed);
+    assert!(iou > 0.8 && iou < 0.995, "distorted vs pinhole IoU {iou}");
+}
