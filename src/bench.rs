@@ -203,17 +203,7 @@ pub fn seeded_sim_cell(
     *s = seed;
     // A start pose that is safe and shows the robot to the true camera.
     let cell = Cell::build(cfg.clone(), config_path)?;
-    let camera = match &cfg.camera {
-        CameraConfig::Sim {
-            width,
-            height,
-            fx,
-            fy,
-            cx,
-            cy,
-            ..
-        } => crate::camera::Camera::pinhole(*width, *height, *fx, *fy, *cx, *cy),
-    };
+    let camera = cfg.camera.camera().undistorted();
     for _ in 0..10_000 {
         let q: Vec<f64> = cell
             .checker

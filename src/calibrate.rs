@@ -379,19 +379,6 @@ impl Recorder {
     }
 }
 
-fn camera_of(cell: &Cell) -> Camera {
-    let i = cell.camera.intrinsics();
-    Camera {
-        width: i.width,
-        height: i.height,
-        fx: i.fx,
-        fy: i.fy,
-        cx: i.cx,
-        cy: i.cy,
-        distortion: i.distortion,
-    }
-}
-
 fn absolute(p: &Path) -> String {
     std::fs::canonicalize(p)
         .unwrap_or_else(|_| p.to_path_buf())
@@ -624,14 +611,6 @@ pub fn choose_reachable(
     None
 }
 
-fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        0.0
-    } else {
-        v.iter().sum::<f64>() / v.len() as f64
-    }
-}
-
 async fn capture(cell: &Cell, camera: &Camera, rec: &mut Recorder) -> Result<View> {
     let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
     let joints = cell.arm.read_joints().await.map_err(hw)?;
@@ -669,7 +648,7 @@ fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
 pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Outcome> {
     let started = Instant::now();
     let s = &cell.config.calibration;
-    let camera = camera_of(cell);
+    let camera = Camera::from_intrinsics(cell.camera.intrinsics());
     let speed = s.speed_rad_s;
     let cap = cell.checker.speed_cap_rad_s();
     if speed > cap {
@@ -696,16 +675,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             .map(|s| s.to_string())
             .collect(),
     };
-    let camera_entry = CameraEntry {
-        width: camera.width,
-        height: camera.height,
-        fx: camera.fx,
-        fy: camera.fy,
-        cx: camera.cx,
-        cy: camera.cy,
-        distortion_model: camera.distortion.map(|_| "plumb_bob".into()),
-        distortion: camera.distortion.map(|d| d.to_vec()),
-    };
+    let camera_entry = CameraEntry::of(&camera);
     let guess = match &s.initial_guess {
         Some(g) => Some(
             g.camera_from_base()
@@ -737,7 +707,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         round: 0,
         views: 1,
         camera_from_base: to_rows(&report.camera_from_base),
-        mean_iou: mean(&report.per_view_iou),
+        mean_iou: report.mean_iou(),
         loss: report.loss,
         pose_change: None,
         best_variance: None,
@@ -868,7 +838,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             round: round + 1,
             views: views.len(),
             camera_from_base: to_rows(&report.camera_from_base),
-            mean_iou: mean(&report.per_view_iou),
+            mean_iou: report.mean_iou(),
             loss: report.loss,
             pose_change: Some(change),
             best_variance: None,
@@ -880,7 +850,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             "round {} loss {:.5} IoU {:.4} best var {:.1} px change {:.3} deg / {:.2} mm",
             round + 1,
             report.loss,
-            mean(&report.per_view_iou),
+            report.mean_iou(),
             best.unwrap_or(0.0),
             change[0],
             change[1]
@@ -896,17 +866,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         .enumerate()
         .map(|(view, &iou)| PerView { view, iou })
         .collect();
-    let u = &report.uncertainty;
-    if u.rotation_deg
-        .iter()
-        .chain(&u.translation_mm)
-        .all(|v| v.is_finite())
-    {
-        result.uncertainty = Some(UncertaintyEntry {
-            rotation_deg: u.rotation_deg,
-            translation_mm: u.translation_mm,
-        });
-    }
+    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
     result.stop_reason = stop_reason;
     result
         .timings_s

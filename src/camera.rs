@@ -7,6 +7,7 @@
 //! undistorted one (tested in `tests/solve_cli.rs`). Pinhole pixels whose ray falls outside the
 //! distorted image (pincushion corners) repeat the image border.
 
+use easyhec_drivers::Intrinsics;
 use nalgebra::Point3;
 
 use crate::mask::Mask;
@@ -41,6 +42,32 @@ impl Camera {
             cx,
             cy,
             distortion: None,
+        }
+    }
+
+    /// The camera a driver reports (drivers speak [`Intrinsics`], the solver [`Camera`]).
+    pub fn from_intrinsics(i: &Intrinsics) -> Camera {
+        Camera {
+            width: i.width,
+            height: i.height,
+            fx: i.fx,
+            fy: i.fy,
+            cx: i.cx,
+            cy: i.cy,
+            distortion: i.distortion,
+        }
+    }
+
+    /// As driver [`Intrinsics`].
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            distortion: self.distortion,
         }
     }
 

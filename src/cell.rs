@@ -167,6 +167,32 @@ pub enum CameraConfig {
     },
 }
 
+impl CameraConfig {
+    /// The camera model the config describes.
+    pub fn camera(&self) -> Camera {
+        match self {
+            CameraConfig::Sim {
+                width,
+                height,
+                fx,
+                fy,
+                cx,
+                cy,
+                distortion,
+                ..
+            } => Camera {
+                width: *width,
+                height: *height,
+                fx: *fx,
+                fy: *fy,
+                cx: *cx,
+                cy: *cy,
+                distortion: *distortion,
+            },
+        }
+    }
+}
+
 /// Handles into the simulated hardware, for tests and the truth report.
 #[derive(Clone)]
 pub struct SimHandles {
@@ -296,17 +322,7 @@ impl Cell {
         };
         let (camera, truth): (Arc<dyn CameraDevice>, Option<Isometry3<f64>>) = match &config.camera
         {
-            CameraConfig::Sim {
-                width,
-                height,
-                fx,
-                fy,
-                cx,
-                cy,
-                distortion,
-                truth,
-                scene,
-            } => {
+            CameraConfig::Sim { truth, scene, .. } => {
                 let Some(sim_arm) = &sim_arm else {
                     return Err(Error::input(
                         path,
@@ -314,17 +330,9 @@ impl Cell {
                         "a simulated camera needs a simulated arm to film: set [arm] kind = \"sim\"",
                     ));
                 };
-                let cam = Camera {
-                    width: *width,
-                    height: *height,
-                    fx: *fx,
-                    fy: *fy,
-                    cx: *cx,
-                    cy: *cy,
-                    distortion: *distortion,
-                };
                 let pose = truth.camera_from_base();
-                let scene = SimScene::new(robot.clone(), cam, pose, scene.clone());
+                let scene =
+                    SimScene::new(robot.clone(), config.camera.camera(), pose, scene.clone());
                 (
                     Arc::new(SimCamera::new(sim_arm.clone(), Arc::new(scene))),
                     Some(pose),

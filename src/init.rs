@@ -153,8 +153,8 @@ pub fn initialise(
         let Ok(report) = solve(renderer, &pinhole, views, &refined, solve_opts) else {
             continue;
         };
-        let iou = mean(&report.per_view_iou);
-        if best.as_ref().is_none_or(|b| iou > mean(&b.per_view_iou)) {
+        let iou = report.mean_iou();
+        if best.as_ref().is_none_or(|b| iou > b.mean_iou()) {
             best = Some(report);
         }
         if iou >= opts.accept_iou {
@@ -162,10 +162,10 @@ pub fn initialise(
         }
     }
     match best {
-        Some(r) if mean(&r.per_view_iou) >= opts.min_iou => Ok(r),
+        Some(r) if r.mean_iou() >= opts.min_iou => Ok(r),
         Some(r) => Err(Error::Solve(format!(
             "automatic initialisation failed: best mean mask IoU {:.2} < {:.2}; give initial_guess.camera_from_base or check the masks and the robot model",
-            mean(&r.per_view_iou),
+            r.mean_iou(),
             opts.min_iou
         ))),
         None => Err(Error::Solve("automatic initialisation failed: no hypothesis could be refined".into())),
@@ -185,8 +185,4 @@ fn centroid(mask: &Mask) -> Option<[f64; 2]> {
         }
     }
     (n > 0).then(|| [su / n as f64, sv / n as f64])
-}
-
-fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
 }

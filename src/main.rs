@@ -347,8 +347,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    let iou = outcome.report.per_view_iou.iter().sum::<f64>()
-        / outcome.report.per_view_iou.len().max(1) as f64;
+    let iou = outcome.report.mean_iou();
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
     eprintln!(
         "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
@@ -454,7 +453,7 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
             })?;
             eprintln!(
                 "no initial_guess: automatic initialisation found a pose with mean IoU {:.3} over {} views",
-                found.per_view_iou.iter().sum::<f64>() / found.per_view_iou.len() as f64,
+                found.mean_iou(),
                 first.len()
             );
             found.camera_from_base
@@ -488,18 +487,7 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         .zip(&report.per_view_iou)
         .map(|(&v, &iou)| PerView { view: v, iou })
         .collect();
-    // A degenerate fit has no meaningful curvature: leave the field out rather than write nulls.
-    let u = report.uncertainty;
-    if u.rotation_deg
-        .iter()
-        .chain(&u.translation_mm)
-        .all(|v| v.is_finite())
-    {
-        result.uncertainty = Some(UncertaintyEntry {
-            rotation_deg: u.rotation_deg,
-            translation_mm: u.translation_mm,
-        });
-    }
+    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
     if !report
         .camera_from_base
         .to_homogeneous()
@@ -544,7 +532,7 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         .insert("total".into(), started.elapsed().as_secs_f64());
     let out = a.out.unwrap_or_else(|| run.dir.join("result.json"));
     easyhec::io::write_json_atomic(&out, &result)?;
-    let mean_iou = report.per_view_iou.iter().sum::<f64>() / report.per_view_iou.len() as f64;
+    let mean_iou = report.mean_iou();
     let poor: Vec<usize> = order
         .iter()
         .zip(&report.per_view_iou)

@@ -87,6 +87,22 @@ pub struct CameraEntry {
     pub distortion: Option<Vec<f64>>,
 }
 
+impl CameraEntry {
+    /// The entry describing `camera` (distortion written as `plumb_bob` when present).
+    pub fn of(camera: &Camera) -> CameraEntry {
+        CameraEntry {
+            width: camera.width,
+            height: camera.height,
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+            distortion_model: camera.distortion.map(|_| "plumb_bob".to_string()),
+            distortion: camera.distortion.map(|d| d.to_vec()),
+        }
+    }
+}
+
 /// A 4x4 transform holder as the formats write it.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct PoseEntry {
@@ -386,6 +402,21 @@ pub struct UncertaintyEntry {
     pub rotation_deg: [f64; 3],
     /// Translation along camera x, y, z, millimetres.
     pub translation_mm: [f64; 3],
+}
+
+impl UncertaintyEntry {
+    /// The entry for `u`, or `None` for a degenerate fit (no meaningful curvature): the
+    /// field is then left out rather than written as nulls.
+    pub fn of(u: &crate::solve::Uncertainty) -> Option<UncertaintyEntry> {
+        u.rotation_deg
+            .iter()
+            .chain(&u.translation_mm)
+            .all(|v| v.is_finite())
+            .then_some(UncertaintyEntry {
+                rotation_deg: u.rotation_deg,
+                translation_mm: u.translation_mm,
+            })
+    }
 }
 
 impl ResultFile {

@@ -107,15 +107,7 @@ impl SimScene {
         camera_from_base: Isometry3<f64>,
         settings: SceneSettings,
     ) -> SimScene {
-        let intrinsics = Intrinsics {
-            width: camera.width,
-            height: camera.height,
-            fx: camera.fx,
-            fy: camera.fy,
-            cx: camera.cx,
-            cy: camera.cy,
-            distortion: camera.distortion,
-        };
+        let intrinsics = camera.intrinsics();
         SimScene {
             robot,
             camera,

@@ -439,7 +439,7 @@ pub fn solve(
     if opts.optimizer == Optimizer::Adam {
         return Ok(report);
     }
-    if mean(&report.per_view_iou) >= opts.recover_below_iou {
+    if report.mean_iou() >= opts.recover_below_iou {
         return refine(renderer, &camera, views, report, opts);
     }
     // The fast path landed in a poor local minimum (or the guess was rough): search a wide
@@ -455,7 +455,7 @@ pub fn solve(
         trajectory,
         opts,
     )?;
-    let best = if mean(&retry.per_view_iou) > mean(&report.per_view_iou) {
+    let best = if retry.mean_iou() > report.mean_iou() {
         retry
     } else {
         report
@@ -716,8 +716,16 @@ fn refine(
     Ok(refined)
 }
 
-fn mean(v: &[f64]) -> f64 {
+/// Mean of `v` (0 for an empty slice).
+pub(crate) fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+impl SolveReport {
+    /// Mean mask IoU over the views solved from.
+    pub fn mean_iou(&self) -> f64 {
+        mean(&self.per_view_iou)
+    }
 }
 
 /// Cross-entropy search over left increments of `initial`, maximising the mean mask IoU of up

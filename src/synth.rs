@@ -389,16 +389,7 @@ pub fn write_scene(
     let run = RunFile {
         format: RUN_FORMAT.into(),
         robot: robot_entry,
-        camera: CameraEntry {
-            width: c.width,
-            height: c.height,
-            fx: c.fx,
-            fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
-            distortion_model: c.distortion.map(|_| "plumb_bob".to_string()),
-            distortion: c.distortion.map(|d| d.to_vec()),
-        },
+        camera: CameraEntry::of(c),
         initial_guess: scene.initial_guess.map(|g| PoseEntry {
             camera_from_base: to_rows(&g),
         }),

@@ -232,32 +232,13 @@ fn explore_and_random_select_distinct_views_from_the_pool() {
         assert_near_truth(&run, select);
     }
     // Random selection is seeded.
-    let a = solve(
-        &run,
-        &[
-            "--views",
-            "3",
-            "--select",
-            "random",
-            "--seed",
-            "4",
-            "--out",
-            dir.path().join("a.json").to_str().unwrap(),
-        ],
-    );
-    let b = solve(
-        &run,
-        &[
-            "--views",
-            "3",
-            "--select",
-            "random",
-            "--seed",
-            "4",
-            "--out",
-            dir.path().join("b.json").to_str().unwrap(),
-        ],
-    );
+    let seeded_random = |out: &str| {
+        let out = dir.path().join(out);
+        let args = ["--views", "3", "--select", "random", "--seed", "4", "--out"];
+        solve(&run, &[&args[..], &[out.to_str().unwrap()]].concat())
+    };
+    let a = seeded_random("a.json");
+    let b = seeded_random("b.json");
     assert!(a.status.success() && b.status.success());
     let (ra, rb) = (
         ResultFile::read(&dir.path().join("a.json")).unwrap(),
