@@ -218,7 +218,11 @@ pub fn seeded_sim_cell(
         if crate::calibrate::in_image_fraction(&posed, &camera, &pose) < 0.97 {
             continue;
         }
-        let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm;
+        let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {
+            return Err(crate::Error::Solve(
+                "bench cells need [arm] kind = \"sim\"".into(),
+            ));
+        };
         *start = q;
         *s = seed;
         return Ok(cfg);

@@ -7,9 +7,12 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Duration;
 
+use easyhec_drivers::xarm::{Model as XArmModel, XArm, XArmConfig};
 use easyhec_drivers::{Arm, Camera as CameraDevice, JointLimit};
-use easyhec_mocks::{Fault, SimArm, SimArmConfig, SimCamera};
+use easyhec_mocks::xarm::XArmReportJoints;
+use easyhec_mocks::{Fault, JointSource, SimArm, SimArmConfig, SimCamera};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -111,6 +114,31 @@ pub enum ArmConfig {
         #[serde(default)]
         seed: u64,
     },
+    /// A UFACTORY arm (xArm 5/6/7, Lite 6, UF850) on its private TCP protocol: a real
+    /// controller, or `easyhec-mock xarm`.
+    Xarm {
+        /// `host:port` of the command channel (port 502 on a real controller).
+        addr: String,
+        /// `xarm5`, `xarm6`, `xarm6-sn1305`, `xarm7`, `lite6` or `uf850`: the joint limits
+        /// the driver enforces itself.
+        model: String,
+        /// The driver slows faster moves to this, rad/s (default 1.0, at most π).
+        #[serde(default)]
+        speed_cap_rad_s: Option<f64>,
+        /// Joint acceleration of every move, rad/s² (default 5, at most 20).
+        #[serde(default)]
+        accel_rad_s2: Option<f64>,
+        /// Limit for connecting, seconds (default 3).
+        #[serde(default)]
+        connect_timeout_s: Option<f64>,
+        /// Limit for one request/reply, seconds (default 2).
+        #[serde(default)]
+        reply_timeout_s: Option<f64>,
+        /// Slack beyond 1.5x a move's expected time before it is stopped as timed out,
+        /// seconds (default 10).
+        #[serde(default)]
+        motion_timeout_margin_s: Option<f64>,
+    },
 }
 
 /// A fault for the simulated arm.
@@ -164,6 +192,25 @@ pub enum CameraConfig {
         /// Scene dressing.
         #[serde(default)]
         scene: SceneSettings,
+        /// Where the true joints come from when the arm is not simulated (default: the
+        /// simulated arm).
+        #[serde(default)]
+        joints_from: Option<JointsFrom>,
+    },
+}
+
+/// The true-joint side channel of a simulated camera filming an arm that is not a
+/// `kind = "sim"` arm.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum JointsFrom {
+    /// An xArm controller's report port (30003 real or 30001 normal), mock or real.
+    XarmReport {
+        /// `host:port` of the report port.
+        addr: String,
+        /// Limit for receiving one report, seconds (default 2).
+        #[serde(default)]
+        timeout_s: Option<f64>,
     },
 }
 
@@ -220,6 +267,20 @@ pub struct Cell {
     pub checker: SafetyChecker,
     /// Simulator handles (absent on real hardware).
     pub sim: SimHandles,
+}
+
+/// A duration from an optional config value in seconds (positive and finite).
+fn seconds(path: &Path, key: &str, value: Option<f64>, default_s: f64) -> Result<Duration> {
+    let v = value.unwrap_or(default_s);
+    if v.is_finite() && v > 0.0 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(Error::input(
+            path,
+            key,
+            format!("{v} s: use a positive number of seconds"),
+        ))
+    }
 }
 
 /// Reads and parses a cell config, with one-line errors naming the key.
@@ -319,22 +380,79 @@ impl Cell {
                 });
                 (Arc::new(sim.clone()), Some(sim))
             }
+            ArmConfig::Xarm {
+                addr,
+                model,
+                speed_cap_rad_s,
+                accel_rad_s2,
+                connect_timeout_s,
+                reply_timeout_s,
+                motion_timeout_margin_s,
+            } => {
+                let model: XArmModel = model
+                    .parse()
+                    .map_err(|e: String| Error::input(path, "arm.model", e))?;
+                if model.axes() != n {
+                    return Err(Error::input(
+                        path,
+                        "arm.model",
+                        format!(
+                            "an {model} has {} joints; the URDF has {n} actuated joints",
+                            model.axes()
+                        ),
+                    ));
+                }
+                let mut cfg = XArmConfig::new(addr.clone(), model);
+                cfg.joint_names = Some(robot.joint_names().iter().map(|s| s.to_string()).collect());
+                if let Some(v) = speed_cap_rad_s {
+                    cfg.speed_cap_rad_s = *v;
+                }
+                if let Some(v) = accel_rad_s2 {
+                    cfg.accel_rad_s2 = *v;
+                }
+                cfg.connect_timeout =
+                    seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 3.0)?;
+                cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", *reply_timeout_s, 2.0)?;
+                cfg.motion_timeout_margin = seconds(
+                    path,
+                    "arm.motion_timeout_margin_s",
+                    *motion_timeout_margin_s,
+                    10.0,
+                )?;
+                let arm = XArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
+                (Arc::new(arm), None)
+            }
         };
         let (camera, truth): (Arc<dyn CameraDevice>, Option<Isometry3<f64>>) = match &config.camera
         {
-            CameraConfig::Sim { truth, scene, .. } => {
-                let Some(sim_arm) = &sim_arm else {
-                    return Err(Error::input(
-                        path,
-                        "camera.kind",
-                        "a simulated camera needs a simulated arm to film: set [arm] kind = \"sim\"",
-                    ));
+            CameraConfig::Sim {
+                truth,
+                scene,
+                joints_from,
+                ..
+            } => {
+                let source: Arc<dyn JointSource> = match (joints_from, &sim_arm) {
+                    (Some(JointsFrom::XarmReport { addr, timeout_s }), _) => {
+                        Arc::new(XArmReportJoints {
+                            addr: addr.clone(),
+                            axes: n,
+                            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+                        })
+                    }
+                    (None, Some(sim_arm)) => Arc::new(sim_arm.clone()),
+                    (None, None) => {
+                        return Err(Error::input(
+                            path,
+                            "camera.joints_from",
+                            "a simulated camera needs the true joints of the arm it films: set [arm] kind = \"sim\", or joints_from = { kind = \"xarm-report\", addr = \"HOST:30003\" }",
+                        ))
+                    }
                 };
                 let pose = truth.camera_from_base();
                 let scene =
                     SimScene::new(robot.clone(), config.camera.camera(), pose, scene.clone());
                 (
-                    Arc::new(SimCamera::new(sim_arm.clone(), Arc::new(scene))),
+                    Arc::new(SimCamera::watching(source, Arc::new(scene))),
                     Some(pose),
                 )
             }

@@ -376,6 +376,8 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
             easyhec::cell::ArmConfig::Sim {
                 encoder_noise_rad, ..
             } => *encoder_noise_rad,
+            // The controller's own readings (a mock's are exact).
+            easyhec::cell::ArmConfig::Xarm { .. } => 0.0,
         };
         let gt = easyhec::synth::GroundTruth {
             format: "easyhec-truth/1".into(),

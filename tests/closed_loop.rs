@@ -169,9 +169,10 @@ size = [2.0, 2.0, 0.02]"#,
     }
     let cell = Cell::build(cfg, &path).unwrap();
     // The start pose itself is clear (otherwise the test would prove nothing).
-    let start = match &cell.config.arm {
-        ArmConfig::Sim { start, .. } => start.clone(),
+    let ArmConfig::Sim { start, .. } = &cell.config.arm else {
+        panic!("a simulated arm")
     };
+    let start = start.clone();
     cell.checker.check_pose(&start).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
@@ -190,7 +191,9 @@ size = [2.0, 2.0, 0.02]"#,
 fn fault_injecting_arm_is_handled_and_stays_safe() {
     let path = config_path("sim-xarm6.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 4);
-    let ArmConfig::Sim { faults, .. } = &mut cfg.arm;
+    let ArmConfig::Sim { faults, .. } = &mut cfg.arm else {
+        panic!("a simulated arm")
+    };
     *faults = vec![
         FaultConfig::Refuse { on_move: 0 },
         FaultConfig::Error {
@@ -229,7 +232,9 @@ fn fault_injecting_arm_is_handled_and_stays_safe() {
 
     // Without clearing faults, the loop stops at the first fault but keeps what it recorded.
     cfg.calibration.clear_faults = false;
-    let ArmConfig::Sim { faults, .. } = &mut cfg.arm;
+    let ArmConfig::Sim { faults, .. } = &mut cfg.arm else {
+        panic!("a simulated arm")
+    };
     *faults = vec![FaultConfig::Error {
         on_move: 1,
         at_fraction: 0.5,
@@ -280,9 +285,10 @@ fn dry_run_plans_checked_poses_and_never_moves() {
     .unwrap();
     assert!(cell.sim.arm.as_ref().unwrap().commands().is_empty());
     assert_eq!(outcome.planned.len(), 3);
-    let mut at = match &cell.config.arm {
-        ArmConfig::Sim { start, .. } => start.clone(),
+    let ArmConfig::Sim { start, .. } = &cell.config.arm else {
+        panic!("a simulated arm")
     };
+    let mut at = start.clone();
     for p in &outcome.planned {
         cell.checker.check_move(&at, &p.joints, 0.5).unwrap();
         at = p.joints.clone();

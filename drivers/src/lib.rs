@@ -1,5 +1,5 @@
 //! Hardware roles for easyhec: one object-safe async trait per role ([`Arm`], [`Camera`]),
-//! the data they exchange, and (with later issues) the clients for real controllers.
+//! the data they exchange, and the clients for real controllers ([`xarm`]).
 //!
 //! The calibration loop holds `Arc<dyn Arm>` / `Arc<dyn Camera>` and never knows which backend
 //! it drives; a cell config's `kind = "…"` picks the backend. Motions return a [`Motion`]
@@ -8,6 +8,7 @@
 mod arm;
 mod camera;
 mod error;
+pub mod xarm;
 
 pub use arm::{Arm, ArmStatus, JointLimit, Motion};
 pub use camera::{Camera, Frame, Intrinsics};

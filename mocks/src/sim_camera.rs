@@ -1,5 +1,5 @@
-//! A simulated camera: frames of the simulated arm's true joints from a pose the solver never
-//! sees (the scene renderer owns it).
+//! A simulated camera: frames of an arm's true joints (a [`SimArm`] or a controller's report
+//! stream) from a pose the solver never sees (the scene renderer owns it).
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -33,9 +33,24 @@ pub trait SceneRenderer: Send + Sync {
     ) -> std::result::Result<SceneFrame, String>;
 }
 
-/// Simulated camera watching a [`SimArm`].
+/// Where a simulated camera learns the arm's true joints: the simulated arm itself, or a
+/// controller's report stream (a mock or real xArm), so one scene renderer films any arm.
+#[async_trait]
+pub trait JointSource: Send + Sync {
+    /// The joints as they truly are now.
+    async fn true_joints(&self) -> Result<Vec<f64>>;
+}
+
+#[async_trait]
+impl JointSource for SimArm {
+    async fn true_joints(&self) -> Result<Vec<f64>> {
+        Ok(SimArm::true_joints(self))
+    }
+}
+
+/// Simulated camera watching an arm's true joints.
 pub struct SimCamera {
-    arm: SimArm,
+    arm: Arc<dyn JointSource>,
     scene: Arc<dyn SceneRenderer>,
     frames: AtomicU64,
 }
@@ -43,8 +58,13 @@ pub struct SimCamera {
 impl SimCamera {
     /// A camera rendering `scene` at `arm`'s true joints.
     pub fn new(arm: SimArm, scene: Arc<dyn SceneRenderer>) -> SimCamera {
+        SimCamera::watching(Arc::new(arm), scene)
+    }
+
+    /// A camera rendering `scene` at the joints `source` reports.
+    pub fn watching(source: Arc<dyn JointSource>, scene: Arc<dyn SceneRenderer>) -> SimCamera {
         SimCamera {
-            arm,
+            arm: source,
             scene,
             frames: AtomicU64::new(0),
         }
@@ -58,7 +78,7 @@ impl Camera for SimCamera {
     }
 
     async fn grab(&self) -> Result<Frame> {
-        let q = self.arm.true_joints();
+        let q = self.arm.true_joints().await?;
         let index = self.frames.fetch_add(1, Ordering::Relaxed);
         let scene = self.scene.clone();
         let captured_at = SystemTime::now();

@@ -1,0 +1,122 @@
+//! `easyhec-mock`: mock robot controllers on loopback, for trying the real drivers (and the
+//! vendors' SDKs) without hardware. One subcommand per controller family; each runs until
+//! killed and prints one line saying where it listens.
+
+use std::net::IpAddr;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use easyhec_drivers::xarm::Model;
+use easyhec_mocks::xarm::{MockXArm, MockXArmConfig};
+
+#[derive(Parser)]
+#[command(
+    name = "easyhec-mock",
+    about = "Mock robot controllers speaking the real protocols"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// A UFACTORY controller: private protocol on 502, reports on 30001 (5 Hz) and 30003 (100 Hz).
+    Xarm(XarmArgs),
+}
+
+#[derive(clap::Args)]
+struct XarmArgs {
+    /// Arm model: xarm5, xarm6, xarm6-sn1305, xarm7, lite6, uf850.
+    #[arg(long, default_value = "xarm6")]
+    model: String,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: IpAddr,
+    /// Pick free ports instead of 502/30001/30003 (printed on start).
+    #[arg(long)]
+    free_ports: bool,
+    /// Start joints, radians, comma-separated [default: the demo pose for xarm6, else zeros].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    start: Option<Vec<f64>>,
+    /// Simulated seconds per wall-clock second.
+    #[arg(long, default_value_t = 1.0)]
+    speedup: f64,
+    /// Refuse (error C24) moves faster than this, rad/s.
+    #[arg(long, default_value_t = std::f64::consts::PI)]
+    speed_cap: f64,
+    /// Firmware version to announce (≥ 2.0.102 makes the vendor SDK ask for feedback frames,
+    /// which this mock does not send; it then falls back to polling).
+    #[arg(long, default_value = "1.12.10")]
+    firmware: String,
+    /// Print every joint-move command as it is answered.
+    #[arg(long)]
+    verbose: bool,
+}
+
+/// The start pose of `config/sim-xarm6.toml`, which the demo camera sees whole.
+const DEMO_XARM6_START: [f64; 6] = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0];
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Xarm(args) => run_xarm(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run_xarm(a: XarmArgs) -> Result<(), String> {
+    let model: Model = a.model.parse()?;
+    let mut cfg = if a.free_ports {
+        MockXArmConfig::free_ports(model)
+    } else {
+        MockXArmConfig::standard_ports(model)
+    };
+    cfg.host = a.bind;
+    cfg.start = match a.start {
+        Some(q) => Some(q),
+        None if model == Model::Xarm6 => Some(DEMO_XARM6_START.to_vec()),
+        None => None,
+    };
+    cfg.speedup = a.speedup;
+    cfg.speed_cap_rad_s = a.speed_cap;
+    cfg.firmware = a.firmware;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| format!("tokio runtime: {e}"))?;
+    runtime.block_on(async move {
+        let mock = MockXArm::spawn(cfg).await.map_err(|e| match e.kind() {
+            std::io::ErrorKind::PermissionDenied | std::io::ErrorKind::AddrInUse => {
+                format!("cannot listen ({e}): ports below 1024 need root, or pass --free-ports")
+            }
+            _ => e.to_string(),
+        })?;
+        println!("{}", mock.describe());
+        let mut seen = 0;
+        loop {
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            if a.verbose {
+                let log = mock.commands();
+                for c in log.iter().skip(seen).filter(|c| c.outcome.is_some()) {
+                    let q: Vec<String> = c.target.iter().map(|v| format!("{v:+.3}")).collect();
+                    println!(
+                        "move {}: [{}] at {:.3} rad/s: {}",
+                        c.index,
+                        q.join(", "),
+                        c.speed_rad_s,
+                        c.outcome.as_deref().unwrap_or("")
+                    );
+                    seen = c.index + 1;
+                }
+            }
+        }
+    })
+}
