@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 use easyhec_drivers::{ArmStatus, Frame};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -18,7 +18,10 @@ use crate::camera::Camera;
 use crate::cell::{Cell, LookAt};
 
 use crate::error::{Error, Result};
-use crate::explore::{camera_candidates, disagreement_cpu, CandidateSource, ExploreOptions};
+use crate::explore::{
+    camera_candidates, disagreement_cpu, information_gain, view_information, CandidateSource,
+    ExploreOptions,
+};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::io::{write_atomic, write_json_atomic};
@@ -81,6 +84,13 @@ pub struct CalibrationSettings {
     /// Image downsampling for scoring candidate poses.
     #[serde(default = "default_score_downsample")]
     pub score_downsample: u32,
+    /// How `explore` ranks joint samples: `information` (default) or `variance` (the paper's).
+    #[serde(default)]
+    pub score: ScoreSetting,
+    /// Error of a reported joint position, radians (1 sigma, per view: encoder noise plus
+    /// kinematic error). `information` scoring discounts views a joint error could fake.
+    #[serde(default = "default_joint_noise")]
+    pub joint_noise_rad: f64,
 }
 
 fn default_max_views() -> usize {
@@ -109,6 +119,9 @@ fn default_pose_tol_mm() -> f64 {
 }
 fn default_max_failures() -> usize {
     3
+}
+fn default_joint_noise() -> f64 {
+    0.0005
 }
 fn default_score_downsample() -> u32 {
     8
@@ -154,6 +167,17 @@ pub enum SelectionSetting {
     Explore,
     /// A random safe pose that shows the robot (baseline).
     Random,
+}
+
+/// How exploration ranks joint samples.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScoreSetting {
+    /// Expected shrinkage of the posterior's volume ([`crate::explore::information_gain`]).
+    #[default]
+    Information,
+    /// Variance of the camera candidates' masks (method.md §5, the paper's score).
+    Variance,
 }
 
 /// Where exploration's camera candidates come from.
@@ -227,8 +251,11 @@ pub struct RoundRecord {
 pub struct PlannedPose {
     /// Target joints.
     pub joints: Vec<f64>,
-    /// Disagreement score.
+    /// Ranking score (higher is better; see [`ScoreSetting`]).
     pub score: f64,
+    /// Variance of the camera candidates' masks at this pose (computed for the best only,
+    /// unless the variance ranked them all).
+    pub variance: Option<f64>,
     /// Fraction of the robot inside the image under the current estimate.
     pub in_image: f64,
     /// Clearances along the path.
@@ -416,8 +443,11 @@ pub fn in_image_fraction(
 pub struct Ranked {
     /// Joints.
     pub joints: Vec<f64>,
-    /// Disagreement score.
+    /// Ranking score (higher is better; see [`ScoreSetting`]).
     pub score: f64,
+    /// Variance of the camera candidates' masks at this pose (computed for the best only,
+    /// unless the variance ranked them all).
+    pub variance: Option<f64>,
     /// In-image fraction under the estimate.
     pub in_image: f64,
 }
@@ -439,6 +469,7 @@ pub fn rank_poses(
     cell: &Cell,
     camera: &Camera,
     report: &SolveReport,
+    taken: &[Vec<f64>],
     settings: &CalibrationSettings,
     round: usize,
 ) -> (Vec<Ranked>, PlanStats) {
@@ -510,50 +541,100 @@ pub fn rank_poses(
         );
     }
     let t_checked = std::time::Instant::now();
-    // Two passes: every sample against the first fifth of the candidates, then the best
-    // quarter against all of them (the argmax is almost always in that quarter; this halves
-    // the planning time).
-    let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
-    let score = |posed: &PosedRobot, q: &[f64], cands: &[Isometry3<f64>]| match settings.selection {
-        SelectionSetting::Explore => disagreement_cpu(&low, posed, cands),
-        // Random order: a hash of the joints, so the choice is seeded and repeatable.
-        SelectionSetting::Random => {
-            let mut h = rand_chacha::ChaCha8Rng::seed_from_u64(
-                q.iter()
-                    .fold(settings.seed, |a, v| a.rotate_left(7) ^ v.to_bits()),
-            );
-            h.random::<f64>()
-        }
-    };
-    let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = safe
+    let in_view: Vec<(f64, Vec<f64>, PosedRobot)> = safe
         .into_par_iter()
         .filter_map(|(q, posed)| {
             let in_image = in_image_fraction(&posed, &pinhole, &estimate);
-            if in_image < checker.min_in_image {
-                return None;
-            }
-            let s = score(&posed, &q, quick);
-            Some((s, in_image, q, posed))
+            (in_image >= checker.min_in_image).then_some((in_image, q, posed))
         })
         .collect();
-    let n_scored = first.len();
-    first.sort_by(|a, b| b.0.total_cmp(&a.0));
-    if settings.selection == SelectionSetting::Explore {
-        first.truncate((n_scored / 4).max(64.min(n_scored)));
+    let n_scored = in_view.len();
+    let variance =
+        |posed: &PosedRobot, cands: &[Isometry3<f64>]| disagreement_cpu(&low, posed, cands);
+    let mut ranked: Vec<(Ranked, PosedRobot)> = match (settings.selection, settings.score) {
+        (SelectionSetting::Random, _) => in_view
+            .into_iter()
+            .map(|(in_image, q, posed)| {
+                // Random order: a hash of the joints, so the choice is seeded and repeatable.
+                let mut h = rand_chacha::ChaCha8Rng::seed_from_u64(
+                    q.iter()
+                        .fold(settings.seed, |a, v| a.rotate_left(7) ^ v.to_bits()),
+                );
+                let r = Ranked {
+                    score: h.random::<f64>(),
+                    variance: None,
+                    joints: q,
+                    in_image,
+                };
+                (r, posed)
+            })
+            .collect(),
+        (SelectionSetting::Explore, ScoreSetting::Information) => {
+            let info = |posed: &PosedRobot, q: &[f64]| {
+                view_information(
+                    &low,
+                    pinhole.fx,
+                    posed,
+                    &cell.robot.joint_motions(q),
+                    &estimate,
+                    report.outline_noise_px2,
+                    settings.joint_noise_rad,
+                )
+            };
+            // What the views taken so far know, on the same footing as the candidates
+            // (a tiny ridge keeps a one-view matrix invertible).
+            let current: Matrix6<f64> = taken
+                .par_iter()
+                .map(|q| info(&PosedRobot::new(&cell.robot, q).decimated(cell_m), q))
+                .reduce(Matrix6::zeros, |a, b| a + b)
+                + Matrix6::identity() * 1e-6;
+            in_view
+                .into_par_iter()
+                .map(|(in_image, q, posed)| {
+                    let r = Ranked {
+                        score: information_gain(&current, &info(&posed, &q)),
+                        variance: None,
+                        joints: q,
+                        in_image,
+                    };
+                    (r, posed)
+                })
+                .collect()
+        }
+        (SelectionSetting::Explore, ScoreSetting::Variance) => {
+            // Two passes: every sample against the first fifth of the candidates, then the
+            // best quarter against all of them (the argmax is almost always in that quarter;
+            // this halves the planning time).
+            let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
+            let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = in_view
+                .into_par_iter()
+                .map(|(in_image, q, posed)| (variance(&posed, quick), in_image, q, posed))
+                .collect();
+            first.sort_by(|a, b| b.0.total_cmp(&a.0));
+            first.truncate((n_scored / 4).max(64.min(n_scored)));
+            first
+                .into_par_iter()
+                .map(|(_, in_image, q, posed)| {
+                    let v = variance(&posed, &candidates);
+                    let r = Ranked {
+                        score: v,
+                        variance: Some(v),
+                        joints: q,
+                        in_image,
+                    };
+                    (r, posed)
+                })
+                .collect()
+        }
+    };
+    ranked.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
+    // The stop rule watches the candidates' disagreement at the best pose, whatever ranked it.
+    if let Some((best, posed)) = ranked.first_mut() {
+        if best.variance.is_none() {
+            best.variance = Some(variance(posed, &candidates));
+        }
     }
-    let mut ranked: Vec<Ranked> = first
-        .into_par_iter()
-        .map(|(s, in_image, q, posed)| Ranked {
-            score: if settings.selection == SelectionSetting::Explore {
-                score(&posed, &q, &candidates)
-            } else {
-                s
-            },
-            joints: q,
-            in_image,
-        })
-        .collect();
-    ranked.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let ranked: Vec<Ranked> = ranked.into_iter().map(|r| r.0).collect();
     if std::env::var_os("EASYHEC_DEBUG").is_some() {
         eprintln!(
             "rank_poses: scoring {:.2} s, {} scored, {} triangles per coarse robot",
@@ -597,6 +678,7 @@ pub fn choose_reachable(
                     PlannedPose {
                         joints: r.joints.clone(),
                         score: r.score,
+                        variance: r.variance,
                         in_image: r.in_image,
                         clearance: mv.clearance,
                         path_samples: mv.samples,
@@ -611,7 +693,12 @@ pub fn choose_reachable(
     None
 }
 
-async fn capture(cell: &Cell, camera: &Camera, rec: &mut Recorder) -> Result<View> {
+async fn capture(
+    cell: &Cell,
+    camera: &Camera,
+    rec: &mut Recorder,
+    taken: &mut Vec<Vec<f64>>,
+) -> Result<View> {
     let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
     let joints = cell.arm.read_joints().await.map_err(hw)?;
     let frame = cell.camera.grab().await.map_err(hw)?;
@@ -623,6 +710,7 @@ async fn capture(cell: &Cell, camera: &Camera, rec: &mut Recorder) -> Result<Vie
     }
     let mask = cell.segmenter.segment(&frame)?;
     rec.add_view(&joints, &frame, &mask)?;
+    taken.push(joints.clone());
     Ok(View {
         robot: PosedRobot::new(&cell.robot, &joints),
         observed: camera.undistort_mask(&mask),
@@ -689,7 +777,8 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let solve_opts = SolveOptions::default();
     let (mut solve_s, mut explore_s, mut motion_s) = (0.0, 0.0, 0.0);
 
-    let mut views = vec![capture(cell, &camera, &mut rec).await?];
+    let mut taken = Vec::new();
+    let mut views = vec![capture(cell, &camera, &mut rec, &mut taken).await?];
     pb.set_position(1);
     let t = Instant::now();
     let mut report = match guess {
@@ -727,8 +816,8 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             break;
         }
         let t = Instant::now();
-        let (ranked, stats) = rank_poses(cell, &camera, &report, s, round);
-        let best = ranked.first().map(|r| r.score);
+        let (ranked, stats) = rank_poses(cell, &camera, &report, &taken, s, round);
+        let best = ranked.first().and_then(|r| r.variance);
         explore_s += t.elapsed().as_secs_f64();
         let last = rounds.last_mut().expect("round 0 exists");
         last.best_variance = best;
@@ -823,7 +912,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             // Re-plan from wherever the arm stopped.
             continue;
         }
-        views.push(capture(cell, &camera, &mut rec).await?);
+        views.push(capture(cell, &camera, &mut rec, &mut taken).await?);
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;
         let t = Instant::now();

@@ -7,7 +7,7 @@
 //! shows the summed loss over candidates bounds it from above, so a high `V` is a view that
 //! will shrink the candidate set.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use crate::camera::Camera;
 use crate::geometry::{exp_se3, Twist};
 use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::robot::JointMotion;
 use crate::solve::SolveReport;
 
 /// Where camera candidates come from.
@@ -146,6 +147,106 @@ pub fn disagreement_cpu(camera: &Camera, robot: &PosedRobot, candidates: &[Isome
         .map(|&c| f64::from(c) * (k - f64::from(c)))
         .sum::<f64>()
         / (k * k)
+}
+
+/// Information one view of `robot` carries about the camera pose, as a 6x6 matrix over the
+/// left se(3) increment, with the reported joints' errors marginalised out.
+///
+/// Each outline sample `s` (rendered at `estimate`) contributes `l_s j_s j_s^T / noise_px2`,
+/// with `j_s` its normal displacement per unit increment and `l_s` the outline length it
+/// stands for (full-resolution pixels). A joint error moves a whole link rigidly, which the
+/// outline sees exactly like a camera motion `Xi_L dq`; with `dq ~ N(0, joint_noise_rad^2)`
+/// per view the information left about the camera is the Schur complement
+/// `A - B (C + I / joint_noise_rad^2)^-1 B^T`. Views whose outline a joint error could fake
+/// are worth little, however long their outline: segmentation noise averages out along an
+/// outline, joint errors do not.
+pub fn view_information(
+    camera: &Camera,
+    full_fx: f64,
+    robot: &PosedRobot,
+    motions: &[JointMotion],
+    estimate: &Isometry3<f64>,
+    noise_px2: f64,
+    joint_noise_rad: f64,
+) -> Matrix6<f64> {
+    let sil = crate::render::CpuRenderer.render(robot, camera, estimate, Some(1.0));
+    let links = motions.first().map_or(0, |m| m.moves_link.len());
+    // Per link: sum of l j j^T (scoring pixels).
+    let mut per_link = vec![Matrix6::<f64>::zeros(); links + 1];
+    for s in &sil.boundary {
+        let jp = s.pixel_jacobian(camera);
+        let jn: Twist = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+        let link = robot
+            .vertex_link
+            .get(s.vertex as usize)
+            .map_or(links, |&l| (l as usize).min(links));
+        per_link[link] += jn * jn.transpose() * s.length_px;
+    }
+    // Scoring pixels -> full-resolution pixels: displacement and length each scale by f.
+    let f = full_fx / camera.fx;
+    let scale = f * f * f / noise_px2.max(1e-12);
+    let a: Matrix6<f64> = per_link.iter().sum::<Matrix6<f64>>() * scale;
+    let n = motions.len();
+    if joint_noise_rad <= 0.0 || n == 0 {
+        return a;
+    }
+    let twists: Vec<Twist> = motions
+        .iter()
+        .map(|m| joint_twist_in_camera(m, estimate))
+        .collect();
+    let mut b = nalgebra::DMatrix::<f64>::zeros(6, n);
+    let mut c = nalgebra::DMatrix::<f64>::zeros(n, n);
+    for (link, h) in per_link.iter().enumerate().take(links) {
+        if h.iter().all(|v| *v == 0.0) {
+            continue;
+        }
+        let mut xi = nalgebra::DMatrix::<f64>::zeros(6, n);
+        for (k, m) in motions.iter().enumerate() {
+            if m.moves_link[link] {
+                xi.set_column(k, &twists[k]);
+            }
+        }
+        let hd = nalgebra::DMatrix::from_iterator(6, 6, h.iter().copied()) * scale;
+        let hx = &hd * &xi;
+        c += xi.transpose() * &hx;
+        b += hx;
+    }
+    for k in 0..n {
+        c[(k, k)] += 1.0 / (joint_noise_rad * joint_noise_rad);
+    }
+    let Some(c_inv) = c.try_inverse() else {
+        return a;
+    };
+    let schur = &b * c_inv * b.transpose();
+    a - Matrix6::from_iterator(schur.iter().copied())
+}
+
+/// A joint's motion as a left se(3) increment in the camera frame: a link it moves by `dq`
+/// has its points move by `dq * (rho + phi x p)` in the camera frame, exactly as under a
+/// camera increment `(rho, phi)`, so the outline cannot tell the two apart.
+pub fn joint_twist_in_camera(motion: &JointMotion, camera_from_base: &Isometry3<f64>) -> Twist {
+    let axis = camera_from_base.rotation * motion.axis_base;
+    if motion.prismatic {
+        Twist::new(axis.x, axis.y, axis.z, 0.0, 0.0, 0.0)
+    } else {
+        let o = (camera_from_base * motion.origin_base).coords;
+        let rho = o.cross(&axis);
+        Twist::new(rho.x, rho.y, rho.z, axis.x, axis.y, axis.z)
+    }
+}
+
+/// How much a view with information `candidate` would add to `current`: the log of the
+/// posterior volume's shrinkage, `log det(current + candidate) - log det(current)`
+/// (D-optimal design; invariant to how rotation and translation are scaled).
+pub fn information_gain(current: &Matrix6<f64>, candidate: &Matrix6<f64>) -> f64 {
+    let logdet = |m: &Matrix6<f64>| {
+        m.cholesky()
+            .map(|c| 2.0 * c.l().diagonal().iter().map(|v| v.ln()).sum::<f64>())
+    };
+    match (logdet(current), logdet(&(current + candidate))) {
+        (Some(a), Some(b)) => b - a,
+        _ => 0.0,
+    }
 }
 
 /// Scores every pool entry (robot poses; pass meshes decimated with `opts.cell_m` — coarse
@@ -332,4 +433,90 @@ fn pose_settled(report: &SolveReport, stop: &StopRule) -> bool {
     };
     crate::geometry::rotation_error_deg(first, &report.camera_from_base) < stop.pose_tol_deg
         && crate::geometry::translation_error_mm(first, &report.camera_from_base) < stop.pose_tol_mm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::look_at_camera_from_base;
+    use crate::robot::RobotModel;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn doubling_the_information_halves_each_variance() {
+        let current = Matrix6::from_diagonal(&Twist::new(4.0, 1.0, 9.0, 2.0, 3.0, 5.0));
+        assert!(information_gain(&current, &Matrix6::zeros()).abs() < 1e-12);
+        let g = information_gain(&current, &current);
+        assert!((g - 6.0 * 2f64.ln()).abs() < 1e-9, "{g}");
+    }
+
+    #[test]
+    fn joint_twists_predict_how_each_joint_moves_the_robot() {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
+        let robot = RobotModel::from_urdf(urdf).unwrap();
+        let q = [0.3, -0.4, -0.5, 0.2, 0.9, 0.1];
+        let camera_from_base = look_at_camera_from_base(
+            &Vector3::new(1.3, 0.5, 0.8),
+            &Vector3::new(0.1, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        let before = robot.posed_vertices(&q);
+        let motions = robot.joint_motions(&q);
+        let dq = 1e-6;
+        for (j, m) in motions.iter().enumerate() {
+            let mut q2 = q;
+            q2[j] += dq;
+            let after = robot.posed_vertices(&q2);
+            let xi = joint_twist_in_camera(m, &camera_from_base);
+            let (rho, phi) = (xi.fixed_rows::<3>(0), xi.fixed_rows::<3>(3));
+            let mut moved = 0;
+            for (k, (a, b)) in before.iter().zip(&after).enumerate().step_by(97) {
+                let (pa, pb) = (camera_from_base * a, camera_from_base * b);
+                let link = robot.vertex_link[k] as usize;
+                let predicted = if m.moves_link[link] {
+                    moved += 1;
+                    (rho + phi.cross(&pa.coords)) * dq
+                } else {
+                    Vector3::zeros()
+                };
+                let err = (pb - pa - predicted).norm();
+                assert!(err < 1e-10, "joint {j} vertex {k}: off by {err} m");
+            }
+            assert!(moved > 0, "joint {j} moves nothing");
+        }
+    }
+
+    #[test]
+    fn joint_errors_take_information_away_and_only_away() {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
+        let robot = RobotModel::from_urdf(urdf).unwrap();
+        let q = [0.3, -0.4, -0.5, 0.2, 0.9, 0.1];
+        let posed = PosedRobot::new(&robot, &q).decimated(0.01);
+        let camera = Camera::pinhole(160, 120, 150.0, 150.0, 80.0, 60.0);
+        let estimate = look_at_camera_from_base(
+            &Vector3::new(1.3, 0.5, 0.8),
+            &Vector3::new(0.1, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        let motions = robot.joint_motions(&q);
+        let info =
+            |noise| view_information(&camera, 600.0, &posed, &motions, &estimate, 0.3, noise);
+        let exact = info(0.0);
+        let noisy = info(0.0005);
+        // Exact joints: one view pins all six degrees of freedom.
+        assert!(exact.cholesky().is_some());
+        // Marginalising joint errors removes a positive semi-definite part…
+        let removed = (exact - noisy).symmetric_eigen();
+        let largest = exact.symmetric_eigen().eigenvalues.max();
+        assert!(
+            removed.eigenvalues.min() > -1e-9 * largest,
+            "{:?}",
+            removed.eigenvalues
+        );
+        // …and a real one: camera rotations a joint error can fake lose most of their weight.
+        let lost = 1.0 - noisy.determinant() / exact.determinant();
+        assert!(lost > 0.5, "determinant lost only {lost}");
+        // Larger joint errors take more.
+        assert!(info(0.002).determinant() < noisy.determinant());
+    }
 }

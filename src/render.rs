@@ -30,6 +30,8 @@ pub struct PosedRobot {
     pub vertices_base: Vec<Point3<f64>>,
     /// Triangles and edges (indices into `vertices_base`).
     pub topology: Arc<TriMesh>,
+    /// Link index of every vertex (empty when unknown): which body a sample moves with.
+    pub vertex_link: Arc<Vec<u32>>,
 }
 
 impl PosedRobot {
@@ -38,27 +40,54 @@ impl PosedRobot {
         PosedRobot {
             vertices_base: robot.posed_vertices(q),
             topology: robot.visual.clone(),
+            vertex_link: robot.vertex_link.clone(),
         }
     }
 
-    /// A coarse copy by vertex clustering on a `cell_m` grid: silhouettes change by at most
-    /// about one cell, and coarse searches at low resolution get many times cheaper.
+    /// A coarse copy by vertex clustering on a `cell_m` grid, link by link (a vertex never
+    /// merges across links, so every sample still knows its body): silhouettes change by at
+    /// most about one cell, and coarse searches at low resolution get many times cheaper.
     pub fn decimated(&self, cell_m: f64) -> PosedRobot {
-        let mesh = TriMesh::from_soup(&self.vertices_base, &self.topology.triangles, cell_m);
-        let mut seen = std::collections::HashSet::with_capacity(mesh.triangles.len());
-        let triangles: Vec<[u32; 3]> = mesh
+        let link_of = |v: u32| self.vertex_link.get(v as usize).copied().unwrap_or(0);
+        let mut index_of: std::collections::HashMap<(u32, [i64; 3]), u32> =
+            std::collections::HashMap::new();
+        let mut vertices_base = Vec::new();
+        let mut vertex_link = Vec::new();
+        let remap: Vec<u32> = self
+            .vertices_base
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let link = link_of(i as u32);
+                let key = [
+                    (p.x / cell_m).round() as i64,
+                    (p.y / cell_m).round() as i64,
+                    (p.z / cell_m).round() as i64,
+                ];
+                *index_of.entry((link, key)).or_insert_with(|| {
+                    vertices_base.push(*p);
+                    vertex_link.push(link);
+                    (vertices_base.len() - 1) as u32
+                })
+            })
+            .collect();
+        let mut seen = std::collections::HashSet::with_capacity(self.topology.triangles.len());
+        let triangles: Vec<[u32; 3]> = self
+            .topology
             .triangles
             .iter()
+            .map(|t| t.map(|v| remap[v as usize]))
             .filter(|t| {
-                let mut k = **t;
+                if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                    return false;
+                }
+                let mut k = *t;
                 k.sort_unstable();
                 seen.insert(k)
             })
-            .copied()
             .collect();
-        let vertices_base = mesh.vertices.clone();
         let mut topology = TriMesh {
-            vertices: mesh.vertices,
+            vertices: vertices_base.clone(),
             triangles,
             edges: Vec::new(),
         };
@@ -66,6 +95,7 @@ impl PosedRobot {
         PosedRobot {
             vertices_base,
             topology: Arc::new(topology),
+            vertex_link: Arc::new(vertex_link),
         }
     }
 }
@@ -84,6 +114,9 @@ pub struct BoundarySample {
     /// Which grid segment the outline crosses here: [`ROW_CROSSING`] (between horizontally
     /// adjacent pixel centres) or [`COLUMN_CROSSING`].
     pub axis: u8,
+    /// A mesh vertex of the edge the sample lies on (its link is the body the sample moves
+    /// with; see [`PosedRobot::vertex_link`]).
+    pub vertex: u32,
 }
 
 /// [`BoundarySample::axis`] of a crossing between horizontally adjacent pixel centres.
@@ -395,6 +428,7 @@ pub fn outline_samples(
                         normal,
                         length_px: ds * stride as f64,
                         axis,
+                        vertex: e.a,
                     },
                 });
             };

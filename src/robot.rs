@@ -52,6 +52,19 @@ pub struct Joint {
     pub mimic: Option<(usize, f64, f64)>,
 }
 
+/// One actuated joint's instantaneous motion (see [`RobotModel::joint_motions`]).
+#[derive(Clone, Debug)]
+pub struct JointMotion {
+    /// Unit axis, base frame.
+    pub axis_base: Vector3<f64>,
+    /// A point on the axis, base frame.
+    pub origin_base: Point3<f64>,
+    /// Translation along the axis instead of rotation about it.
+    pub prismatic: bool,
+    /// Per link index: whether this joint moves it.
+    pub moves_link: Vec<bool>,
+}
+
 /// Everything needed to build a [`RobotModel`], as a run or cell config states it.
 #[derive(Clone, Debug, Default)]
 pub struct RobotSource {
@@ -85,7 +98,7 @@ pub struct RobotModel {
     /// All rendered visuals merged, vertices in their link frames.
     pub visual: Arc<TriMesh>,
     /// For each vertex of `visual`, its link index.
-    pub vertex_link: Vec<u32>,
+    pub vertex_link: Arc<Vec<u32>>,
     /// Where it was loaded from (collision geometry is read from the same files).
     pub source: RobotSource,
 }
@@ -429,7 +442,7 @@ impl RobotModel {
             base,
             actuated,
             visual: Arc::new(visual),
-            vertex_link,
+            vertex_link: Arc::new(vertex_link),
             source: src.clone(),
         })
     }
@@ -510,13 +523,54 @@ impl RobotModel {
         root_from.iter().map(|p| base_from_root * p).collect()
     }
 
+    /// How each actuated joint moves the links at `q`, in the base frame: what a small error
+    /// in a reported joint does to the robot's outline (exploration discounts views whose
+    /// outline a joint error could fake).
+    pub fn joint_motions(&self, q: &[f64]) -> Vec<JointMotion> {
+        let poses = self.base_from_links(q);
+        // Parent joint of each link, to walk from a link up to the root.
+        let mut parent_joint = vec![usize::MAX; self.links.len()];
+        for (i, j) in self.joints.iter().enumerate() {
+            parent_joint[j.child] = i;
+        }
+        self.actuated
+            .iter()
+            .map(|&ji| {
+                let j = &self.joints[ji];
+                // The joint frame sits at the child link's origin (URDF), axis in that frame.
+                let frame = poses[j.child];
+                let moves_link = (0..self.links.len())
+                    .map(|mut l| {
+                        for _ in 0..self.links.len() {
+                            let pj = parent_joint[l];
+                            if pj == usize::MAX {
+                                return false;
+                            }
+                            if pj == ji {
+                                return true;
+                            }
+                            l = self.joints[pj].parent;
+                        }
+                        false
+                    })
+                    .collect();
+                JointMotion {
+                    axis_base: frame.rotation * j.axis.into_inner(),
+                    origin_base: Point3::from(frame.translation.vector),
+                    prismatic: j.kind == JointKind::Prismatic,
+                    moves_link,
+                }
+            })
+            .collect()
+    }
+
     /// Visual vertices in the base frame at joint positions `q`.
     pub fn posed_vertices(&self, q: &[f64]) -> Vec<Point3<f64>> {
         let poses = self.base_from_links(q);
         self.visual
             .vertices
             .iter()
-            .zip(&self.vertex_link)
+            .zip(self.vertex_link.iter())
             .map(|(v, &l)| poses[l as usize] * v)
             .collect()
     }

@@ -129,6 +129,9 @@ pub struct SolveReport {
     pub covariance: Matrix6<f64>,
     /// 1-sigma uncertainty derived from `covariance`.
     pub uncertainty: Uncertainty,
+    /// Residual variance of one pixel of outline at full resolution, px^2 (the per-sample
+    /// variance times the correlation length): what one more view's outline is worth.
+    pub outline_noise_px2: f64,
     /// Mask IoU per view at the estimate (full resolution).
     pub per_view_iou: Vec<f64>,
     /// The paper's mask loss at the estimate.
@@ -598,6 +601,7 @@ impl Band {
                 triangles,
                 edges: Vec::new(),
             }),
+            vertex_link: view.robot.vertex_link.clone(),
         };
         Band {
             pixels,
@@ -958,6 +962,7 @@ fn finish(
         camera_from_base: pose,
         covariance,
         uncertainty,
+        outline_noise_px2: sigma2 * opts.correlation_length_px,
         per_view_iou: renders.iter().map(|r| r.0).collect(),
         loss,
         iterations,
