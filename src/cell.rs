@@ -9,8 +9,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use easyhec_drivers::dynamixel::{Family, ServoArm, ServoArmConfig, ServoJoint};
 use easyhec_drivers::xarm::{Model as XArmModel, XArm, XArmConfig};
 use easyhec_drivers::{Arm, Camera as CameraDevice, JointLimit};
+use easyhec_mocks::ur::UrRtdeJoints;
 use easyhec_mocks::xarm::XArmReportJoints;
 use easyhec_mocks::{Fault, JointSource, SimArm, SimArmConfig, SimCamera};
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
@@ -139,6 +141,114 @@ pub enum ArmConfig {
         #[serde(default)]
         motion_timeout_margin_s: Option<f64>,
     },
+    /// A Universal Robots e-Series arm (UR5e limits) through the vendor's `ur_rtde` Python
+    /// package: a real controller, or `easyhec-mock ur`. Needs the `ur` cargo feature; the
+    /// variant exists without it so such a config gets a one-line "rebuild" error. ur_rtde
+    /// always uses ports 30004 (RTDE), 29999 (dashboard) and 30003 (script), so only the
+    /// host is configurable.
+    Ur {
+        /// The controller's address (a host name or IP, no port).
+        host: String,
+        /// The driver slows faster moves to this, rad/s (default 1.0, at most π).
+        #[serde(default)]
+        speed_cap_rad_s: Option<f64>,
+        /// Joint acceleration of every move, rad/s² (default 1.4, at most 40).
+        #[serde(default)]
+        accel_rad_s2: Option<f64>,
+        /// RTDE frequency, Hz (default 125; e-Series up to 500).
+        #[serde(default)]
+        frequency_hz: Option<f64>,
+        /// Limit for connecting (ur_rtde uploads and starts its control script), seconds
+        /// (default 10).
+        #[serde(default)]
+        connect_timeout_s: Option<f64>,
+        /// Limit for one SDK call, seconds (default 2).
+        #[serde(default)]
+        call_timeout_s: Option<f64>,
+        /// Slack beyond 1.5x a move's expected time before it is stopped as stalled,
+        /// seconds (default 10).
+        #[serde(default)]
+        motion_timeout_margin_s: Option<f64>,
+    },
+    /// ROBOTIS Dynamixel X-series servos on Protocol 2.0 (Koch, WidowX-class arms) on a
+    /// serial port.
+    Dynamixel(ServoArmToml),
+    /// Feetech STS servos (SO-100/101) on a serial port.
+    Feetech(ServoArmToml),
+    /// An AgileX Piper on SocketCAN. Needs the `socketcan` cargo feature; the variant exists
+    /// without it so such a config gets a one-line "rebuild" error.
+    Piper {
+        /// CAN interface, e.g. `can0` (up at 1 Mbit/s).
+        interface: String,
+        /// The driver's speed cap, rad/s (default 1.0).
+        #[serde(default)]
+        speed_cap_rad_s: Option<f64>,
+        /// Joint speed at 100 % of the speed byte, rad/s (default π; measure it on the arm).
+        #[serde(default)]
+        full_speed_rad_s: Option<f64>,
+        /// Limit for the drivers to report enabled, seconds (default 5).
+        #[serde(default)]
+        enable_timeout_s: Option<f64>,
+        /// Slack beyond 1.5x a move's expected time before it is stopped as timed out,
+        /// seconds (default 10).
+        #[serde(default)]
+        motion_timeout_margin_s: Option<f64>,
+    },
+}
+
+/// `[arm] kind = "dynamixel" | "feetech"`: a serial servo bus and its joint table.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServoArmToml {
+    /// Serial device, e.g. `/dev/ttyUSB0`.
+    pub port: String,
+    /// Baud rate (default: 57 600 for Dynamixel, the factory setting; 1 000 000 for Feetech).
+    #[serde(default)]
+    pub baud: Option<u32>,
+    /// One `[[arm.joints]]` per URDF actuated joint, in the URDF's order.
+    pub joints: Vec<ServoJointToml>,
+    /// The driver slows faster moves to this, rad/s (default 1.0).
+    #[serde(default)]
+    pub speed_cap_rad_s: Option<f64>,
+    /// Acceleration of the fastest joint, rad/s² (default 4).
+    #[serde(default)]
+    pub accel_rad_s2: Option<f64>,
+    /// Limit for one servo's reply, seconds (default 0.1).
+    #[serde(default)]
+    pub reply_timeout_s: Option<f64>,
+    /// Slack beyond 1.5x a move's expected time before it is stopped as timed out,
+    /// seconds (default 5).
+    #[serde(default)]
+    pub motion_timeout_margin_s: Option<f64>,
+}
+
+/// One `[[arm.joints]]` row of a servo arm.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServoJointToml {
+    /// URDF joint name.
+    pub name: String,
+    /// Servo id on the bus.
+    pub id: u8,
+    /// Joint angle at the servo's centre tick, radians (default 0).
+    #[serde(default)]
+    pub offset_rad: f64,
+    /// 1, or -1 for a servo mounted reversed (default 1).
+    #[serde(default = "plus_one")]
+    pub direction: i8,
+    /// Encoder ticks per revolution (default 4096).
+    #[serde(default)]
+    pub ticks_per_rev: Option<u32>,
+    /// Lowest angle the driver allows, radians (default: the servo's range).
+    #[serde(default)]
+    pub lower_rad: Option<f64>,
+    /// Highest angle the driver allows, radians (default: the servo's range).
+    #[serde(default)]
+    pub upper_rad: Option<f64>,
+}
+
+fn plus_one() -> i8 {
+    1
 }
 
 /// A fault for the simulated arm.
@@ -209,6 +319,14 @@ pub enum JointsFrom {
         /// `host:port` of the report port.
         addr: String,
         /// Limit for receiving one report, seconds (default 2).
+        #[serde(default)]
+        timeout_s: Option<f64>,
+    },
+    /// A UR controller's RTDE port (`actual_q`), mock or real.
+    UrRtde {
+        /// `host:port` of the RTDE port (30004).
+        addr: String,
+        /// Limit for connecting and receiving one data package, seconds (default 2).
         #[serde(default)]
         timeout_s: Option<f64>,
     },
@@ -422,6 +540,10 @@ impl Cell {
                 let arm = XArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
                 (Arc::new(arm), None)
             }
+            ArmConfig::Ur { .. } => (ur_arm(&config.arm, &robot, path)?, None),
+            ArmConfig::Dynamixel(t) => (servo_arm(Family::Dynamixel, t, &robot, path)?, None),
+            ArmConfig::Feetech(t) => (servo_arm(Family::Feetech, t, &robot, path)?, None),
+            ArmConfig::Piper { .. } => (piper_arm(&config.arm, &robot, path)?, None),
         };
         let (camera, truth): (Arc<dyn CameraDevice>, Option<Isometry3<f64>>) = match &config.camera
         {
@@ -439,12 +561,16 @@ impl Cell {
                             timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
                         })
                     }
+                    (Some(JointsFrom::UrRtde { addr, timeout_s }), _) => Arc::new(UrRtdeJoints {
+                        addr: addr.clone(),
+                        timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+                    }),
                     (None, Some(sim_arm)) => Arc::new(sim_arm.clone()),
                     (None, None) => {
                         return Err(Error::input(
                             path,
                             "camera.joints_from",
-                            "a simulated camera needs the true joints of the arm it films: set [arm] kind = \"sim\", or joints_from = { kind = \"xarm-report\", addr = \"HOST:30003\" }",
+                            "a simulated camera needs the true joints of the arm it films: set [arm] kind = \"sim\", or joints_from = { kind = \"xarm-report\", addr = \"HOST:30003\" } or { kind = \"ur-rtde\", addr = \"HOST:30004\" }",
                         ))
                     }
                 };
@@ -478,4 +604,185 @@ impl Cell {
             },
         })
     }
+}
+
+/// The UR arm of an `[arm] kind = "ur"` table.
+#[cfg(feature = "ur")]
+fn ur_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+    use easyhec_drivers::ur::{UrArm, UrConfig};
+    let ArmConfig::Ur {
+        host,
+        speed_cap_rad_s,
+        accel_rad_s2,
+        frequency_hz,
+        connect_timeout_s,
+        call_timeout_s,
+        motion_timeout_margin_s,
+    } = arm
+    else {
+        unreachable!("called for kind = \"ur\" only")
+    };
+    let n = robot.actuated.len();
+    if n != 6 {
+        return Err(Error::input(
+            path,
+            "robot.urdf",
+            format!("a UR arm has 6 joints; the URDF has {n} actuated joints"),
+        ));
+    }
+    if host.contains(':') {
+        return Err(Error::input(
+            path,
+            "arm.host",
+            format!(
+                "{host:?}: give the address only; ur_rtde always uses ports 30004, 29999 and 30003"
+            ),
+        ));
+    }
+    let mut cfg = UrConfig::new(host.clone());
+    cfg.joint_names = Some(robot.joint_names().iter().map(|s| s.to_string()).collect());
+    if let Some(v) = speed_cap_rad_s {
+        cfg.speed_cap_rad_s = *v;
+    }
+    if let Some(v) = accel_rad_s2 {
+        cfg.accel_rad_s2 = *v;
+    }
+    if let Some(v) = frequency_hz {
+        cfg.frequency_hz = *v;
+    }
+    cfg.connect_timeout = seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 10.0)?;
+    cfg.call_timeout = seconds(path, "arm.call_timeout_s", *call_timeout_s, 2.0)?;
+    cfg.motion_timeout_margin = seconds(
+        path,
+        "arm.motion_timeout_margin_s",
+        *motion_timeout_margin_s,
+        10.0,
+    )?;
+    let arm = UrArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
+    Ok(Arc::new(arm))
+}
+
+/// Without the `ur` feature a UR cell cannot be built: say how to get one.
+#[cfg(not(feature = "ur"))]
+fn ur_arm(_arm: &ArmConfig, _robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+    Err(Error::input(
+        path,
+        "arm.kind",
+        "\"ur\" needs the UR driver, which this build lacks: rebuild with --features ur",
+    ))
+}
+
+/// The arm of an `[arm] kind = "dynamixel" | "feetech"` table.
+fn servo_arm(
+    family: Family,
+    t: &ServoArmToml,
+    robot: &RobotModel,
+    path: &Path,
+) -> Result<Arc<dyn Arm>> {
+    let urdf = robot.joint_names();
+    let names: Vec<&str> = t.joints.iter().map(|j| j.name.as_str()).collect();
+    if names != urdf {
+        return Err(Error::input(
+            path,
+            "arm.joints",
+            format!(
+                "joints {names:?}: list one [[arm.joints]] per URDF actuated joint, in order: {urdf:?}"
+            ),
+        ));
+    }
+    let joints = t
+        .joints
+        .iter()
+        .map(|j| ServoJoint {
+            name: j.name.clone(),
+            id: j.id,
+            offset_rad: j.offset_rad,
+            direction: j.direction,
+            ticks_per_rev: j.ticks_per_rev.unwrap_or(4096),
+            lower_rad: j.lower_rad,
+            upper_rad: j.upper_rad,
+        })
+        .collect();
+    let default_baud = match family {
+        Family::Dynamixel => 57_600,
+        Family::Feetech => 1_000_000,
+    };
+    let mut cfg = ServoArmConfig::new(
+        family,
+        t.port.clone(),
+        t.baud.unwrap_or(default_baud),
+        joints,
+    );
+    if let Some(v) = t.speed_cap_rad_s {
+        cfg.speed_cap_rad_s = v;
+    }
+    if let Some(v) = t.accel_rad_s2 {
+        cfg.accel_rad_s2 = v;
+    }
+    cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", t.reply_timeout_s, 0.1)?;
+    cfg.motion_timeout_margin = seconds(
+        path,
+        "arm.motion_timeout_margin_s",
+        t.motion_timeout_margin_s,
+        5.0,
+    )?;
+    let arm = ServoArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
+    Ok(Arc::new(arm))
+}
+
+/// The arm of an `[arm] kind = "piper"` table.
+#[cfg(feature = "socketcan")]
+fn piper_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+    use easyhec_drivers::piper::{PiperArm, PiperConfig, SocketCan};
+    let ArmConfig::Piper {
+        interface,
+        speed_cap_rad_s,
+        full_speed_rad_s,
+        enable_timeout_s,
+        motion_timeout_margin_s,
+    } = arm
+    else {
+        unreachable!("called for kind = \"piper\" only")
+    };
+    let names = robot.joint_names();
+    if names.len() != 6 {
+        return Err(Error::input(
+            path,
+            "robot.urdf",
+            format!(
+                "a Piper has 6 joints; the URDF has {} actuated joints",
+                names.len()
+            ),
+        ));
+    }
+    let mut cfg = PiperConfig {
+        joint_names: names.iter().map(|s| s.to_string()).collect(),
+        ..PiperConfig::default()
+    };
+    if let Some(v) = speed_cap_rad_s {
+        cfg.speed_cap_rad_s = *v;
+    }
+    if let Some(v) = full_speed_rad_s {
+        cfg.full_speed_rad_s = *v;
+    }
+    cfg.enable_timeout = seconds(path, "arm.enable_timeout_s", *enable_timeout_s, 5.0)?;
+    cfg.motion_timeout_margin = seconds(
+        path,
+        "arm.motion_timeout_margin_s",
+        *motion_timeout_margin_s,
+        10.0,
+    )?;
+    let arm = PiperArm::new(cfg, Arc::new(SocketCan::new(interface)))
+        .map_err(|e| Error::input(path, "arm", e.to_string()))?;
+    Ok(Arc::new(arm))
+}
+
+/// Without the `socketcan` feature a Piper config is an error that says how to get one.
+#[cfg(not(feature = "socketcan"))]
+fn piper_arm(_: &ArmConfig, _: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+    Err(Error::input(
+        path,
+        "arm.kind",
+        "\"piper\" drives SocketCAN, which this build leaves out: rebuild with --features socketcan",
+    ))
 }

@@ -377,7 +377,8 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
                 encoder_noise_rad, ..
             } => *encoder_noise_rad,
             // The controller's own readings (a mock's are exact).
-            easyhec::cell::ArmConfig::Xarm { .. } => 0.0,
+            // Every driver-backed arm (xArm, UR, servo buses, Piper).
+            _ => 0.0,
         };
         let gt = easyhec::synth::GroundTruth {
             format: "easyhec-truth/1".into(),

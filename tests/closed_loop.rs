@@ -79,7 +79,14 @@ fn every_shipped_config_parses_and_builds() {
     {
         let path = entry.unwrap().path();
         if path.extension().and_then(|e| e.to_str()) == Some("toml") {
-            Cell::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            match Cell::open(&path) {
+                Ok(_) => {}
+                // Built without the driver a config needs: the documented one-line refusal.
+                Err(e)
+                    if !cfg!(feature = "ur")
+                        && e.to_string().contains("rebuild with --features ur") => {}
+                Err(e) => panic!("{}: {e}", path.display()),
+            }
             n += 1;
         }
     }

@@ -1,5 +1,8 @@
 //! Hardware roles for easyhec: one object-safe async trait per role ([`Arm`], [`Camera`]),
-//! the data they exchange, and the clients for real controllers ([`xarm`]).
+//! the data they exchange, and the clients for real controllers ([`xarm`]; [`ur`], whose
+//! `UrArm` goes through the vendor's `ur_rtde` Python package behind the `ur` feature;
+//! [`dynamixel`] for Dynamixel and Feetech serial servo arms; [`piper`] for the AgileX Piper
+//! on CAN, with its SocketCAN backend behind the `socketcan` feature).
 //!
 //! The calibration loop holds `Arc<dyn Arm>` / `Arc<dyn Camera>` and never knows which backend
 //! it drives; a cell config's `kind = "…"` picks the backend. Motions return a [`Motion`]
@@ -7,7 +10,10 @@
 
 mod arm;
 mod camera;
+pub mod dynamixel;
 mod error;
+pub mod piper;
+pub mod ur;
 pub mod xarm;
 
 pub use arm::{Arm, ArmStatus, JointLimit, Motion};

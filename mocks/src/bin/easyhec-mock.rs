@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use easyhec_drivers::xarm::Model;
+use easyhec_mocks::ur::{MockUr, MockUrConfig};
 use easyhec_mocks::xarm::{MockXArm, MockXArmConfig};
 
 #[derive(Parser)]
@@ -23,6 +24,36 @@ struct Cli {
 enum Command {
     /// A UFACTORY controller: private protocol on 502, reports on 30001 (5 Hz) and 30003 (100 Hz).
     Xarm(XarmArgs),
+    /// A Universal Robots e-Series controller (UR5e): RTDE on 30004, dashboard on 29999,
+    /// URScript on 30003, with ur_rtde's control-script handshake.
+    Ur(UrArgs),
+}
+
+#[derive(clap::Args)]
+struct UrArgs {
+    /// Address to listen on (ur_rtde always uses 30004/29999/30003, so parallel mocks need
+    /// different addresses, e.g. 127.0.0.2).
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: IpAddr,
+    /// Pick free ports instead of 30004/29999/30003 (printed on start; ur_rtde cannot use them).
+    #[arg(long)]
+    free_ports: bool,
+    /// Start joints, radians, comma-separated [default: the demo pose of config/sim-ur5e.toml].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    start: Option<Vec<f64>>,
+    /// Simulated seconds per wall-clock second.
+    #[arg(long, default_value_t = 1.0)]
+    speedup: f64,
+    /// Refuse moves faster than this, rad/s.
+    #[arg(long, default_value_t = std::f64::consts::PI)]
+    speed_cap: f64,
+    /// Start in local control (the pendant's mode): state-changing dashboard commands are
+    /// refused and ur_rtde's control interface will not connect.
+    #[arg(long)]
+    local_control: bool,
+    /// Print every moveJ as it ends.
+    #[arg(long)]
+    verbose: bool,
 }
 
 #[derive(clap::Args)]
@@ -61,6 +92,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Xarm(args) => run_xarm(args),
+        Command::Ur(args) => run_ur(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -112,6 +144,63 @@ fn run_xarm(a: XarmArgs) -> Result<(), String> {
                         c.index,
                         q.join(", "),
                         c.speed_rad_s,
+                        c.outcome.as_deref().unwrap_or("")
+                    );
+                    seen = c.index + 1;
+                }
+            }
+        }
+    })
+}
+
+fn run_ur(a: UrArgs) -> Result<(), String> {
+    let mut cfg = if a.free_ports {
+        MockUrConfig::any_ports()
+    } else {
+        MockUrConfig::standard_ports()
+    };
+    cfg.host = a.bind;
+    if let Some(q) = a.start {
+        if q.len() != 6 {
+            return Err(format!("{} start joints: a UR arm has 6", q.len()));
+        }
+        cfg.start = q;
+    }
+    if !(a.speed_cap.is_finite() && a.speed_cap > 0.0) {
+        return Err(format!(
+            "--speed-cap {}: use a positive number of rad/s",
+            a.speed_cap
+        ));
+    }
+    cfg.speedup = a.speedup;
+    cfg.speed_cap_rad_s = a.speed_cap;
+    cfg.remote_control = !a.local_control;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| format!("tokio runtime: {e}"))?;
+    runtime.block_on(async move {
+        let mock = MockUr::spawn(cfg).await.map_err(|e| match e.kind() {
+            std::io::ErrorKind::AddrInUse => format!(
+                "cannot listen ({e}): another controller or mock holds the ports; use --bind 127.0.0.2 (ur_rtde) or --free-ports"
+            ),
+            _ => e.to_string(),
+        })?;
+        println!("{}", mock.describe());
+        let mut seen = 0;
+        loop {
+            tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            if a.verbose {
+                let log = mock.commands();
+                for c in log.iter().skip(seen).take_while(|c| c.outcome.is_some()) {
+                    let q: Vec<String> = c.target.iter().map(|v| format!("{v:+.3}")).collect();
+                    println!(
+                        "moveJ {}: [{}] at {:.3} rad/s, {:.2} rad/s²: {}",
+                        c.index,
+                        q.join(", "),
+                        c.speed_rad_s,
+                        c.accel_rad_s2,
                         c.outcome.as_deref().unwrap_or("")
                     );
                     seen = c.index + 1;

@@ -1,0 +1,8 @@
+//! With the `ur` feature the `easyhec` binary and tests embed Python: point their rpath at
+//! the libpython pyo3 linked, or the loader picks the system one, whose interpreter cannot see
+//! the packages (`ur_rtde`) installed for the configured python3.
+
+fn main() {
+    #[cfg(feature = "ur")]
+    pyo3_build_config::add_libpython_rpath_link_args();
+}

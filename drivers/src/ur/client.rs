@@ -1,0 +1,848 @@
+//! [`UrArm`]: the [`Arm`] role over ur_rtde's receive, control and dashboard interfaces.
+//!
+//! Defence in depth: targets outside the joint limits are refused and speed and acceleration
+//! are clamped to the driver's caps before ur_rtde sees them, whatever the caller checked.
+//! Before the first move the driver checks, through the dashboard, that the pendant is in
+//! remote control and, through RTDE, that the arm is powered with brakes released and in a
+//! normal (or reduced) safety mode; each failure is one sentence saying what to do. It
+//! connects lazily and creates the control interface (which uploads and starts ur_rtde's
+//! control script on the controller) only before the first move, so planning, `--dry-run`
+//! and reading joints never start a program on the robot.
+//!
+//! Moves are ur_rtde's asynchronous moveJ, watched by polling the receive interface (joints,
+//! speeds, modes) and the control script's progress register: a synchronous moveJ would hold
+//! the GIL for the whole motion and leave no way to stop it. Every ur_rtde constructor is
+//! preceded by a native probe of the controller's ports with a time limit, because ur_rtde
+//! blocks forever on a peer that accepts and never answers.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use async_trait::async_trait;
+use pyo3::exceptions::PyImportError;
+use pyo3::prelude::*;
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
+use tokio::net::TcpStream;
+
+use super::model::{
+    self, robot_mode_name, safety_mode_advice, DASHBOARD_PORT, ROBOT_MODE_RUNNING, RTDE_PORT,
+    SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED, SCRIPT_PORT, UR5E_JOINT_NAMES, UR5E_LIMITS,
+};
+use super::worker::{Session, Worker};
+use crate::{Arm, ArmStatus, DriverError, JointLimit, Motion, Result};
+
+/// The receive interface's recipe: what the driver reads.
+const VARIABLES: [&str; 6] = [
+    "actual_q",
+    "actual_qd",
+    "robot_mode",
+    "safety_mode",
+    "runtime_state",
+    "timestamp",
+];
+
+/// Connection and motion settings of a [`UrArm`].
+#[derive(Clone, Debug)]
+pub struct UrConfig {
+    /// The controller's address (ur_rtde always uses ports 30004, 29999 and 30003).
+    pub host: String,
+    /// Joint names in the arm's order (default the UR5e's); must match the URDF.
+    pub joint_names: Option<Vec<String>>,
+    /// Joint limits the driver enforces, rad (default the UR5e's).
+    pub limits: Vec<(f64, f64)>,
+    /// Speed cap of the fastest joint, rad/s; faster requests are slowed to it (≤ π).
+    pub speed_cap_rad_s: f64,
+    /// Joint acceleration of every move, rad/s² (≤ 40).
+    pub accel_rad_s2: f64,
+    /// Deceleration of `stop`, rad/s².
+    pub stop_decel_rad_s2: f64,
+    /// RTDE frequency of both interfaces, Hz.
+    pub frequency_hz: f64,
+    /// Limit for connecting (the control interface uploads a script and waits for it).
+    pub connect_timeout: Duration,
+    /// Limit for one ordinary SDK call.
+    pub call_timeout: Duration,
+    /// Interval of state polls while a move runs.
+    pub poll_interval: Duration,
+    /// Slack on top of 1.5x a move's expected time before it is stopped as stalled.
+    pub motion_timeout_margin: Duration,
+    /// Largest joint error at which a finished move counts as arrived, rad.
+    pub arrival_tolerance_rad: f64,
+}
+
+impl UrConfig {
+    /// Settings for a UR5e at `host` with the defaults: 1 rad/s, 1.4 rad/s² (ur_rtde's
+    /// default), 125 Hz, 10 s to connect, 2 s per call.
+    pub fn new(host: impl Into<String>) -> UrConfig {
+        UrConfig {
+            host: host.into(),
+            joint_names: None,
+            limits: UR5E_LIMITS.to_vec(),
+            speed_cap_rad_s: 1.0,
+            accel_rad_s2: 1.4,
+            stop_decel_rad_s2: 4.0,
+            frequency_hz: 125.0,
+            connect_timeout: Duration::from_secs(10),
+            call_timeout: Duration::from_secs(2),
+            poll_interval: Duration::from_millis(20),
+            motion_timeout_margin: Duration::from_secs(10),
+            arrival_tolerance_rad: 1e-3,
+        }
+    }
+}
+
+/// Failures particular to the UR backend (inside [`DriverError::Backend`]).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum UrError {
+    /// The `ur_rtde` Python package cannot be used.
+    #[error("{0}")]
+    Sdk(String),
+    /// Unusable settings.
+    #[error("UR config: {0}")]
+    Config(String),
+}
+
+fn config_error(msg: String) -> DriverError {
+    DriverError::Backend(Box::new(UrError::Config(msg)))
+}
+
+/// One reading of everything the driver watches.
+#[derive(Clone, Debug)]
+struct State {
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    robot_mode: i32,
+    safety_mode: i32,
+    runtime_state: u32,
+    /// Both RTDE interfaces (the control one if it exists) are connected.
+    connected: bool,
+    /// The control script reports an asynchronous operation running.
+    async_running: bool,
+}
+
+struct Inner {
+    cfg: UrConfig,
+    joints: Vec<JointLimit>,
+    speed_cap_rad_s: f64,
+    accel_rad_s2: f64,
+    worker: Worker,
+    /// Why the arm stands where it does, when a move of ours was cut short.
+    interrupted: Mutex<Option<String>>,
+    /// Serialises moves, stops and reconnects (the worker serialises SDK calls anyway).
+    op: tokio::sync::Mutex<()>,
+}
+
+/// A Universal Robots arm through `ur_rtde`. Cloning shares the connection.
+#[derive(Clone)]
+pub struct UrArm {
+    inner: Arc<Inner>,
+}
+
+impl std::fmt::Debug for UrArm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "UrArm({})", self.inner.cfg.host)
+    }
+}
+
+/// A Python exception as a driver error, with what to do about the common ones.
+fn py_error(py: Python<'_>, what: &str, e: PyErr) -> DriverError {
+    if e.is_instance_of::<PyImportError>(py) {
+        return DriverError::Backend(Box::new(UrError::Sdk(format!(
+            "python3 cannot import ur_rtde ({}): python3 -m pip install ur-rtde==1.6.5",
+            e.value(py)
+        ))));
+    }
+    let msg = e.value(py).to_string().replace('\n', " ");
+    if msg.contains("remote control") {
+        DriverError::Refused(format!(
+            "{what}: the controller is not in remote control: switch the pendant to Remote Control"
+        ))
+    } else {
+        DriverError::Connection(format!("{what}: {msg}"))
+    }
+}
+
+fn import<'py>(py: Python<'py>, module: &str) -> Result<Bound<'py, PyModule>> {
+    py.import(module).map_err(|e| py_error(py, "import", e))
+}
+
+/// Calls `name` on `obj` with `args` and extracts the result.
+fn call<'py, T, A>(py: Python<'py>, obj: &Py<PyAny>, name: &str, args: A) -> Result<T>
+where
+    T: for<'a> FromPyObject<'a, 'py>,
+    A: pyo3::call::PyCallArgs<'py>,
+{
+    obj.bind(py)
+        .call_method1(name, args)
+        .and_then(|v| v.extract::<T>().map_err(Into::into))
+        .map_err(|e| py_error(py, name, e))
+}
+
+fn read_state(py: Python<'_>, s: &Session) -> Result<State> {
+    let r = s
+        .receive
+        .as_ref()
+        .ok_or_else(|| DriverError::Connection("not connected".into()))?;
+    let rx_connected: bool = call(py, r, "isConnected", ())?;
+    let (ctl_connected, async_running) = match &s.control {
+        Some(c) => {
+            let connected: bool = call(py, c, "isConnected", ())?;
+            let running = if connected {
+                let status = c
+                    .bind(py)
+                    .call_method0("getAsyncOperationProgressEx")
+                    .map_err(|e| py_error(py, "getAsyncOperationProgressEx", e))?;
+                status
+                    .call_method0("isAsyncOperationRunning")
+                    .and_then(|v| v.extract::<bool>())
+                    .map_err(|e| py_error(py, "isAsyncOperationRunning", e))?
+            } else {
+                false
+            };
+            (connected, running)
+        }
+        None => (true, false),
+    };
+    Ok(State {
+        q: call(py, r, "getActualQ", ())?,
+        qd: call(py, r, "getActualQd", ())?,
+        robot_mode: call(py, r, "getRobotMode", ())?,
+        safety_mode: call(py, r, "getSafetyMode", ())?,
+        runtime_state: call(py, r, "getRuntimeState", ())?,
+        connected: rx_connected && ctl_connected,
+        async_running,
+    })
+}
+
+/// Probes the controller's ports natively, within `limit`: ur_rtde's constructors block
+/// forever on a peer that accepts and never answers, and would take the GIL with them.
+async fn probe(host: &str, limit: Duration) -> Result<()> {
+    let connect =
+        |port: u16| async move {
+            let addr = format!("{host}:{port}");
+            match tokio::time::timeout(limit, TcpStream::connect(&addr)).await {
+                Err(_) => Err(DriverError::Timeout(limit)),
+                Ok(Err(e)) => {
+                    Err(DriverError::Connection(format!(
+                "UR controller at {addr}: {e} (is it on, on this network, and is {} enabled?)",
+                if port == RTDE_PORT { "RTDE" } else { "this interface" }
+            )))
+                }
+                Ok(Ok(s)) => Ok(s),
+            }
+        };
+    // RTDE answers a protocol-version request.
+    let mut rtde = connect(RTDE_PORT).await?;
+    let exchange = async {
+        rtde.write_all(&[0x00, 0x05, b'V', 0x00, 0x02]).await?;
+        let mut reply = [0u8; 3];
+        rtde.read_exact(&mut reply).await?;
+        Ok::<_, std::io::Error>(reply)
+    };
+    match tokio::time::timeout(limit, exchange).await {
+        Err(_) => return Err(DriverError::Timeout(limit)),
+        Ok(Err(e)) => {
+            return Err(DriverError::Connection(format!(
+                "UR controller at {host}:{RTDE_PORT}: RTDE handshake: {e}"
+            )))
+        }
+        Ok(Ok(r)) if r[2] != b'V' => {
+            return Err(DriverError::Connection(format!(
+                "{host}:{RTDE_PORT} does not speak RTDE (answered type {:#04x})",
+                r[2]
+            )))
+        }
+        Ok(Ok(_)) => {}
+    }
+    // The dashboard greets.
+    let dash = connect(DASHBOARD_PORT).await?;
+    let mut line = String::new();
+    match tokio::time::timeout(limit, BufReader::new(dash).read_line(&mut line)).await {
+        Err(_) => return Err(DriverError::Timeout(limit)),
+        Ok(Err(e)) => {
+            return Err(DriverError::Connection(format!(
+                "UR dashboard at {host}:{DASHBOARD_PORT}: {e}"
+            )))
+        }
+        Ok(Ok(_)) => {}
+    }
+    connect(SCRIPT_PORT).await?;
+    Ok(())
+}
+
+impl UrArm {
+    /// A driver for the controller at `cfg.host`; connects on first use.
+    pub fn new(cfg: UrConfig) -> Result<UrArm> {
+        let n = cfg.limits.len();
+        if n != 6 {
+            return Err(config_error(format!(
+                "{n} joint limits: a UR arm has 6 joints"
+            )));
+        }
+        let names = match &cfg.joint_names {
+            Some(names) if names.len() != n => {
+                return Err(config_error(format!(
+                    "{} joint names for the 6 joints of a UR arm",
+                    names.len()
+                )))
+            }
+            Some(names) => names.clone(),
+            None => UR5E_JOINT_NAMES.iter().map(|s| s.to_string()).collect(),
+        };
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(cfg.speed_cap_rad_s)
+            || !positive(cfg.accel_rad_s2)
+            || !positive(cfg.stop_decel_rad_s2)
+        {
+            return Err(config_error(format!(
+                "speed cap {} rad/s, acceleration {} rad/s² and stop deceleration {} rad/s² must be positive",
+                cfg.speed_cap_rad_s, cfg.accel_rad_s2, cfg.stop_decel_rad_s2
+            )));
+        }
+        if !positive(cfg.frequency_hz) || cfg.frequency_hz > 500.0 {
+            return Err(config_error(format!(
+                "RTDE frequency {} Hz: use 1..=500",
+                cfg.frequency_hz
+            )));
+        }
+        if cfg.host.trim().is_empty() {
+            return Err(config_error(
+                "empty host: give the controller's address".into(),
+            ));
+        }
+        let speed_cap_rad_s = cfg.speed_cap_rad_s.min(model::UR5E_MAX_SPEED_RAD_S);
+        let accel_rad_s2 = cfg.accel_rad_s2.min(model::MAX_ACCEL_RAD_S2);
+        let joints = names
+            .into_iter()
+            .zip(&cfg.limits)
+            .map(|(name, &(lower, upper))| JointLimit {
+                name,
+                lower,
+                upper,
+                max_velocity: speed_cap_rad_s,
+            })
+            .collect();
+        let worker = Worker::spawn(format!("ur_rtde {}", cfg.host))?;
+        Ok(UrArm {
+            inner: Arc::new(Inner {
+                cfg,
+                joints,
+                speed_cap_rad_s,
+                accel_rad_s2,
+                worker,
+                interrupted: Mutex::new(None),
+                op: tokio::sync::Mutex::new(()),
+            }),
+        })
+    }
+
+    /// The speed cap actually applied, rad/s.
+    pub fn speed_cap_rad_s(&self) -> f64 {
+        self.inner.speed_cap_rad_s
+    }
+
+    /// The acceleration sent with every move, rad/s².
+    pub fn accel_rad_s2(&self) -> f64 {
+        self.inner.accel_rad_s2
+    }
+}
+
+impl Inner {
+    fn set_interrupted(&self, why: Option<String>) {
+        *self.interrupted.lock().unwrap_or_else(|e| e.into_inner()) = why;
+    }
+
+    fn interrupted(&self) -> Option<String> {
+        self.interrupted
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Connects the receive interface (and the dashboard) if needed.
+    async fn ensure_receive(&self) -> Result<()> {
+        let connected = self
+            .worker
+            .call("isConnected", self.cfg.call_timeout, |py, s| {
+                match &s.receive {
+                    Some(r) => call::<bool, _>(py, r, "isConnected", ()),
+                    None => Ok(false),
+                }
+            })
+            .await?;
+        if connected {
+            return Ok(());
+        }
+        probe(&self.cfg.host, self.cfg.call_timeout).await?;
+        let host = self.cfg.host.clone();
+        let freq = self.cfg.frequency_hz;
+        self.worker
+            .call(
+                "RTDEReceiveInterface",
+                self.cfg.connect_timeout,
+                move |py, s| {
+                    if let Some(r) = s.receive.take() {
+                        let _ = r.call_method0(py, "disconnect");
+                    }
+                    let module = import(py, "rtde_receive")?;
+                    let r = module
+                        .getattr("RTDEReceiveInterface")
+                        .and_then(|c| c.call1((host.as_str(), freq, VARIABLES.to_vec())))
+                        .map_err(|e| py_error(py, "RTDEReceiveInterface", e))?;
+                    s.receive = Some(r.unbind());
+                    Ok(())
+                },
+            )
+            .await
+    }
+
+    /// Reconnects whichever RTDE interface lost its link (the control one only if it
+    /// exists), probing first so a silent controller cannot hang ur_rtde.
+    async fn ensure_links(&self) -> Result<()> {
+        self.ensure_receive().await?;
+        let control_ok = self
+            .worker
+            .call("isConnected", self.cfg.call_timeout, |py, s| {
+                match &s.control {
+                    Some(c) => call::<bool, _>(py, c, "isConnected", ()),
+                    None => Ok(true),
+                }
+            })
+            .await?;
+        if control_ok {
+            return Ok(());
+        }
+        // Retired: moves are refused from now on (see `ensure_ready`).
+        self.worker
+            .call("retire control", self.cfg.call_timeout, |_py, s| {
+                if let Some(c) = s.control.take() {
+                    s.retired.push(c);
+                }
+                Ok(())
+            })
+            .await
+    }
+
+    /// Asks the dashboard (a fresh connection) whether the pendant is in remote control.
+    async fn remote_control(&self) -> Result<bool> {
+        probe(&self.cfg.host, self.cfg.call_timeout).await?;
+        let host = self.cfg.host.clone();
+        self.worker
+            .call("DashboardClient", self.cfg.call_timeout, move |py, s| {
+                let d = dashboard(py, s, &host)?;
+                call::<bool, _>(py, &d, "isInRemoteControl", ())
+            })
+            .await
+    }
+
+    async fn state(&self) -> Result<State> {
+        self.worker
+            .call("read state", self.cfg.call_timeout, |py, s| {
+                read_state(py, s)
+            })
+            .await
+    }
+
+    /// Everything a move needs: receive and control interfaces, remote control, power,
+    /// brakes, safety mode, and ur_rtde's script running.
+    async fn ensure_ready(&self) -> Result<()> {
+        let retired = self
+            .worker
+            .call("retired", self.cfg.call_timeout, |_py, s| {
+                Ok(s.retired.len())
+            })
+            .await?;
+        if retired > 0 {
+            // The lost interface may still be reconnecting in the background; a second one
+            // next to it would fight over the controller's input registers.
+            return Err(DriverError::Connection(format!(
+                "the RTDE control link to {} was lost earlier and ur_rtde cannot be reconnected safely in-process: restart easyhec",
+                self.cfg.host
+            )));
+        }
+        self.ensure_receive().await?;
+        let st = self.state().await?;
+        if st.safety_mode != SAFETY_MODE_NORMAL && st.safety_mode != SAFETY_MODE_REDUCED {
+            return Err(DriverError::Refused(safety_mode_advice(st.safety_mode)));
+        }
+        if st.robot_mode != ROBOT_MODE_RUNNING {
+            return Err(DriverError::Refused(format!(
+                "robot mode {}: power the arm on and release the brakes (pendant, or dashboard `power on` / `brake release`)",
+                robot_mode_name(st.robot_mode)
+            )));
+        }
+        if !self.remote_control().await? {
+            return Err(DriverError::Refused(
+                "the controller is in local control: switch the pendant to Remote Control".into(),
+            ));
+        }
+        let has_control = self
+            .worker
+            .call("isConnected", self.cfg.call_timeout, |py, s| {
+                match &s.control {
+                    Some(c) => call::<bool, _>(py, c, "isConnected", ()),
+                    None => Ok(false),
+                }
+            })
+            .await?;
+        let host = self.cfg.host.clone();
+        let freq = self.cfg.frequency_hz;
+        if !has_control {
+            probe(&self.cfg.host, self.cfg.call_timeout).await?;
+            self.worker
+                .call(
+                    "RTDEControlInterface",
+                    self.cfg.connect_timeout,
+                    move |py, s| new_control(py, s, &host, freq),
+                )
+                .await?;
+        } else {
+            let running = self
+                .worker
+                .call("isProgramRunning", self.cfg.call_timeout, |py, s| {
+                    let c = s.control.as_ref().expect("checked above");
+                    call::<bool, _>(py, c, "isProgramRunning", ())
+                })
+                .await?;
+            if !running {
+                // A protective stop or a dashboard `stop` ended ur_rtde's script.
+                self.worker
+                    .call("reuploadScript", self.cfg.connect_timeout, |py, s| {
+                        let c = s.control.as_ref().expect("checked above");
+                        call::<bool, _>(py, c, "reuploadScript", ()).map(|_| ())
+                    })
+                    .await?;
+                // ur_rtde returns before its own state shows the script running, and its
+                // next command would be turned down until it does.
+                let deadline = Instant::now() + self.cfg.connect_timeout;
+                loop {
+                    let running = self
+                        .worker
+                        .call("isProgramRunning", self.cfg.call_timeout, |py, s| {
+                            let c = s.control.as_ref().expect("checked above");
+                            call::<bool, _>(py, c, "isProgramRunning", ())
+                        })
+                        .await?;
+                    if running {
+                        break;
+                    }
+                    if Instant::now() > deadline {
+                        return Err(DriverError::Refused(
+                            "ur_rtde's control script did not start after a re-upload: check the pendant for a popup or a stopped program".into(),
+                        ));
+                    }
+                    tokio::time::sleep(self.cfg.poll_interval).await;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// stopJ through the control interface, reconnecting it if the link was lost; the
+    /// dashboard's `stop` (which ends the program, halting the arm) as the last resort.
+    async fn send_stop(&self) -> Result<()> {
+        let decel = self.cfg.stop_decel_rad_s2;
+        let stopped = self
+            .worker
+            .call("stopJ", self.cfg.call_timeout, move |py, s| {
+                match &s.control {
+                    Some(c) if call::<bool, _>(py, c, "isConnected", ())? => {
+                        call::<Py<PyAny>, _>(py, c, "stopJ", (decel,))?;
+                        Ok(true)
+                    }
+                    _ => Ok(false),
+                }
+            })
+            .await;
+        if matches!(stopped, Ok(true)) {
+            return Ok(());
+        }
+        // The control link is gone: retire the interface (see `new_control`) and stop through
+        // the dashboard, which ends the program and with it the motion.
+        self.worker
+            .call("retire control", self.cfg.call_timeout, |_py, s| {
+                if let Some(c) = s.control.take() {
+                    s.retired.push(c);
+                }
+                Ok(())
+            })
+            .await?;
+        probe(&self.cfg.host, self.cfg.call_timeout).await?;
+        let host = self.cfg.host.clone();
+        self.worker
+            .call("dashboard stop", self.cfg.call_timeout, move |py, s| {
+                let d = dashboard(py, s, &host)?;
+                let reply: String = call(py, &d, "send", ("stop\n",))
+                    .and_then(|_: Py<PyAny>| call(py, &d, "receive", ()))?;
+                if reply.contains("Stopped") {
+                    Ok(())
+                } else {
+                    Err(DriverError::Refused(format!(
+                        "dashboard stop answered {reply:?}"
+                    )))
+                }
+            })
+            .await
+    }
+
+    /// Waits for a started move to end at `target`.
+    async fn wait_arrival(&self, target: Vec<f64>, expected: Duration) -> Result<()> {
+        let deadline = Instant::now() + expected.mul_f64(1.5) + self.cfg.motion_timeout_margin;
+        let tol = self.cfg.arrival_tolerance_rad;
+        // ur_rtde's state can trail the command by a package or two: a move counts as
+        // finished only once the script has said so twice in a row with the arm at rest.
+        let mut finished_polls = 0;
+        loop {
+            tokio::time::sleep(self.cfg.poll_interval).await;
+            let st = match self.state().await {
+                Ok(st) if st.connected => st,
+                Ok(_) => return Err(self.lost_mid_move("RTDE connection closed").await),
+                Err(e) => return Err(self.lost_mid_move(&e.to_string()).await),
+            };
+            if st.safety_mode != SAFETY_MODE_NORMAL && st.safety_mode != SAFETY_MODE_REDUCED {
+                self.set_interrupted(Some(safety_mode_advice(st.safety_mode)));
+                return Err(DriverError::MotionFailed(safety_mode_advice(
+                    st.safety_mode,
+                )));
+            }
+            if st.runtime_state != model::RUNTIME_PLAYING {
+                let why = "the controller ended ur_rtde's control script mid-move (program stopped or paused)".to_string();
+                self.set_interrupted(Some(why.clone()));
+                return Err(DriverError::MotionFailed(why));
+            }
+            let err =
+                st.q.iter()
+                    .zip(&target)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+            let at_rest = st.qd.iter().all(|v| v.abs() < 1e-6);
+            if !st.async_running && at_rest {
+                finished_polls += 1;
+                if err <= tol && finished_polls >= 2 {
+                    return Ok(());
+                }
+                if finished_polls >= 3 {
+                    let why =
+                        format!("the controller ended the move {err:.4} rad short of the target");
+                    self.set_interrupted(Some(why.clone()));
+                    return Err(DriverError::MotionFailed(why));
+                }
+            } else {
+                finished_polls = 0;
+            }
+            if Instant::now() > deadline {
+                let _ = self.send_stop().await;
+                let why = format!(
+                    "no arrival within {:.1} s; stopped {err:.4} rad from the target",
+                    (expected.mul_f64(1.5) + self.cfg.motion_timeout_margin).as_secs_f64()
+                );
+                self.set_interrupted(Some(why.clone()));
+                return Err(DriverError::Stalled(why));
+            }
+        }
+    }
+
+    /// The link dropped during a move: stop the arm (reconnecting if possible) and say so.
+    async fn lost_mid_move(&self, cause: &str) -> DriverError {
+        let stop = self.send_stop().await;
+        let outcome = match &stop {
+            Ok(()) => "arm stopped through the dashboard".to_string(),
+            Err(e) => format!("could not stop the arm: {e}"),
+        };
+        let why = format!("link lost mid-move ({cause}); {outcome}");
+        self.set_interrupted(Some(why.clone()));
+        DriverError::Connection(why)
+    }
+}
+
+/// Creates the control interface, which uploads and starts ur_rtde's control script. Never
+/// used to replace a broken one: ur_rtde's `reconnect()` and its destructor race with the
+/// interface's own background reconnection and can crash the process, so a lost interface is
+/// retired (kept, untouched) and the driver refuses further moves.
+fn new_control(py: Python<'_>, s: &mut Session, host: &str, freq: f64) -> Result<()> {
+    if let Some(c) = s.control.take() {
+        s.retired.push(c);
+    }
+    let module = import(py, "rtde_control")?;
+    let c = module
+        .getattr("RTDEControlInterface")
+        .and_then(|c| c.call1((host, freq)))
+        .map_err(|e| py_error(py, "RTDEControlInterface", e))?;
+    s.control = Some(c.unbind());
+    Ok(())
+}
+
+/// A connected dashboard client (reconnected if its link dropped).
+fn dashboard(py: Python<'_>, s: &mut Session, host: &str) -> Result<Py<PyAny>> {
+    if let Some(d) = &s.dashboard {
+        if call::<bool, _>(py, d, "isConnected", ()).unwrap_or(false) {
+            return Ok(d.clone_ref(py));
+        }
+    }
+    let module = import(py, "dashboard_client")?;
+    let d = module
+        .getattr("DashboardClient")
+        .and_then(|c| c.call1((host,)))
+        .map_err(|e| py_error(py, "DashboardClient", e))?
+        .unbind();
+    call::<Py<PyAny>, _>(py, &d, "connect", (2000,))?;
+    s.dashboard = Some(d.clone_ref(py));
+    Ok(d)
+}
+
+#[async_trait]
+impl Arm for UrArm {
+    fn joints(&self) -> &[JointLimit] {
+        &self.inner.joints
+    }
+
+    async fn read_joints(&self) -> Result<Vec<f64>> {
+        self.inner.ensure_links().await?;
+        let st = self.inner.state().await?;
+        if !st.connected {
+            return Err(DriverError::Connection(format!(
+                "RTDE link to {} lost",
+                self.inner.cfg.host
+            )));
+        }
+        Ok(st.q)
+    }
+
+    async fn move_to(&self, target: &[f64], speed_rad_s: f64) -> Result<Motion> {
+        let inner = &self.inner;
+        if target.len() != 6 {
+            return Err(DriverError::Refused(format!(
+                "{} target joints for the 6 joints of a UR arm",
+                target.len()
+            )));
+        }
+        for (k, (v, (lo, hi))) in target.iter().zip(&inner.cfg.limits).enumerate() {
+            if !v.is_finite() || v < lo || v > hi {
+                return Err(DriverError::Refused(format!(
+                    "joint {} ({}) target {v} rad outside its limits [{lo}, {hi}]",
+                    k + 1,
+                    inner.joints[k].name
+                )));
+            }
+        }
+        if !(speed_rad_s.is_finite() && speed_rad_s > 0.0) {
+            return Err(DriverError::Refused(format!(
+                "speed {speed_rad_s} rad/s: must be positive"
+            )));
+        }
+        let speed = speed_rad_s.min(inner.speed_cap_rad_s);
+        let accel = inner.accel_rad_s2;
+        let _op = inner.op.lock().await;
+        inner.ensure_ready().await?;
+        let from = inner.state().await?.q;
+        let q = target.to_vec();
+        let sent = q.clone();
+        let accepted = inner
+            .worker
+            .call("moveJ", inner.cfg.call_timeout, move |py, s| {
+                let c = s
+                    .control
+                    .as_ref()
+                    .ok_or_else(|| DriverError::Connection("no control interface".into()))?;
+                call::<bool, _>(py, c, "moveJ", (sent, speed, accel, true))
+            })
+            .await?;
+        if !accepted {
+            let st = inner.state().await?;
+            let why =
+                if st.safety_mode != SAFETY_MODE_NORMAL && st.safety_mode != SAFETY_MODE_REDUCED {
+                    safety_mode_advice(st.safety_mode)
+                } else {
+                    format!(
+                        "the controller did not accept the moveJ (robot mode {}, runtime state {})",
+                        robot_mode_name(st.robot_mode),
+                        st.runtime_state
+                    )
+                };
+            return Err(DriverError::Refused(why));
+        }
+        inner.set_interrupted(None);
+        let distance = from
+            .iter()
+            .zip(&q)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let expected = Duration::from_secs_f64(distance / speed + 2.0 * speed / accel);
+        let me = self.clone();
+        Ok(Motion::new(async move {
+            let _op = me.inner.op.lock().await;
+            me.inner.wait_arrival(q, expected).await
+        }))
+    }
+
+    async fn stop(&self) -> Result<()> {
+        // Not behind `op`: a stop must not wait for a move's watcher.
+        self.inner.send_stop().await?;
+        if self.inner.interrupted().is_none() {
+            let st = self.inner.state().await.ok();
+            if st.is_some_and(|st| st.async_running) {
+                self.inner
+                    .set_interrupted(Some("stopped by request".into()));
+            }
+        }
+        Ok(())
+    }
+
+    async fn status(&self) -> Result<ArmStatus> {
+        self.inner.ensure_links().await?;
+        let st = self.inner.state().await?;
+        if !st.connected {
+            return Err(DriverError::Connection(format!(
+                "RTDE link to {} lost",
+                self.inner.cfg.host
+            )));
+        }
+        if st.safety_mode != SAFETY_MODE_NORMAL && st.safety_mode != SAFETY_MODE_REDUCED {
+            return Ok(ArmStatus::Fault(safety_mode_advice(st.safety_mode)));
+        }
+        if st.robot_mode != ROBOT_MODE_RUNNING {
+            return Ok(ArmStatus::Fault(format!(
+                "robot mode {}",
+                robot_mode_name(st.robot_mode)
+            )));
+        }
+        if st.async_running || st.qd.iter().any(|v| v.abs() > 1e-6) {
+            return Ok(ArmStatus::Moving);
+        }
+        if self.inner.interrupted().is_some() {
+            return Ok(ArmStatus::Stopped);
+        }
+        Ok(ArmStatus::Idle)
+    }
+
+    async fn clear_fault(&self) -> Result<()> {
+        let inner = &self.inner;
+        probe(&inner.cfg.host, inner.cfg.call_timeout).await?;
+        let host = inner.cfg.host.clone();
+        inner
+            .worker
+            .call("dashboard", inner.cfg.call_timeout, move |py, s| {
+                let d = dashboard(py, s, &host)?;
+                call::<Py<PyAny>, _>(py, &d, "closeSafetyPopup", ())?;
+                call::<Py<PyAny>, _>(py, &d, "unlockProtectiveStop", ())?;
+                Ok(())
+            })
+            .await?;
+        inner.ensure_links().await?;
+        // The RTDE stream shows the new mode a package or two later.
+        let deadline = Instant::now() + inner.cfg.call_timeout;
+        loop {
+            let st = inner.state().await?;
+            if st.safety_mode == SAFETY_MODE_NORMAL || st.safety_mode == SAFETY_MODE_REDUCED {
+                break;
+            }
+            if Instant::now() > deadline {
+                return Err(DriverError::Refused(safety_mode_advice(st.safety_mode)));
+            }
+            tokio::time::sleep(inner.cfg.poll_interval).await;
+        }
+        inner.set_interrupted(None);
+        Ok(())
+    }
+}
