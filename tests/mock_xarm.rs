@@ -247,7 +247,7 @@ fn bad_xarm_cell_configs_get_one_line_errors_naming_the_key() {
         ),
         (base.replace(joints_from, ""), "camera.joints_from"),
         (
-            base.replace("kind = \"xarm-report\"", "kind = \"ur-rtde\""),
+            base.replace("kind = \"xarm-report\"", "kind = \"no-such-source\""),
             "line",
         ),
     ];
