@@ -44,22 +44,7 @@ fn assert_every_command_safe(cell: &Cell) -> usize {
             "command {i} speed {}",
             c.speed_rad_s
         );
-        cell.checker
-            .check_move(&c.from, &c.target, c.speed_rad_s)
-            .unwrap_or_else(|v| panic!("command {i} unsafe: {v}"));
-        let n = cell.checker.path_samples(&c.from, &c.target) * 20;
-        for k in 0..=n {
-            let s = k as f64 / n as f64;
-            let q: Vec<f64> = c
-                .from
-                .iter()
-                .zip(&c.target)
-                .map(|(a, b)| a + (b - a) * s)
-                .collect();
-            cell.checker
-                .check_pose(&q)
-                .unwrap_or_else(|v| panic!("command {i} at {s:.4} of its path: {v}"));
-        }
+        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
     }
     commands.len()
 }

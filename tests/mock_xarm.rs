@@ -3,6 +3,8 @@
 //! controller received was accepted, within its caps and safe; and a link lost mid-move
 //! ends the calibration with the arm stopped short of its target.
 
+mod common;
+
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -89,22 +91,13 @@ fn assert_every_command_safe(cell: &Cell, commands: &[MoveRecord]) {
                 "command {i} joint {k} at {v}"
             );
         }
-        cell.checker
-            .check_move(&c.from, &c.target, c.speed_rad_s.min(cap))
-            .unwrap_or_else(|v| panic!("command {i} unsafe: {v}"));
-        let n = cell.checker.path_samples(&c.from, &c.target) * 20;
-        for k in 0..=n {
-            let s = k as f64 / n as f64;
-            let q: Vec<f64> = c
-                .from
-                .iter()
-                .zip(&c.target)
-                .map(|(a, b)| a + (b - a) * s)
-                .collect();
-            cell.checker
-                .check_pose(&q)
-                .unwrap_or_else(|v| panic!("command {i} at {s:.4} of its path: {v}"));
-        }
+        common::assert_commanded_path_safe(
+            &cell.checker,
+            i,
+            &c.from,
+            &c.target,
+            c.speed_rad_s.min(cap),
+        );
     }
 }
 

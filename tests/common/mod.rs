@@ -45,3 +45,30 @@ pub fn solve_run(run: &std::path::Path, extra: &[&str]) -> std::process::Output 
         .output()
         .expect("easyhec runs")
 }
+
+/// Command `i` from `from` to `target` at `speed_rad_s` passes the checker, and so does every
+/// pose of its straight joint-space path sampled 20x finer than the checker's own sampling
+/// (an independent re-check of what the arm executed).
+pub fn assert_commanded_path_safe(
+    checker: &easyhec::safety::SafetyChecker,
+    i: usize,
+    from: &[f64],
+    target: &[f64],
+    speed_rad_s: f64,
+) {
+    checker
+        .check_move(from, target, speed_rad_s)
+        .unwrap_or_else(|v| panic!("command {i} unsafe: {v}"));
+    let n = checker.path_samples(from, target) * 20;
+    for k in 0..=n {
+        let s = k as f64 / n as f64;
+        let q: Vec<f64> = from
+            .iter()
+            .zip(target)
+            .map(|(a, b)| a + (b - a) * s)
+            .collect();
+        checker
+            .check_pose(&q)
+            .unwrap_or_else(|v| panic!("command {i} at {s:.4} of its path: {v}"));
+    }
+}
