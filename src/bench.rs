@@ -303,3 +303,88 @@ pub fn loop_medians(trials: &[LoopTrial], views: usize) -> Option<(f64, f64)> {
     }
     Some((median(&r), median(&t)))
 }
+
+/// Timings of [`explore_round`].
+#[derive(Clone, Debug)]
+pub struct ExploreTiming {
+    /// Posing and decimating the joint samples, seconds per round.
+    pub posing_s: Vec<f64>,
+    /// Scoring every sample against every candidate, seconds per round.
+    pub scoring_s: Vec<f64>,
+    /// Best score of the last round (a check that the rounds did real work).
+    pub best_score: f64,
+}
+
+/// Times exploration's scoring on `renderer`: a 2-view solve of a seeded scene gives the
+/// posterior, `candidates` camera hypotheses are drawn from it (widened as the loop does),
+/// and `samples` random joint vectors are posed, decimated and scored at 1/4 resolution.
+pub fn explore_round(
+    renderer: &dyn crate::render::SilhouetteRenderer,
+    robot: &RobotModel,
+    samples: usize,
+    candidates: usize,
+    width: u32,
+    height: u32,
+    rounds: usize,
+) -> Result<ExploreTiming> {
+    use rand::{Rng, SeedableRng};
+    let scene = generate(
+        robot,
+        &SynthOptions {
+            seed: 1,
+            views: 2,
+            width,
+            height,
+            focal_px: 600.0 * f64::from(width) / 640.0,
+            ..SynthOptions::default()
+        },
+    )?;
+    let views = scene_views(robot, &scene);
+    let guess = scene
+        .initial_guess
+        .ok_or_else(|| crate::Error::Solve("benchmark scene without a guess".into()))?;
+    let mut report = solve(
+        &CpuRenderer,
+        &scene.camera,
+        &views,
+        &guess,
+        &SolveOptions::default(),
+    )?;
+    report.covariance *= 400.0;
+    let cands = crate::explore::camera_candidates(
+        &report,
+        &crate::explore::ExploreOptions {
+            candidates,
+            ..Default::default()
+        },
+    );
+    let low = scene.camera.undistorted().downsampled(4);
+    let cell_m = 4.0 / scene.camera.fx;
+    let mut timing = ExploreTiming {
+        posing_s: Vec::new(),
+        scoring_s: Vec::new(),
+        best_score: 0.0,
+    };
+    for round in 0..rounds.max(1) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(round as u64);
+        let qs: Vec<Vec<f64>> = (0..samples)
+            .map(|_| {
+                robot
+                    .joint_limits()
+                    .iter()
+                    .map(|&(lo, hi)| rng.random_range(lo.max(-3.0)..=hi.min(3.0)))
+                    .collect()
+            })
+            .collect();
+        let t = Instant::now();
+        let coarse = crate::render::CoarseRobot::new(robot, cell_m);
+        let posed: Vec<PosedRobot> = qs.par_iter().map(|q| coarse.pose(robot, q)).collect();
+        timing.posing_s.push(t.elapsed().as_secs_f64());
+        let pool: Vec<&PosedRobot> = posed.iter().collect();
+        let t = Instant::now();
+        let scores = renderer.disagreement_many(&low, &pool, &cands);
+        timing.scoring_s.push(t.elapsed().as_secs_f64());
+        timing.best_score = scores.iter().copied().fold(0.0, f64::max);
+    }
+    Ok(timing)
+}

@@ -19,14 +19,13 @@ use crate::cell::{Cell, LookAt};
 
 use crate::error::{Error, Result};
 use crate::explore::{
-    camera_candidates, disagreement_cpu, information_gain, view_information, CandidateSource,
-    ExploreOptions,
+    camera_candidates, information_gain, view_information, CandidateSource, ExploreOptions,
 };
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::render::{CpuRenderer, PosedRobot};
+use crate::render::{open_renderer, CoarseRobot, PosedRobot, RendererChoice, SilhouetteRenderer};
 use crate::run::{
     CameraEntry, PerView, PoseEntry, ResultFile, RobotEntry, RunFile, UncertaintyEntry, ViewEntry,
     RUN_FORMAT,
@@ -91,6 +90,10 @@ pub struct CalibrationSettings {
     /// kinematic error). `information` scoring discounts views a joint error could fake.
     #[serde(default = "default_joint_noise")]
     pub joint_noise_rad: f64,
+    /// Renderer backend: `auto` (default: wgpu on a hardware GPU, the CPU otherwise), `cpu`
+    /// or `wgpu` (any adapter, software ones included). `--renderer` overrides it.
+    #[serde(default)]
+    pub renderer: RendererChoice,
 }
 
 fn default_max_views() -> usize {
@@ -466,6 +469,7 @@ pub struct PlanStats {
 /// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
 /// by the candidates' disagreement, best first.
 pub fn rank_poses(
+    renderer: &dyn SilhouetteRenderer,
     cell: &Cell,
     camera: &Camera,
     report: &SolveReport,
@@ -525,11 +529,12 @@ pub fn rank_poses(
     );
     let estimate = report.camera_from_base;
     let t_start = std::time::Instant::now();
+    let coarse = CoarseRobot::new(&cell.robot, cell_m);
     let safe: Vec<(Vec<f64>, PosedRobot)> = samples
         .into_par_iter()
         .filter(|q| checker.check_pose(q).is_ok())
         .map(|q| {
-            let posed = PosedRobot::new(&cell.robot, &q).decimated(cell_m);
+            let posed = coarse.pose(&cell.robot, &q);
             (q, posed)
         })
         .collect();
@@ -549,8 +554,10 @@ pub fn rank_poses(
         })
         .collect();
     let n_scored = in_view.len();
-    let variance =
-        |posed: &PosedRobot, cands: &[Isometry3<f64>]| disagreement_cpu(&low, posed, cands);
+    // Batched through the renderer: a GPU backend scores the whole pool per submission.
+    let variances = |pool: &[&PosedRobot], cands: &[Isometry3<f64>]| {
+        renderer.disagreement_many(&low, pool, cands)
+    };
     let mut ranked: Vec<(Ranked, PosedRobot)> = match (settings.selection, settings.score) {
         (SelectionSetting::Random, _) => in_view
             .into_iter()
@@ -585,7 +592,7 @@ pub fn rank_poses(
             // (a tiny ridge keeps a one-view matrix invertible).
             let current: Matrix6<f64> = taken
                 .par_iter()
-                .map(|q| info(&PosedRobot::new(&cell.robot, q).decimated(cell_m), q))
+                .map(|q| info(&coarse.pose(&cell.robot, q), q))
                 .reduce(Matrix6::zeros, |a, b| a + b)
                 + Matrix6::identity() * 1e-6;
             in_view
@@ -606,16 +613,21 @@ pub fn rank_poses(
             // best quarter against all of them (the argmax is almost always in that quarter;
             // this halves the planning time).
             let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
+            let pool: Vec<&PosedRobot> = in_view.iter().map(|(_, _, p)| p).collect();
+            let quick_scores = variances(&pool, quick);
             let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = in_view
-                .into_par_iter()
-                .map(|(in_image, q, posed)| (variance(&posed, quick), in_image, q, posed))
+                .into_iter()
+                .zip(quick_scores)
+                .map(|((in_image, q, posed), v)| (v, in_image, q, posed))
                 .collect();
             first.sort_by(|a, b| b.0.total_cmp(&a.0));
             first.truncate((n_scored / 4).max(64.min(n_scored)));
+            let pool: Vec<&PosedRobot> = first.iter().map(|(_, _, _, p)| p).collect();
+            let full = variances(&pool, &candidates);
             first
-                .into_par_iter()
-                .map(|(_, in_image, q, posed)| {
-                    let v = variance(&posed, &candidates);
+                .into_iter()
+                .zip(full)
+                .map(|((_, in_image, q, posed), v)| {
                     let r = Ranked {
                         score: v,
                         variance: Some(v),
@@ -631,7 +643,7 @@ pub fn rank_poses(
     // The stop rule watches the candidates' disagreement at the best pose, whatever ranked it.
     if let Some((best, posed)) = ranked.first_mut() {
         if best.variance.is_none() {
-            best.variance = Some(variance(posed, &candidates));
+            best.variance = variances(&[&*posed], &candidates).first().copied();
         }
     }
     let ranked: Vec<Ranked> = ranked.into_iter().map(|r| r.0).collect();
@@ -773,7 +785,8 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     };
     let mut rec = Recorder::create(out, robot_entry, camera_entry, guess)?;
     let pb = progress_bar(opts, s.max_views);
-    let renderer = CpuRenderer;
+    let renderer = open_renderer(s.renderer, !opts.progress)
+        .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
     let solve_opts = SolveOptions::default();
     let (mut solve_s, mut explore_s, mut motion_s) = (0.0, 0.0, 0.0);
 
@@ -782,9 +795,9 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     pb.set_position(1);
     let t = Instant::now();
     let mut report = match guess {
-        Some(g) => solve(&renderer, &camera, &views, &g, &solve_opts)?,
+        Some(g) => solve(renderer.as_ref(), &camera, &views, &g, &solve_opts)?,
         None => initialise(
-            &renderer,
+            renderer.as_ref(),
             &camera,
             &views,
             &solve_opts,
@@ -816,7 +829,8 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             break;
         }
         let t = Instant::now();
-        let (ranked, stats) = rank_poses(cell, &camera, &report, &taken, s, round);
+        let (ranked, stats) =
+            rank_poses(renderer.as_ref(), cell, &camera, &report, &taken, s, round);
         let best = ranked.first().and_then(|r| r.variance);
         explore_s += t.elapsed().as_secs_f64();
         let last = rounds.last_mut().expect("round 0 exists");
@@ -916,7 +930,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;
         let t = Instant::now();
-        report = solve(&renderer, &camera, &views, &previous, &solve_opts)?;
+        report = solve(renderer.as_ref(), &camera, &views, &previous, &solve_opts)?;
         report.trajectory.insert(0, previous);
         solve_s += t.elapsed().as_secs_f64();
         let change = [

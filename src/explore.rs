@@ -260,18 +260,12 @@ pub fn choose_next(
     opts: &ExploreOptions,
 ) -> Option<(usize, f64)> {
     let low = camera.undistorted().downsampled(opts.downsample.max(1));
-    pool.par_iter()
+    let coarse: Vec<PosedRobot> = pool.par_iter().map(|r| r.decimated(opts.cell_m)).collect();
+    let coarse: Vec<&PosedRobot> = coarse.iter().collect();
+    renderer
+        .disagreement_many(&low, &coarse, candidates)
+        .into_iter()
         .enumerate()
-        .map(|(i, robot)| {
-            (
-                i,
-                if renderer.name() == "cpu" {
-                    disagreement_cpu(&low, &robot.decimated(opts.cell_m), candidates)
-                } else {
-                    disagreement(renderer, &low, &robot.decimated(opts.cell_m), candidates)
-                },
-            )
-        })
         .max_by(|a, b| a.1.total_cmp(&b.1))
 }
 

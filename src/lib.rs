@@ -20,6 +20,8 @@ pub mod collision;
 pub mod error;
 pub mod explore;
 pub mod geometry;
+#[cfg(feature = "wgpu")]
+pub mod gpu;
 pub mod init;
 pub mod interop;
 pub mod io;

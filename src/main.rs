@@ -12,7 +12,7 @@ use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::init::{initialise, InitOptions};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
-use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use easyhec::render::{open_renderer, CpuRenderer, PosedRobot, RendererChoice};
 use easyhec::robot::{RobotModel, RobotSource};
 use easyhec::run::{load_run, PerView, ResultFile, RobotEntry, UncertaintyEntry};
 use easyhec::solve::{solve, Optimizer, SolveOptions, View};
@@ -70,6 +70,9 @@ struct SolveArgs {
     /// Write one agreement overlay PNG per view into this folder.
     #[arg(long)]
     overlays: Option<PathBuf>,
+    /// Renderer: cpu, wgpu (any adapter) or auto (wgpu on a hardware GPU, else cpu).
+    #[arg(long, default_value = "auto")]
+    renderer: RendererChoice,
 }
 
 #[derive(Args)]
@@ -89,6 +92,9 @@ struct CalibrateArgs {
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
+    /// Renderer: cpu, wgpu or auto (overrides `[calibration] renderer`).
+    #[arg(long)]
+    renderer: Option<RendererChoice>,
 }
 
 #[derive(Args)]
@@ -212,6 +218,37 @@ enum BenchCommand {
         /// Selections to run.
         #[arg(long, value_delimiter = ',', default_value = "explore,random")]
         selections: Vec<String>,
+        /// Renderer: cpu, wgpu or auto.
+        #[arg(long, default_value = "auto")]
+        renderer: RendererChoice,
+        /// Exploration score: information (default) or variance (the paper's).
+        #[arg(long)]
+        score: Option<String>,
+    },
+    /// One exploration round on the renderer: N joint samples x K camera candidates scored by
+    /// silhouette variance (method.md §5), with its posing/decimation time separate.
+    Explore {
+        /// Robot URDF.
+        #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
+        robot: PathBuf,
+        /// Joint samples.
+        #[arg(long, default_value_t = 2000)]
+        samples: usize,
+        /// Camera candidates.
+        #[arg(long, default_value_t = 50)]
+        candidates: usize,
+        /// Image width (scored at 1/4).
+        #[arg(long, default_value_t = 640)]
+        width: u32,
+        /// Image height.
+        #[arg(long, default_value_t = 480)]
+        height: u32,
+        /// Rounds timed.
+        #[arg(long, default_value_t = 5)]
+        rounds: usize,
+        /// Renderer: cpu, wgpu or auto.
+        #[arg(long, default_value = "auto")]
+        renderer: RendererChoice,
     },
     /// Wall time of K-view solves, and peak memory.
     Speed {
@@ -230,6 +267,9 @@ enum BenchCommand {
         /// Number of scenes (seeds) timed.
         #[arg(long, default_value_t = 5)]
         scenes: u64,
+        /// Renderer: cpu, wgpu or auto.
+        #[arg(long, default_value = "auto")]
+        renderer: RendererChoice,
     },
 }
 
@@ -286,7 +326,11 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     use easyhec::calibrate::{calibrate, rfc3339, PlannedPose, RunOptions};
     use std::io::Write;
     use std::sync::Arc;
-    let cell = easyhec::cell::Cell::open(&a.config)?;
+    let mut config = easyhec::cell::read_config(&a.config)?;
+    if let Some(r) = a.renderer {
+        config.calibration.renderer = r;
+    }
+    let cell = easyhec::cell::Cell::build(config, &a.config)?;
     let out = a.out.unwrap_or_else(|| {
         PathBuf::from("runs").join(rfc3339(std::time::SystemTime::now()).replace(':', "-"))
     });
@@ -435,14 +479,15 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
             observed: v.observed.clone(),
         })
         .collect();
-    let renderer = CpuRenderer;
+    let renderer = open_renderer(a.renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
+    let renderer = renderer.as_ref();
     let initial = match run.initial_guess {
         Some(guess) => guess,
         None => {
             // No guess: search for one (method.md §6) over the first views.
             let first = &pool[..pool.len().min(3)];
             let found = initialise(
-                &renderer,
+                renderer,
                 &run.camera,
                 first,
                 &SolveOptions::default(),
@@ -463,7 +508,7 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         }
     };
     let selected = solve_selected(
-        &renderer,
+        renderer,
         &run.camera,
         &pool,
         &initial,
@@ -676,9 +721,18 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             cells,
             views,
             selections,
+            renderer,
+            score,
         } => {
-            use easyhec::calibrate::SelectionSetting;
-            let base = easyhec::cell::read_config(&config)?;
+            use easyhec::calibrate::{ScoreSetting, SelectionSetting};
+            let mut base = easyhec::cell::read_config(&config)?;
+            base.calibration.renderer = renderer;
+            match score.as_deref() {
+                None => {}
+                Some("information") => base.calibration.score = ScoreSetting::Information,
+                Some("variance") => base.calibration.score = ScoreSetting::Variance,
+                Some(other) => bail!("--score {other}: use information or variance"),
+            }
             let mut all: Vec<(String, Vec<bench::LoopTrial>)> = Vec::new();
             for name in &selections {
                 let selection = match name.as_str() {
@@ -847,7 +901,10 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             width,
             height,
             scenes,
+            renderer,
         } => {
+            let renderer =
+                open_renderer(renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
             let model = RobotModel::from_urdf(robot)?;
             let mut times = Vec::new();
             for seed in 0..scenes {
@@ -865,7 +922,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 let v = bench::scene_views(&model, &scene);
                 let t = Instant::now();
                 solve(
-                    &CpuRenderer,
+                    renderer.as_ref(),
                     &scene.camera,
                     &v,
                     &scene.initial_guess.expect("guess"),
@@ -880,6 +937,39 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 times.iter().copied().fold(f64::INFINITY, f64::min),
                 times.iter().copied().fold(0.0, f64::max),
                 bench::peak_rss_bytes().unwrap_or(0) as f64 / 1e6
+            );
+        }
+        BenchCommand::Explore {
+            robot,
+            samples,
+            candidates,
+            width,
+            height,
+            rounds,
+            renderer,
+        } => {
+            let renderer =
+                open_renderer(renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
+            let model = RobotModel::from_urdf(robot)?;
+            let r = bench::explore_round(
+                renderer.as_ref(),
+                &model,
+                samples,
+                candidates,
+                width,
+                height,
+                rounds,
+            )?;
+            println!(
+                "exploration round, {samples} joint samples x {candidates} candidates at {}x{} on {}: median {:.3} s scoring (min {:.3} s) + {:.3} s posing and decimation on {} threads; best score {:.1}",
+                width / 4,
+                height / 4,
+                renderer.name(),
+                bench::median(&r.scoring_s),
+                r.scoring_s.iter().copied().fold(f64::INFINITY, f64::min),
+                bench::median(&r.posing_s),
+                rayon::current_num_threads(),
+                r.best_score
             );
         }
     }

@@ -100,6 +100,51 @@ impl PosedRobot {
     }
 }
 
+/// A robot's meshes decimated once, link by link in each link's own frame: exploration poses
+/// thousands of joint samples a round, and posing this costs one transform per coarse vertex,
+/// with one topology shared by every pose (a GPU uploads it once).
+#[derive(Clone, Debug)]
+pub struct CoarseRobot {
+    /// Clustered vertices in their link's frame.
+    vertices_link: Vec<Point3<f64>>,
+    /// Link of every coarse vertex.
+    vertex_link: Arc<Vec<u32>>,
+    /// Shared topology.
+    topology: Arc<TriMesh>,
+}
+
+impl CoarseRobot {
+    /// Clusters `robot`'s visual vertices on a `cell_m` grid per link, in link frames.
+    pub fn new(robot: &RobotModel, cell_m: f64) -> CoarseRobot {
+        let local = PosedRobot {
+            vertices_base: robot.visual.vertices.clone(),
+            topology: robot.visual.clone(),
+            vertex_link: robot.vertex_link.clone(),
+        }
+        .decimated(cell_m);
+        CoarseRobot {
+            vertices_link: local.vertices_base,
+            vertex_link: local.vertex_link,
+            topology: local.topology,
+        }
+    }
+
+    /// The coarse robot at joint positions `q`.
+    pub fn pose(&self, robot: &RobotModel, q: &[f64]) -> PosedRobot {
+        let poses = robot.base_from_links(q);
+        PosedRobot {
+            vertices_base: self
+                .vertices_link
+                .iter()
+                .zip(self.vertex_link.iter())
+                .map(|(v, &l)| poses[l as usize] * v)
+                .collect(),
+            topology: self.topology.clone(),
+            vertex_link: self.vertex_link.clone(),
+        }
+    }
+}
+
 /// One sample of the silhouette outline.
 #[derive(Clone, Copy, Debug)]
 pub struct BoundarySample {
@@ -195,6 +240,103 @@ pub trait SilhouetteRenderer: Send + Sync {
             .par_iter()
             .map(|r| self.render(r, camera, camera_from_base, boundary_step_px))
             .collect()
+    }
+
+    /// Exploration's score of every pool entry: the candidates' total per-pixel silhouette
+    /// variance ([`crate::explore::disagreement`]) at `camera`'s (scoring) resolution, in
+    /// pool order. Backends may batch; the default runs the CPU rasteriser on all cores.
+    fn disagreement_many(
+        &self,
+        camera: &Camera,
+        pool: &[&PosedRobot],
+        candidates: &[Isometry3<f64>],
+    ) -> Vec<f64> {
+        cpu_disagreement_many(camera, pool, candidates)
+    }
+}
+
+/// [`SilhouetteRenderer::disagreement_many`] on the CPU: one single-threaded scorer per pool
+/// entry, pool entries in parallel.
+pub fn cpu_disagreement_many(
+    camera: &Camera,
+    pool: &[&PosedRobot],
+    candidates: &[Isometry3<f64>],
+) -> Vec<f64> {
+    pool.par_iter()
+        .map(|r| crate::explore::disagreement_cpu(camera, r, candidates))
+        .collect()
+}
+
+/// Which renderer backend to use (`--renderer`, `[calibration] renderer`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RendererChoice {
+    /// The CPU reference renderer.
+    Cpu,
+    /// wgpu on the best adapter there is, software rasterisers included.
+    Wgpu,
+    /// wgpu on a hardware GPU adapter, the CPU otherwise (default).
+    #[default]
+    Auto,
+}
+
+impl std::str::FromStr for RendererChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(RendererChoice::Cpu),
+            "wgpu" => Ok(RendererChoice::Wgpu),
+            "auto" => Ok(RendererChoice::Auto),
+            other => Err(format!("unknown renderer {other:?}: use cpu, wgpu or auto")),
+        }
+    }
+}
+
+/// Opens the renderer `choice` asks for and logs which one (and which adapter) runs, on
+/// stderr unless `quiet`. `wgpu` fails when there is no adapter or the `wgpu` feature is off;
+/// `auto` falls back to the CPU and says why.
+pub fn open_renderer(
+    choice: RendererChoice,
+    quiet: bool,
+) -> Result<Arc<dyn SilhouetteRenderer>, String> {
+    let log = |m: String| {
+        if !quiet {
+            eprintln!("{m}");
+        }
+    };
+    match choice {
+        RendererChoice::Cpu => {
+            log("renderer: cpu".into());
+            Ok(Arc::new(CpuRenderer))
+        }
+        #[cfg(feature = "wgpu")]
+        RendererChoice::Wgpu | RendererChoice::Auto => {
+            let policy = if choice == RendererChoice::Wgpu {
+                crate::gpu::AdapterPolicy::Any
+            } else {
+                crate::gpu::AdapterPolicy::HardwareOnly
+            };
+            match crate::gpu::WgpuRenderer::new(policy) {
+                Ok(r) => {
+                    log(format!("renderer: wgpu on {}", r.adapter()));
+                    Ok(Arc::new(r))
+                }
+                Err(e) if choice == RendererChoice::Auto => {
+                    log(format!("renderer: cpu ({e})"));
+                    Ok(Arc::new(CpuRenderer))
+                }
+                Err(e) => Err(e),
+            }
+        }
+        #[cfg(not(feature = "wgpu"))]
+        RendererChoice::Wgpu => {
+            Err("the wgpu renderer is not built in: rebuild with --features wgpu".into())
+        }
+        #[cfg(not(feature = "wgpu"))]
+        RendererChoice::Auto => {
+            log("renderer: cpu (built without the wgpu feature)".into());
+            Ok(Arc::new(CpuRenderer))
+        }
     }
 }
 

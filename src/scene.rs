@@ -204,7 +204,7 @@ impl SimScene {
                 n = -n;
             }
             let link = self.robot.vertex_link[tri[0] as usize] as usize;
-            let albedo = if link % 2 == 0 {
+            let albedo = if link.is_multiple_of(2) {
                 [0.86, 0.86, 0.84]
             } else {
                 [0.22, 0.22, 0.24]

@@ -371,11 +371,13 @@ fn accumulate(
 ) -> Normal {
     let c = level.robust_scale_px;
     let cap = GRID_CELL_PX * GRID_REACH as f64;
-    robots
+    // One call for all views: a GPU backend draws them in one submission.
+    let silhouettes =
+        renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
+    silhouettes
         .par_iter()
         .zip(&level.views)
-        .map(|(robot, obs)| {
-            let sil = renderer.render(robot, &level.camera, pose, Some(opts.boundary_step_px));
+        .map(|(sil, obs)| {
             let mut n = Normal::zero();
             let mut jacobians = Vec::with_capacity(sil.boundary.len());
             // Rendered outline -> observed outline along the same pixel row (or column): the
@@ -610,15 +612,9 @@ impl Band {
         }
     }
 
-    /// The paper's mask loss of one view at `pose` (valid for poses near the band's centre).
-    fn mask_loss(
-        &self,
-        renderer: &dyn SilhouetteRenderer,
-        camera: &Camera,
-        view: &View,
-        pose: &Isometry3<f64>,
-    ) -> f64 {
-        let m = renderer.render(&self.robot, camera, pose, None).mask;
+    /// The paper's mask loss of one view from the band's mask rendered at a pose near the
+    /// band's centre.
+    fn loss_of(&self, m: &Mask, view: &View) -> f64 {
         let inside_wrong = self
             .pixels
             .iter()
@@ -676,14 +672,16 @@ fn refine(
         .par_iter()
         .map(|v| Band::new(renderer, camera, v, &centre, radius))
         .collect();
+    let band_robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
     let mut scored: Vec<(f64, Twist)> = offsets
         .par_iter()
         .map(|xi| {
             let pose = exp_se3(xi) * centre;
-            let loss: f64 = bands
+            let loss: f64 = renderer
+                .render_many(&band_robots, camera, &pose, None)
                 .iter()
-                .zip(views)
-                .map(|(b, v)| b.mask_loss(renderer, camera, v, &pose))
+                .zip(bands.iter().zip(views))
+                .map(|(s, (b, v))| b.loss_of(&s.mask, v))
                 .sum();
             (loss, *xi)
         })
@@ -751,10 +749,13 @@ pub fn coarse_search(
         .step_by(step)
         .map(|v| (v.robot.decimated(0.004), v.observed.downsample(factor)))
         .collect();
+    let subset_robots: Vec<&PosedRobot> = subset.iter().map(|(r, _)| r).collect();
     let score = |pose: &Isometry3<f64>| -> f64 {
-        subset
+        renderer
+            .render_many(&subset_robots, &level, pose, None)
             .iter()
-            .map(|(r, m)| renderer.render(r, &level, pose, None).mask.iou(m))
+            .zip(&subset)
+            .map(|(s, (_, m))| s.mask.iou(m))
             .sum::<f64>()
             / subset.len() as f64
     };
@@ -950,12 +951,11 @@ fn finish(
         None => Matrix6::from_diagonal_element(f64::INFINITY),
     };
     let uncertainty = uncertainty_of(&covariance, &pose);
-    let renders: Vec<(f64, f64)> = views
+    let renders: Vec<(f64, f64)> = renderer
+        .render_many(&robots, camera, &pose, None)
         .par_iter()
-        .map(|v| {
-            let m = renderer.render(&v.robot, camera, &pose, None).mask;
-            (m.iou(&v.observed), mask_loss(&m, &v.observed))
-        })
+        .zip(views)
+        .map(|(s, v)| (s.mask.iou(&v.observed), mask_loss(&s.mask, &v.observed)))
         .collect();
     let loss = renders.iter().map(|r| r.1).sum::<f64>() / views.len() as f64;
     Ok(SolveReport {

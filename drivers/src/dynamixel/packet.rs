@@ -384,7 +384,7 @@ impl Protocol {
         let (addr, len) = self.decode_read(p.get(..2 * w)?)?;
         let rest = &p[2 * w..];
         let step = usize::from(len) + 1;
-        if len == 0 || rest.len() % step != 0 {
+        if len == 0 || !rest.len().is_multiple_of(step) {
             return None;
         }
         let items = rest.chunks(step).map(|c| (c[0], c[1..].to_vec())).collect();

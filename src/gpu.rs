@@ -1,0 +1,1141 @@
+//! The wgpu backend of [`SilhouetteRenderer`]: rasterises silhouettes on a GPU and scores
+//! exploration candidates there in batches.
+//!
+//! Two GPU paths, both ending in the exact integers the CPU backend computes:
+//! - **Silhouettes** ([`SilhouetteRenderer::render_many`]): vertices are projected on the CPU in
+//!   f64 (the same projection, distortion and near-plane rule as [`CpuRenderer`]), uploaded as
+//!   pixel positions, and every view of a solve is drawn into one layer of a texture array in
+//!   a single submission; the masks come back and the outline samples are taken from them on
+//!   the CPU with [`outline_samples`], so the solver's gradient is the CPU's code on the
+//!   GPU's mask.
+//! - **Exploration** ([`SilhouetteRenderer::disagreement_many`]): each joint sample's coarse
+//!   robot is drawn once per camera candidate (instancing) into tiles of an atlas layer, a
+//!   compute pass counts per pixel how many candidates cover it and reduces
+//!   `count * (K - count)` to one integer per sample, and only those integers are read back.
+//!   Batches are sized so GPU memory stays bounded whatever the sample count.
+//!
+//! Pixel centres: the CPU samples pixel `(u, v)` at image coordinates `(u, v)`; the GPU samples
+//! framebuffer pixel centres at `+0.5`, so positions are shifted by half a pixel on the way
+//! in. The rasteriser's fill rule and fixed-point snapping differ from the CPU's inclusive
+//! edge test only for pixel centres within about 1/256 px of an edge.
+//!
+//! [`CpuRenderer`]: crate::render::CpuRenderer
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, Weak};
+
+use nalgebra::Isometry3;
+use rayon::prelude::*;
+use wgpu::util::DeviceExt;
+
+use crate::camera::Camera;
+use crate::mask::Mask;
+use crate::mesh::TriMesh;
+use crate::render::{
+    outline_samples, project_vertices, PosedRobot, Silhouette, SilhouetteRenderer,
+};
+
+/// GPU memory one exploration batch may use for its atlas layers, bytes.
+const EXPLORE_BATCH_BYTES: u64 = 256 << 20;
+/// Threads per workgroup of the variance reduction.
+const REDUCE_WORKGROUP: u32 = 256;
+
+/// Which adapters a caller accepts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterPolicy {
+    /// Hardware adapters only (discrete, integrated or virtual GPUs): what `auto` wants.
+    HardwareOnly,
+    /// Any adapter, software rasterisers (lavapipe, llvmpipe) included, hardware first.
+    Any,
+}
+
+/// What a chosen adapter is, for logs and the README's figures.
+#[derive(Clone, Debug)]
+pub struct AdapterSummary {
+    /// Adapter name as the driver reports it.
+    pub name: String,
+    /// Backend (Vulkan, GL…).
+    pub backend: String,
+    /// Discrete / integrated / virtual GPU or CPU.
+    pub device_type: String,
+    /// Driver name and version.
+    pub driver: String,
+    /// True for a software rasteriser.
+    pub software: bool,
+}
+
+impl std::fmt::Display for AdapterSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({}, {}, driver {})",
+            self.name, self.backend, self.device_type, self.driver
+        )
+    }
+}
+
+/// A view's projected vertices (pixels) and camera-frame points, as the outline sampler
+/// takes them.
+type Projected = (Vec<[f64; 2]>, Vec<nalgebra::Point3<f64>>);
+
+/// Index buffer of one mesh topology, cached while the topology lives.
+struct CachedMesh {
+    topology: Weak<TriMesh>,
+    indices: wgpu::Buffer,
+    count: u32,
+}
+
+/// Reusable render target and readback buffer of one size.
+struct Targets {
+    width: u32,
+    height: u32,
+    layers: u32,
+    texture: wgpu::Texture,
+    readback: wgpu::Buffer,
+}
+
+/// Silhouettes and exploration scores on a wgpu device.
+pub struct WgpuRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    adapter: AdapterSummary,
+    max_layers: u32,
+    max_dimension: u32,
+    raster: wgpu::RenderPipeline,
+    raster_layout: wgpu::BindGroupLayout,
+    tiles: wgpu::RenderPipeline,
+    tiles_layout: wgpu::BindGroupLayout,
+    reduce: wgpu::ComputePipeline,
+    reduce_layout: wgpu::BindGroupLayout,
+    meshes: Mutex<HashMap<usize, CachedMesh>>,
+    targets: Mutex<Vec<Targets>>,
+}
+
+const RASTER_WGSL: &str = r#"
+struct Frame { size: vec2<f32>, pad: vec2<f32> };
+@group(0) @binding(0) var<uniform> frame: Frame;
+// Projected vertices: image x, y, and 1 when in front of the near plane (0 otherwise).
+@group(0) @binding(1) var<storage, read> pixels: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> indices: array<u32>;
+
+struct Out {
+    @builtin(position) position: vec4<f32>,
+    @location(0) @interpolate(flat) a: vec2<f32>,
+    @location(1) @interpolate(flat) b: vec2<f32>,
+    @location(2) @interpolate(flat) c: vec2<f32>,
+};
+
+// Half-pixel shift: image coordinates put pixel centres on integers, framebuffers at +0.5.
+fn to_clip(p: vec2<f32>) -> vec4<f32> {
+    return vec4<f32>((p.x + 0.5) / frame.size.x * 2.0 - 1.0,
+                     1.0 - (p.y + 0.5) / frame.size.y * 2.0, 0.0, 1.0);
+}
+
+@vertex
+fn vs(@builtin(vertex_index) i: u32) -> Out {
+    let t = i / 3u;
+    let pa = pixels[indices[3u * t]];
+    let pb = pixels[indices[3u * t + 1u]];
+    let pc = pixels[indices[3u * t + 2u]];
+    var out: Out;
+    out.a = pa.xy;
+    out.b = pb.xy;
+    out.c = pc.xy;
+    if (pa.z * pb.z * pc.z == 0.0) {
+        // A vertex behind the near plane: the CPU drops the triangle, so draw nothing.
+        out.position = vec4<f32>(2.0, 2.0, 0.0, 1.0);
+        return out;
+    }
+    // Grow the triangle about its incentre so every edge moves out by EPS px (up to 2 px of
+    // growth for slivers): the rasteriser's snapped coverage is then a superset of the exact
+    // one, which the fragment stage trims back to the CPU's rule.
+    let la = length(pb.xy - pc.xy);
+    let lb = length(pc.xy - pa.xy);
+    let lc = length(pa.xy - pb.xy);
+    let perimeter = la + lb + lc;
+    var p = pa.xy;
+    if (i % 3u == 1u) { p = pb.xy; } else if (i % 3u == 2u) { p = pc.xy; }
+    if (perimeter > 0.0) {
+        let incentre = (pa.xy * la + pb.xy * lb + pc.xy * lc) / perimeter;
+        let cross = abs((pb.x - pa.x) * (pc.y - pa.y) - (pb.y - pa.y) * (pc.x - pa.x));
+        let inradius = cross / perimeter;
+        let reach = max(max(length(pa.xy - incentre), length(pb.xy - incentre)),
+                        length(pc.xy - incentre));
+        let eps = 1.0 / 32.0;
+        var grow = 2.0 / max(reach, 1e-6);
+        if (inradius > 0.0) { grow = min(eps / inradius, grow); }
+        p = incentre + (p - incentre) * (1.0 + grow);
+    }
+    out.position = to_clip(p);
+    return out;
+}
+
+@fragment
+fn fs(in: Out) -> @location(0) vec4<f32> {
+    // The CPU's test: the pixel centre lies inside or on all three edges.
+    let x = in.position.xy - vec2<f32>(0.5, 0.5);
+    let area = (in.b.x - in.a.x) * (in.c.y - in.a.y) - (in.b.y - in.a.y) * (in.c.x - in.a.x);
+    if (area == 0.0) {
+        discard;
+    }
+    let s = sign(area);
+    let e0 = s * ((in.b.x - in.a.x) * (x.y - in.a.y) - (in.b.y - in.a.y) * (x.x - in.a.x));
+    let e1 = s * ((in.c.x - in.b.x) * (x.y - in.b.y) - (in.c.y - in.b.y) * (x.x - in.b.x));
+    let e2 = s * ((in.a.x - in.c.x) * (x.y - in.c.y) - (in.a.y - in.c.y) * (x.x - in.c.x));
+    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) {
+        discard;
+    }
+    return vec4<f32>(1.0, 0.0, 0.0, 1.0);
+}
+"#;
+
+const TILES_WGSL: &str = r#"
+struct Params {
+    intrinsics: vec4<f32>,   // fx fy cx cy
+    tile: vec2<f32>,         // tile width, height
+    atlas: vec2<f32>,        // atlas width, height
+    columns: u32,
+    candidates: u32,
+    near: f32,
+    pad: u32,
+};
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> camera_from_base: array<mat4x4<f32>>;
+
+struct Out {
+    @builtin(position) position: vec4<f32>,
+    @location(0) @interpolate(flat) origin: vec2<f32>,
+};
+
+@vertex
+fn vs(@location(0) base: vec3<f32>, @builtin(instance_index) k: u32) -> Out {
+    let p = camera_from_base[k] * vec4<f32>(base, 1.0);
+    let origin = vec2<f32>(f32(k % params.columns) * params.tile.x,
+                           f32(k / params.columns) * params.tile.y);
+    var out: Out;
+    out.origin = origin;
+    if (p.z <= params.near) {
+        // Behind the near plane: outside the clip volume (the CPU drops such triangles).
+        out.position = vec4<f32>(0.0, 0.0, -1.0, 1.0);
+        return out;
+    }
+    let pixel = vec2<f32>(params.intrinsics.x * p.x / p.z + params.intrinsics.z,
+                          params.intrinsics.y * p.y / p.z + params.intrinsics.w);
+    let at = origin + pixel;
+    out.position = vec4<f32>((at.x + 0.5) / params.atlas.x * 2.0 - 1.0,
+                             1.0 - (at.y + 0.5) / params.atlas.y * 2.0, 0.0, 1.0);
+    return out;
+}
+
+@fragment
+fn fs(in: Out) -> @location(0) vec4<f32> {
+    // Keep each candidate inside its own tile.
+    let local = in.position.xy - in.origin;
+    if (local.x < 0.0 || local.y < 0.0 || local.x >= params.tile.x || local.y >= params.tile.y) {
+        discard;
+    }
+    return vec4<f32>(1.0, 0.0, 0.0, 1.0);
+}
+"#;
+
+const REDUCE_WGSL: &str = r#"
+struct Params {
+    intrinsics: vec4<f32>,
+    tile: vec2<f32>,
+    atlas: vec2<f32>,
+    columns: u32,
+    candidates: u32,
+    near: f32,
+    pad: u32,
+};
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var atlas: texture_2d_array<f32>;
+@group(0) @binding(2) var<storage, read_write> scores: array<atomic<u32>>;
+
+var<workgroup> partial: atomic<u32>;
+
+@compute @workgroup_size(256)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>,
+        @builtin(local_invocation_index) lid: u32) {
+    if (lid == 0u) {
+        atomicStore(&partial, 0u);
+    }
+    workgroupBarrier();
+    let tw = u32(params.tile.x);
+    let th = u32(params.tile.y);
+    let layer = gid.y;
+    if (gid.x < tw * th) {
+        let u = gid.x % tw;
+        let v = gid.x / tw;
+        var count = 0u;
+        for (var k = 0u; k < params.candidates; k = k + 1u) {
+            let at = vec2<u32>((k % params.columns) * tw + u, (k / params.columns) * th + v);
+            if (textureLoad(atlas, at, layer, 0).r > 0.5) {
+                count = count + 1u;
+            }
+        }
+        let value = count * (params.candidates - count);
+        if (value > 0u) {
+            atomicAdd(&partial, value);
+        }
+    }
+    workgroupBarrier();
+    if (lid == 0u) {
+        let total = atomicLoad(&partial);
+        if (total > 0u) {
+            atomicAdd(&scores[layer], total);
+        }
+    }
+}
+"#;
+
+/// `Params` of the tile and reduction shaders (std140-compatible layout, 48 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TileParams {
+    intrinsics: [f32; 4],
+    tile: [f32; 2],
+    atlas: [f32; 2],
+    columns: u32,
+    candidates: u32,
+    near: f32,
+    pad: u32,
+}
+
+fn type_name(t: wgpu::DeviceType) -> &'static str {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => "discrete GPU",
+        wgpu::DeviceType::IntegratedGpu => "integrated GPU",
+        wgpu::DeviceType::VirtualGpu => "virtual GPU",
+        wgpu::DeviceType::Cpu => "software (CPU)",
+        wgpu::DeviceType::Other => "other",
+    }
+}
+
+fn rank(t: wgpu::DeviceType) -> u8 {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 3,
+        wgpu::DeviceType::Cpu => 4,
+    }
+}
+
+impl WgpuRenderer {
+    /// Opens the best adapter `policy` allows (discrete before integrated before software,
+    /// Vulkan before GL), or says why none fits. `WGPU_BACKEND` (`vulkan`, `gl`) narrows the
+    /// backends, as in wgpu's own tools.
+    pub fn new(policy: AdapterPolicy) -> Result<WgpuRenderer, String> {
+        // Vulkan first; GL (EGL) only when Vulkan has nothing, since probing EGL prints
+        // display-server noise on headless machines.
+        let tries = match wgpu::Backends::from_env() {
+            Some(b) => vec![b],
+            None => vec![wgpu::Backends::VULKAN, wgpu::Backends::GL],
+        };
+        let mut adapters = Vec::new();
+        for backends in tries {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            desc.backends = backends;
+            let instance = wgpu::Instance::new(desc);
+            adapters = pollster::block_on(instance.enumerate_adapters(backends));
+            let fits = adapters.iter().any(|a| {
+                policy == AdapterPolicy::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
+            });
+            if fits {
+                break;
+            }
+        }
+        adapters.sort_by_key(|a| {
+            let info = a.get_info();
+            (
+                rank(info.device_type),
+                info.backend != wgpu::Backend::Vulkan,
+            )
+        });
+        let seen: Vec<String> = adapters
+            .iter()
+            .map(|a| {
+                let i = a.get_info();
+                format!("{} ({:?}, {})", i.name, i.backend, type_name(i.device_type))
+            })
+            .collect();
+        let adapter = adapters
+            .into_iter()
+            .find(|a| {
+                policy == AdapterPolicy::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
+            })
+            .ok_or_else(|| {
+                if seen.is_empty() {
+                    "no wgpu adapter found (no Vulkan or GL driver; install mesa-vulkan-drivers for a software one)".to_string()
+                } else {
+                    format!(
+                        "no hardware GPU adapter (found only: {}); use --renderer wgpu to accept a software one",
+                        seen.join(", ")
+                    )
+                }
+            })?;
+        let info = adapter.get_info();
+        let summary = AdapterSummary {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: type_name(info.device_type).to_string(),
+            driver: format!("{} {}", info.driver, info.driver_info)
+                .trim()
+                .to_string(),
+            software: info.device_type == wgpu::DeviceType::Cpu,
+        };
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("easyhec"),
+            required_limits: wgpu::Limits {
+                max_texture_dimension_2d: limits.max_texture_dimension_2d,
+                max_texture_array_layers: limits.max_texture_array_layers,
+                max_buffer_size: limits.max_buffer_size,
+                max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
+                ..wgpu::Limits::downlevel_defaults()
+            },
+            ..Default::default()
+        }))
+        .map_err(|e| format!("wgpu device on {summary}: {e}"))?;
+        Ok(Self::build(device, queue, summary, &limits))
+    }
+
+    fn build(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        adapter: AdapterSummary,
+        limits: &wgpu::Limits,
+    ) -> WgpuRenderer {
+        let uniform = |binding, visibility| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let storage = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::VERTEX,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let target = [Some(wgpu::ColorTargetState {
+            format: wgpu::TextureFormat::R8Unorm,
+            blend: None,
+            write_mask: wgpu::ColorWrites::RED,
+        })];
+        let primitive = wgpu::PrimitiveState {
+            topology: wgpu::PrimitiveTopology::TriangleList,
+            cull_mode: None,
+            ..Default::default()
+        };
+
+        let raster_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("raster"),
+            entries: &[
+                uniform(0, wgpu::ShaderStages::VERTEX),
+                storage(1),
+                storage(2),
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("raster"),
+            source: wgpu::ShaderSource::Wgsl(RASTER_WGSL.into()),
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("raster"),
+            bind_group_layouts: &[Some(&raster_layout)],
+            immediate_size: 0,
+        });
+        let raster = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("raster"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive,
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &target,
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+
+        let tiles_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("tiles"),
+            entries: &[
+                uniform(0, wgpu::ShaderStages::VERTEX_FRAGMENT),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::VERTEX,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("tiles"),
+            source: wgpu::ShaderSource::Wgsl(TILES_WGSL.into()),
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("tiles"),
+            bind_group_layouts: &[Some(&tiles_layout)],
+            immediate_size: 0,
+        });
+        let tiles = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("tiles"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs"),
+                compilation_options: Default::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: 12,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+                })],
+            },
+            primitive,
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs"),
+                compilation_options: Default::default(),
+                targets: &target,
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+
+        let reduce_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("reduce"),
+            entries: &[
+                uniform(0, wgpu::ShaderStages::COMPUTE),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("reduce"),
+            source: wgpu::ShaderSource::Wgsl(REDUCE_WGSL.into()),
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("reduce"),
+            bind_group_layouts: &[Some(&reduce_layout)],
+            immediate_size: 0,
+        });
+        let reduce = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("reduce"),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        WgpuRenderer {
+            device,
+            queue,
+            adapter,
+            max_layers: limits.max_texture_array_layers.max(1),
+            max_dimension: limits.max_texture_dimension_2d.max(1),
+            raster,
+            raster_layout,
+            tiles,
+            tiles_layout,
+            reduce,
+            reduce_layout,
+            meshes: Mutex::new(HashMap::new()),
+            targets: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The adapter this renderer runs on.
+    pub fn adapter(&self) -> &AdapterSummary {
+        &self.adapter
+    }
+
+    /// The index buffer of `topology`, uploaded once while the topology lives.
+    fn mesh(&self, topology: &Arc<TriMesh>) -> (wgpu::Buffer, u32) {
+        let key = Arc::as_ptr(topology) as usize;
+        let mut cache = self.meshes.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = cache.get(&key) {
+            if c.topology
+                .upgrade()
+                .is_some_and(|t| Arc::ptr_eq(&t, topology))
+            {
+                return (c.indices.clone(), c.count);
+            }
+        }
+        if cache.len() >= 64 {
+            cache.retain(|_, c| c.topology.strong_count() > 0);
+        }
+        let flat: Vec<u32> = topology.triangles.iter().flatten().copied().collect();
+        let indices = self.index_buffer(&flat);
+        cache.insert(
+            key,
+            CachedMesh {
+                topology: Arc::downgrade(topology),
+                indices: indices.clone(),
+                count: flat.len() as u32,
+            },
+        );
+        (indices, flat.len() as u32)
+    }
+
+    fn index_buffer(&self, flat: &[u32]) -> wgpu::Buffer {
+        // wgpu refuses empty buffers; a lone zero index is never drawn.
+        let data: &[u32] = if flat.is_empty() { &[0] } else { flat };
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("indices"),
+                contents: bytemuck::cast_slice(data),
+                usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::STORAGE,
+            })
+    }
+
+    /// A render target and readback buffer for `layers` masks of `width x height`.
+    fn take_targets(&self, width: u32, height: u32, layers: u32) -> Targets {
+        let mut pool = self.targets.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = pool
+            .iter()
+            .position(|t| t.width == width && t.height == height && t.layers == layers)
+        {
+            return pool.swap_remove(i);
+        }
+        drop(pool);
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("masks"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R8Unorm,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::COPY_SRC
+                | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: u64::from(padded_row(width)) * u64::from(height) * u64::from(layers),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        Targets {
+            width,
+            height,
+            layers,
+            texture,
+            readback,
+        }
+    }
+
+    fn give_back(&self, targets: Targets) {
+        let mut pool = self.targets.lock().unwrap_or_else(|e| e.into_inner());
+        if pool.len() >= 8 {
+            pool.remove(0);
+        }
+        pool.push(targets);
+    }
+
+    /// Maps `buffer` for reading and waits for the GPU.
+    fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Vec<u8> {
+        let slice = buffer.slice(..size);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        loop {
+            let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
+            match rx.try_recv() {
+                Ok(Ok(())) => break,
+                Ok(Err(e)) => panic!("wgpu readback failed: {e}"),
+                Err(std::sync::mpsc::TryRecvError::Empty) => continue,
+                Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                    panic!("wgpu readback callback dropped")
+                }
+            }
+        }
+        let out = slice
+            .get_mapped_range()
+            .map(|v| v.to_vec())
+            .unwrap_or_default();
+        buffer.unmap();
+        out
+    }
+
+    /// Masks of every robot at one camera pose, in one submission.
+    fn masks(
+        &self,
+        robots: &[&PosedRobot],
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        with_points: bool,
+    ) -> Vec<(Mask, Projected)> {
+        let (w, h) = (camera.width, camera.height);
+        let mut out = Vec::with_capacity(robots.len());
+        let chunk = (self.max_layers as usize).clamp(1, 64);
+        for group in robots.chunks(chunk) {
+            let projected: Vec<Projected> = group
+                .iter()
+                .map(|r| project_vertices(&r.vertices_base, camera, camera_from_base))
+                .collect();
+            let layers = group.len() as u32;
+            let targets = self.take_targets(w, h, layers);
+            let frame = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("frame"),
+                    contents: bytemuck::cast_slice(&[w as f32, h as f32, 0.0, 0.0]),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            let mut keep = Vec::new();
+            for (layer, (robot, (pixels, _))) in group.iter().zip(&projected).enumerate() {
+                let positions: Vec<[f32; 4]> = pixels
+                    .iter()
+                    .map(|p| {
+                        if p[0].is_nan() {
+                            [0.0; 4]
+                        } else {
+                            [p[0] as f32, p[1] as f32, 1.0, 0.0]
+                        }
+                    })
+                    .collect();
+                let (indices, count) = self.mesh(&robot.topology);
+                let vertices = self
+                    .device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("pixels"),
+                        contents: if positions.is_empty() {
+                            bytemuck::cast_slice(&[0f32; 4])
+                        } else {
+                            bytemuck::cast_slice(&positions)
+                        },
+                        usage: wgpu::BufferUsages::STORAGE,
+                    });
+                let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("raster"),
+                    layout: &self.raster_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: frame.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: vertices.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: indices.as_entire_binding(),
+                        },
+                    ],
+                });
+                let view = targets.texture.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: layer as u32,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                });
+                {
+                    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                        label: Some("silhouette"),
+                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                            view: &view,
+                            depth_slice: None,
+                            resolve_target: None,
+                            ops: wgpu::Operations {
+                                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                                store: wgpu::StoreOp::Store,
+                            },
+                        })],
+                        depth_stencil_attachment: None,
+                        timestamp_writes: None,
+                        occlusion_query_set: None,
+                        multiview_mask: None,
+                    });
+                    if count > 0 {
+                        pass.set_pipeline(&self.raster);
+                        pass.set_bind_group(0, &bind, &[]);
+                        pass.draw(0..count, 0..1);
+                    }
+                }
+                keep.push((vertices, indices, view, bind));
+            }
+            let row = padded_row(w);
+            encoder.copy_texture_to_buffer(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &targets.texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &targets.readback,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(row),
+                        rows_per_image: Some(h),
+                    },
+                },
+                wgpu::Extent3d {
+                    width: w,
+                    height: h,
+                    depth_or_array_layers: layers,
+                },
+            );
+            self.queue.submit([encoder.finish()]);
+            let bytes = self.read(
+                &targets.readback,
+                u64::from(row) * u64::from(h) * u64::from(layers),
+            );
+            drop(keep);
+            self.give_back(targets);
+            let (wu, hu, ru) = (w as usize, h as usize, row as usize);
+            for (layer, (pixels, points)) in projected.into_iter().enumerate() {
+                let mut mask = Mask::new(w, h);
+                let base = layer * ru * hu;
+                for v in 0..hu {
+                    let src = &bytes[base + v * ru..base + v * ru + wu];
+                    for (d, &s) in mask.data[v * wu..(v + 1) * wu].iter_mut().zip(src) {
+                        *d = u8::from(s > 127);
+                    }
+                }
+                if with_points {
+                    out.push((mask, (pixels, points)));
+                } else {
+                    out.push((mask, (Vec::new(), Vec::new())));
+                }
+            }
+        }
+        out
+    }
+
+    /// Per-sample disagreement of `candidates` over `pool` (see
+    /// [`crate::explore::disagreement`]), on the GPU, in batches.
+    fn disagreement_gpu(
+        &self,
+        camera: &Camera,
+        pool: &[&PosedRobot],
+        candidates: &[Isometry3<f64>],
+    ) -> Vec<f64> {
+        let k = candidates.len() as u32;
+        let (tw, th) = (camera.width, camera.height);
+        let columns = (self.max_dimension / tw.max(1)).clamp(1, k.max(1));
+        let rows = k.div_ceil(columns);
+        let (aw, ah) = (columns * tw, rows * th);
+        let per_layer = u64::from(aw) * u64::from(ah);
+        let batch = ((EXPLORE_BATCH_BYTES / per_layer.max(1)) as u32)
+            .clamp(1, self.max_layers.min(256)) as usize;
+        let params = TileParams {
+            intrinsics: [
+                camera.fx as f32,
+                camera.fy as f32,
+                camera.cx as f32,
+                camera.cy as f32,
+            ],
+            tile: [tw as f32, th as f32],
+            atlas: [aw as f32, ah as f32],
+            columns,
+            candidates: k,
+            near: crate::render::NEAR_PLANE_M as f32,
+            pad: 0,
+        };
+        let params = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("tile params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+        let poses: Vec<[f32; 16]> = candidates
+            .iter()
+            .map(|p| {
+                let m = p.to_homogeneous();
+                let mut a = [0f32; 16];
+                // Column-major, as WGSL's mat4x4 expects.
+                for c in 0..4 {
+                    for r in 0..4 {
+                        a[c * 4 + r] = m[(r, c)] as f32;
+                    }
+                }
+                a
+            })
+            .collect();
+        let poses = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("candidates"),
+                contents: bytemuck::cast_slice(&poses),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        let tiles_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("tiles"),
+            layout: &self.tiles_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: poses.as_entire_binding(),
+                },
+            ],
+        });
+        let mut scores = Vec::with_capacity(pool.len());
+        for group in pool.chunks(batch) {
+            let layers = group.len() as u32;
+            // All of the batch's vertices and indices in one buffer each.
+            // One topology for the whole pool (a `CoarseRobot`'s poses): its index buffer is
+            // uploaded once and only vertices travel; otherwise indices go with the batch.
+            let shared = group
+                .iter()
+                .all(|r| Arc::ptr_eq(&r.topology, &group[0].topology));
+            let mut vertices: Vec<[f32; 3]> = Vec::new();
+            let mut indices: Vec<u32> = Vec::new();
+            let mut draws = Vec::with_capacity(group.len());
+            let shared_mesh = shared.then(|| self.mesh(&group[0].topology));
+            for r in group {
+                let v0 = vertices.len() as i32;
+                vertices.extend(
+                    r.vertices_base
+                        .iter()
+                        .map(|p| [p.x as f32, p.y as f32, p.z as f32]),
+                );
+                match &shared_mesh {
+                    Some((_, count)) => draws.push((0..*count, v0)),
+                    None => {
+                        let i0 = indices.len() as u32;
+                        indices.extend(r.topology.triangles.iter().flatten());
+                        draws.push((i0..indices.len() as u32, v0));
+                    }
+                }
+            }
+            if vertices.is_empty() {
+                vertices.push([0.0; 3]);
+            }
+            let vbuf = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("batch vertices"),
+                    contents: bytemuck::cast_slice(&vertices),
+                    usage: wgpu::BufferUsages::VERTEX,
+                });
+            let ibuf = match shared_mesh {
+                Some((buffer, _)) => buffer,
+                None => self.index_buffer(&indices),
+            };
+            let atlas = self.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("atlas"),
+                size: wgpu::Extent3d {
+                    width: aw,
+                    height: ah,
+                    depth_or_array_layers: layers,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::R8Unorm,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            });
+            let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("scores"),
+                size: u64::from(layers) * 4,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("scores readback"),
+                size: u64::from(layers) * 4,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            encoder.clear_buffer(&out, 0, None);
+            for (layer, (range, base)) in draws.iter().enumerate() {
+                let view = atlas.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: layer as u32,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                });
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("candidates"),
+                    color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                        view: &view,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    })],
+                    depth_stencil_attachment: None,
+                    timestamp_writes: None,
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                if !range.is_empty() {
+                    pass.set_pipeline(&self.tiles);
+                    pass.set_bind_group(0, &tiles_bind, &[]);
+                    pass.set_vertex_buffer(0, vbuf.slice(..));
+                    pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(range.clone(), *base, 0..k);
+                }
+            }
+            let atlas_view = atlas.create_view(&wgpu::TextureViewDescriptor {
+                dimension: Some(wgpu::TextureViewDimension::D2Array),
+                ..Default::default()
+            });
+            let reduce_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("reduce"),
+                layout: &self.reduce_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: params.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(&atlas_view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: out.as_entire_binding(),
+                    },
+                ],
+            });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("variance"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.reduce);
+                pass.set_bind_group(0, &reduce_bind, &[]);
+                pass.dispatch_workgroups((tw * th).div_ceil(REDUCE_WORKGROUP), layers, 1);
+            }
+            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, u64::from(layers) * 4);
+            self.queue.submit([encoder.finish()]);
+            let bytes = self.read(&readback, u64::from(layers) * 4);
+            let kk = f64::from(k) * f64::from(k);
+            scores.extend(
+                bytes
+                    .chunks_exact(4)
+                    .map(|b| f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])) / kk),
+            );
+        }
+        scores
+    }
+}
+
+/// Bytes per row of a readback copy: a multiple of 256, as wgpu requires.
+fn padded_row(width: u32) -> u32 {
+    width.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT
+}
+
+impl SilhouetteRenderer for WgpuRenderer {
+    fn name(&self) -> &str {
+        "wgpu"
+    }
+
+    fn render(
+        &self,
+        robot: &PosedRobot,
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Silhouette {
+        self.render_many(&[robot], camera, camera_from_base, boundary_step_px)
+            .pop()
+            .unwrap_or_else(|| Silhouette {
+                mask: Mask::new(camera.width, camera.height),
+                boundary: Vec::new(),
+            })
+    }
+
+    fn render_many(
+        &self,
+        robots: &[&PosedRobot],
+        camera: &Camera,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Vec<Silhouette> {
+        let masks = self.masks(robots, camera, camera_from_base, boundary_step_px.is_some());
+        masks
+            .into_par_iter()
+            .zip(robots.par_iter())
+            .map(|((mask, (pixels, points)), robot)| {
+                let boundary = match boundary_step_px {
+                    Some(step) => outline_samples(&robot.topology, &pixels, &points, &mask, step),
+                    None => Vec::new(),
+                };
+                Silhouette { mask, boundary }
+            })
+            .collect()
+    }
+
+    fn disagreement_many(
+        &self,
+        camera: &Camera,
+        pool: &[&PosedRobot],
+        candidates: &[Isometry3<f64>],
+    ) -> Vec<f64> {
+        if camera.is_distorted() || candidates.is_empty() {
+            return crate::render::cpu_disagreement_many(camera, pool, candidates);
+        }
+        self.disagreement_gpu(camera, pool, candidates)
+    }
+}
