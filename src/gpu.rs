@@ -109,7 +109,13 @@ pub struct WgpuRenderer {
     reduce_layout: wgpu::BindGroupLayout,
     meshes: Mutex<HashMap<usize, CachedMesh>>,
     targets: Mutex<Vec<Targets>>,
+    /// Renders of fewer pixels than this (all views together) run on the CPU.
+    min_pixels: u64,
 }
+
+/// Default of [`WgpuRenderer`]'s CPU hand-off: below about a quarter-resolution 5-view
+/// solve level, a GPU round trip costs more than the CPU rasteriser.
+const DEFAULT_MIN_PIXELS: u64 = 100_000;
 
 const RASTER_WGSL: &str = r#"
 struct Frame { size: vec2<f32>, pad: vec2<f32> };
@@ -585,7 +591,18 @@ impl WgpuRenderer {
             reduce_layout,
             meshes: Mutex::new(HashMap::new()),
             targets: Mutex::new(Vec::new()),
+            min_pixels: std::env::var("EASYHEC_GPU_MIN_PIXELS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(DEFAULT_MIN_PIXELS),
         }
+    }
+
+    /// Sends renders of fewer than `pixels` pixels (all views together) to the CPU renderer
+    /// (0: everything on the GPU, as the parity tests want). `EASYHEC_GPU_MIN_PIXELS` sets the
+    /// initial value.
+    pub fn set_min_pixels(&mut self, pixels: u64) {
+        self.min_pixels = pixels;
     }
 
     /// The adapter this renderer runs on.
@@ -1113,6 +1130,17 @@ impl SilhouetteRenderer for WgpuRenderer {
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Vec<Silhouette> {
+        // Small jobs (coarse pyramid levels, the coarse search) cost less on the CPU than a GPU
+        // round trip; both give the same masks.
+        let pixels = u64::from(camera.width) * u64::from(camera.height) * robots.len() as u64;
+        if pixels < self.min_pixels {
+            return crate::render::CpuRenderer.render_many(
+                robots,
+                camera,
+                camera_from_base,
+                boundary_step_px,
+            );
+        }
         let masks = self.masks(robots, camera, camera_from_base, boundary_step_px.is_some());
         masks
             .into_par_iter()

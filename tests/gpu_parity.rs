@@ -21,7 +21,9 @@ use rand::{Rng, SeedableRng};
 
 fn gpu() -> Option<WgpuRenderer> {
     match WgpuRenderer::new(AdapterPolicy::Any) {
-        Ok(r) => {
+        Ok(mut r) => {
+            // Everything on the GPU, however small.
+            r.set_min_pixels(0);
             eprintln!("wgpu adapter: {}", r.adapter());
             Some(r)
         }
