@@ -373,6 +373,13 @@ pub struct SimHandles {
     pub scene: Option<Arc<SimScene>>,
 }
 
+/// The camera a config builds, with the simulator's true pose and scene when simulated.
+type BuiltCamera = (
+    Arc<dyn CameraDevice>,
+    Option<Isometry3<f64>>,
+    Option<Arc<SimScene>>,
+);
+
 /// A built cell.
 pub struct Cell {
     /// The parsed config.
@@ -551,11 +558,7 @@ impl Cell {
             ArmConfig::Feetech(t) => (servo_arm(Family::Feetech, t, &robot, path)?, None),
             ArmConfig::Piper { .. } => (piper_arm(&config.arm, &robot, path)?, None),
         };
-        let (camera, truth, sim_scene): (
-            Arc<dyn CameraDevice>,
-            Option<Isometry3<f64>>,
-            Option<Arc<SimScene>>,
-        ) = match &config.camera {
+        let (camera, truth, sim_scene): BuiltCamera = match &config.camera {
             CameraConfig::Sim {
                 truth,
                 scene,
