@@ -651,3 +651,31 @@ fn sigkill_mid_run_leaves_an_interrupted_run_that_resolves_offline() {
         .unwrap();
     assert_eq!(rec["state"], "interrupted", "{rec}");
 }
+
+#[test]
+fn scheduled_checks_run_while_the_arm_is_idle() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |c| c.daemon.check_interval_s = Some(1.0));
+    let d = start(&config, &dir.path().join("data"));
+    let base = d.base.clone();
+    let (_, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
+    let id = body["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_final(&base, &id)["state"], "succeeded");
+    let t = Instant::now();
+    loop {
+        let (_, checks) = call("GET", &format!("{base}/api/v1/checks"), None);
+        let list = checks["checks"].as_array().unwrap();
+        if let Some(c) = list.iter().find(|c| c["trigger"] == "schedule") {
+            assert_eq!(c["calibration_id"].as_str(), Some(id.as_str()));
+            assert_eq!(c["stale"], false, "{c}");
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "no scheduled check: {checks}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (_, active) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(active["last_check"]["trigger"], "schedule");
+}
