@@ -5,6 +5,7 @@
 //! can re-solve it offline.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
@@ -270,6 +271,52 @@ pub struct PlannedPose {
 /// Asked before each move with the planned pose; `false` ends the calibration.
 pub type ConfirmMove = Arc<dyn Fn(&PlannedPose) -> bool + Send + Sync>;
 
+/// What the loop reports as it goes, so a caller (the daemon) can show live progress
+/// without reading the run directory back.
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum Progress {
+    /// A view was captured and recorded (`views/NNN.*` and `run.json` are on disk).
+    ViewCaptured {
+        /// Index of the view in the run.
+        index: usize,
+        /// Reported joints at capture.
+        joints: Vec<f64>,
+    },
+    /// A round was solved (after `rounds.json` was written).
+    Round {
+        /// 0-based round.
+        round: usize,
+        /// Views solved from.
+        views: usize,
+        /// Mask loss at the estimate.
+        loss: f64,
+        /// Mean mask IoU at the estimate.
+        mean_iou: f64,
+        /// The estimate, row-major 4x4.
+        camera_from_base: [[f64; 4]; 4],
+        /// 1-sigma uncertainty of the estimate, when the fit gives one.
+        uncertainty: Option<UncertaintyEntry>,
+    },
+    /// Planning for the next view finished: the candidates' disagreement at the best pose.
+    Planned {
+        /// The round whose estimate was planned from.
+        round: usize,
+        /// Best variance (scoring pixels), when a pose showed the robot.
+        best_variance: Option<f64>,
+    },
+    /// The arm is about to move to the pose of the next view.
+    Moving {
+        /// Index the view will get.
+        view: usize,
+        /// Target joints.
+        joints: Vec<f64>,
+    },
+}
+
+/// Receives [`Progress`] events; called on the loop's thread, so keep it quick.
+pub type ProgressSink = Arc<dyn Fn(&Progress) + Send + Sync>;
+
 /// How to run the loop.
 #[derive(Clone, Default)]
 pub struct RunOptions {
@@ -279,6 +326,40 @@ pub struct RunOptions {
     pub confirm: Option<ConfirmMove>,
     /// Draw progress bars on stderr.
     pub progress: bool,
+    /// Per-view and per-round events (the daemon's live status).
+    pub on_progress: Option<ProgressSink>,
+    /// Set to end the calibration: checked between rounds and before each move, and watched
+    /// during a move, which is then stopped (`Arm::stop`). The outcome is `cancelled`.
+    pub cancel: Option<Arc<AtomicBool>>,
+    /// Starting pose instead of `[calibration] initial_guess` (a recalibration warm-started
+    /// from the previous result).
+    pub initial_guess: Option<Isometry3<f64>>,
+    /// `[calibration] max_views` for this run only (at least 1).
+    pub max_views: Option<usize>,
+}
+
+impl RunOptions {
+    fn emit(&self, p: Progress) {
+        if let Some(sink) = &self.on_progress {
+            sink(&p);
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(Ordering::SeqCst))
+    }
+
+    /// Resolves once the cancel flag is set (never without one).
+    async fn wait_cancelled(&self) {
+        loop {
+            if self.cancelled() {
+                return;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        }
+    }
 }
 
 /// What a calibration produced.
@@ -294,6 +375,8 @@ pub struct Outcome {
     pub planned: Vec<PlannedPose>,
     /// Run directory.
     pub run_dir: PathBuf,
+    /// Ended by [`RunOptions::cancel`] (the result covers the views taken until then).
+    pub cancelled: bool,
 }
 
 /// Writes the run directory incrementally.
@@ -747,7 +830,19 @@ fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
 /// Runs the loop on `cell`, recording into `out`.
 pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Outcome> {
     let started = Instant::now();
-    let s = &cell.config.calibration;
+    let mut settings = cell.config.calibration.clone();
+    if let Some(m) = opts.max_views {
+        if m == 0 {
+            return Err(Error::input(
+                &cell.config_path,
+                "calibration.max_views",
+                "a run needs at least 1 view",
+            ));
+        }
+        settings.max_views = m;
+        settings.min_views = settings.min_views.min(m);
+    }
+    let s = &settings;
     let camera = Camera::from_intrinsics(cell.camera.intrinsics());
     let speed = s.speed_rad_s;
     let cap = cell.checker.speed_cap_rad_s();
@@ -776,12 +871,13 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             .collect(),
     };
     let camera_entry = CameraEntry::of(&camera);
-    let guess = match &s.initial_guess {
-        Some(g) => Some(
+    let guess = match (&opts.initial_guess, &s.initial_guess) {
+        (Some(g), _) => Some(*g),
+        (None, Some(g)) => Some(
             g.camera_from_base()
                 .map_err(|m| Error::input(&cell.config_path, "calibration.initial_guess", m))?,
         ),
-        None => None,
+        (None, None) => None,
     };
     let mut rec = Recorder::create(out, robot_entry, camera_entry, guess)?;
     let pb = progress_bar(opts, s.max_views);
@@ -792,6 +888,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
 
     let mut taken = Vec::new();
     let mut views = vec![capture(cell, &camera, &mut rec, &mut taken).await?];
+    emit_view(opts, &taken);
     pb.set_position(1);
     let t = Instant::now();
     let mut report = match guess {
@@ -817,13 +914,20 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         events: Vec::new(),
     }];
     rec.write_rounds(&rounds)?;
+    emit_round(opts, &rounds, &report);
     let safe_arm = SafeArm::new(cell.arm.clone());
     let mut previous_best: Option<f64> = None;
     let mut failures = 0;
     let mut planned = Vec::new();
     let stop_reason;
+    let mut cancelled = false;
     loop {
         let round = rounds.len() - 1;
+        if opts.cancelled() {
+            cancelled = true;
+            stop_reason = format!("cancelled after {} views", views.len());
+            break;
+        }
         if views.len() >= s.max_views && !opts.dry_run {
             stop_reason = format!("reached the maximum of {} views", s.max_views);
             break;
@@ -833,6 +937,10 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             rank_poses(renderer.as_ref(), cell, &camera, &report, &taken, s, round);
         let best = ranked.first().and_then(|r| r.variance);
         explore_s += t.elapsed().as_secs_f64();
+        opts.emit(Progress::Planned {
+            round,
+            best_variance: best,
+        });
         let last = rounds.last_mut().expect("round 0 exists");
         last.best_variance = best;
         last.events.push(format!(
@@ -892,17 +1000,45 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
                 break;
             }
         }
+        if opts.cancelled() {
+            cancelled = true;
+            stop_reason = format!("cancelled after {} views", views.len());
+            break;
+        }
         rounds.last_mut().expect("round").next_joints = Some(pose.joints.clone());
         pb.set_message(format!("moving to view {}", views.len() + 1));
+        opts.emit(Progress::Moving {
+            view: views.len(),
+            joints: pose.joints.clone(),
+        });
         let t = Instant::now();
         let moved = match safe_arm.execute(&mv).await {
-            Ok(motion) => motion
-                .wait()
-                .await
-                .map_err(|e| Error::Hardware(e.to_string())),
+            Ok(motion) => {
+                tokio::select! {
+                    r = motion.wait() => r.map_err(|e| Error::Hardware(e.to_string())),
+                    () = opts.wait_cancelled() => {
+                        // Stop first; the motion future is dropped, the arm halts where it is.
+                        let _ = cell.arm.stop().await;
+                        Err(Error::Hardware("move stopped: calibration cancelled".into()))
+                    }
+                }
+            }
             Err(e) => Err(e),
         };
         motion_s += t.elapsed().as_secs_f64();
+        if opts.cancelled() {
+            if moved.is_err() {
+                let _ = cell.arm.stop().await;
+                rounds
+                    .last_mut()
+                    .expect("round")
+                    .events
+                    .push("move stopped: calibration cancelled".into());
+            }
+            cancelled = true;
+            stop_reason = format!("cancelled after {} views", views.len());
+            break;
+        }
         if let Err(e) = moved {
             failures += 1;
             let note = format!("move failed: {e}");
@@ -927,6 +1063,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             continue;
         }
         views.push(capture(cell, &camera, &mut rec, &mut taken).await?);
+        emit_view(opts, &taken);
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;
         let t = Instant::now();
@@ -949,6 +1086,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             events: Vec::new(),
         });
         rec.write_rounds(&rounds)?;
+        emit_round(opts, &rounds, &report);
         pb.set_message(format!(
             "round {} loss {:.5} IoU {:.4} best var {:.1} px change {:.3} deg / {:.2} mm",
             round + 1,
@@ -986,5 +1124,28 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         rounds,
         planned,
         run_dir: rec.dir().to_path_buf(),
+        cancelled,
     })
+}
+
+fn emit_view(opts: &RunOptions, taken: &[Vec<f64>]) {
+    if let Some(joints) = taken.last() {
+        opts.emit(Progress::ViewCaptured {
+            index: taken.len() - 1,
+            joints: joints.clone(),
+        });
+    }
+}
+
+fn emit_round(opts: &RunOptions, rounds: &[RoundRecord], report: &SolveReport) {
+    if let Some(r) = rounds.last() {
+        opts.emit(Progress::Round {
+            round: r.round,
+            views: r.views,
+            loss: r.loss,
+            mean_iou: r.mean_iou,
+            camera_from_base: r.camera_from_base,
+            uncertainty: UncertaintyEntry::of(&report.uncertainty),
+        });
+    }
 }

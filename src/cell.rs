@@ -45,6 +45,9 @@ pub struct CellConfig {
     /// Safety envelope.
     #[serde(default)]
     pub safety: SafetyConfig,
+    /// `easyhec daemon` settings (ignored by the other commands).
+    #[serde(default)]
+    pub daemon: crate::daemon::DaemonSettings,
 }
 
 /// `[robot]`, as in a run's `robot` entry.
@@ -363,9 +366,19 @@ impl CameraConfig {
 pub struct SimHandles {
     /// The simulated arm (its command log).
     pub arm: Option<SimArm>,
-    /// The simulated camera's true pose.
+    /// The simulated camera's true pose when the cell was built.
     pub camera_from_base: Option<Isometry3<f64>>,
+    /// The simulated camera's scene: its true pose now, and a way to bump the camera
+    /// ([`SimScene::set_camera_from_base`]).
+    pub scene: Option<Arc<SimScene>>,
 }
+
+/// The camera a config builds, with the simulator's true pose and scene when simulated.
+type BuiltCamera = (
+    Arc<dyn CameraDevice>,
+    Option<Isometry3<f64>>,
+    Option<Arc<SimScene>>,
+);
 
 /// A built cell.
 pub struct Cell {
@@ -545,8 +558,7 @@ impl Cell {
             ArmConfig::Feetech(t) => (servo_arm(Family::Feetech, t, &robot, path)?, None),
             ArmConfig::Piper { .. } => (piper_arm(&config.arm, &robot, path)?, None),
         };
-        let (camera, truth): (Arc<dyn CameraDevice>, Option<Isometry3<f64>>) = match &config.camera
-        {
+        let (camera, truth, sim_scene): BuiltCamera = match &config.camera {
             CameraConfig::Sim {
                 truth,
                 scene,
@@ -575,11 +587,16 @@ impl Cell {
                     }
                 };
                 let pose = truth.camera_from_base();
-                let scene =
-                    SimScene::new(robot.clone(), config.camera.camera(), pose, scene.clone());
+                let scene = Arc::new(SimScene::new(
+                    robot.clone(),
+                    config.camera.camera(),
+                    pose,
+                    scene.clone(),
+                ));
                 (
-                    Arc::new(SimCamera::watching(source, Arc::new(scene))),
+                    Arc::new(SimCamera::watching(source, scene.clone())),
                     Some(pose),
+                    Some(scene),
                 )
             }
         };
@@ -590,6 +607,7 @@ impl Cell {
             .collect();
         let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
         config.calibration.validate(path)?;
+        config.daemon.validate(path, n)?;
         Ok(Cell {
             segmenter: config.segmenter.build(),
             config,
@@ -601,6 +619,7 @@ impl Cell {
             sim: SimHandles {
                 arm: sim_arm,
                 camera_from_base: truth,
+                scene: sim_scene,
             },
         })
     }

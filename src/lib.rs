@@ -9,6 +9,8 @@
 //! - [`solve`]: Levenberg–Marquardt (default) and Adam (baseline) solvers, uncertainty.
 //! - [`explore`]: consistency-based choice of the next view.
 //! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
+//! - [`calibrate`], [`cell`], [`daemon`]: the closed loop on a configured cell, and the
+//!   long-running service around it (`easyhec daemon`).
 //! - [`synth`], [`interop`], [`overlay`], [`bench`]: synthetic runs, import/export, overlays,
 //!   benchmarks.
 
@@ -17,6 +19,7 @@ pub mod calibrate;
 pub mod camera;
 pub mod cell;
 pub mod collision;
+pub mod daemon;
 pub mod error;
 pub mod explore;
 pub mod geometry;

@@ -45,6 +45,22 @@ enum Command {
     /// Benchmarks (figures for the README).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Serve calibrations of a cell over HTTP (API, web page, bump checks) until stopped.
+    Daemon(DaemonArgs),
+}
+
+#[derive(Args)]
+struct DaemonArgs {
+    /// Cell config (TOML) with an optional [daemon] table.
+    #[arg(long)]
+    config: PathBuf,
+    /// HOST:PORT to listen on (default: [daemon] listen, else 127.0.0.1:8787; port 0 picks
+    /// a free one).
+    #[arg(long)]
+    listen: Option<String>,
+    /// Data folder (default: [daemon] data_dir relative to the config).
+    #[arg(long)]
+    data: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -311,6 +327,7 @@ fn main() -> ExitCode {
         }) => cmd_import(dir, out, urdf, joints, ignore_links),
         Command::Export(a) => cmd_export(a),
         Command::Bench(b) => cmd_bench(b),
+        Command::Daemon(a) => cmd_daemon(a),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -355,6 +372,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
         dry_run: a.dry_run,
         confirm,
         progress: !a.quiet,
+        ..RunOptions::default()
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -444,6 +462,64 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+fn cmd_daemon(a: DaemonArgs) -> anyhow::Result<()> {
+    use easyhec::daemon::{data_dir, resolve_token, serve, Daemon};
+    let cell = easyhec::cell::Cell::open(&a.config)?;
+    let token = resolve_token(&cell)?;
+    let listen = a
+        .listen
+        .clone()
+        .unwrap_or_else(|| cell.config.daemon.listen.clone());
+    let data = data_dir(&cell, a.data.as_deref());
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("easyhec-http")
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let daemon = Daemon::open(cell, &data, token)?;
+        for id in daemon.recovered() {
+            eprintln!("easyhec daemon: {id} was running when the daemon stopped: marked interrupted (its views are on disk)");
+        }
+        let listener = tokio::net::TcpListener::bind(&listen)
+            .await
+            .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
+        let addr = listener.local_addr().context("reading the bound address")?;
+        // Tests and supervisors read this line for the port.
+        eprintln!(
+            "easyhec daemon listening on http://{addr} (data {})",
+            data.display()
+        );
+        serve(daemon, listener, stop_signal()).await?;
+        eprintln!("easyhec daemon: stopped");
+        anyhow::Ok(())
+    })
+}
+
+/// Resolves on ctrl-c or SIGTERM.
+async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
 }
 
 fn fmt_joints(q: &[f64]) -> String {

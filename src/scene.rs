@@ -6,7 +6,7 @@
 //! Frames are meant to be realistic enough to develop a segmenter on: the robot's white links
 //! sit on a light wall in places, the table's grain has edges, shading varies along links.
 
-use std::sync::Arc;
+use std::sync::{Arc, RwLock};
 
 use easyhec_drivers::Intrinsics;
 use easyhec_mocks::{SceneFrame, SceneRenderer};
@@ -67,7 +67,8 @@ impl Default for SceneSettings {
 pub struct SimScene {
     robot: Arc<RobotModel>,
     camera: Camera,
-    camera_from_base: Isometry3<f64>,
+    /// Behind a lock so tests can bump the camera ([`SimScene::set_camera_from_base`]).
+    camera_from_base: RwLock<Isometry3<f64>>,
     intrinsics: Intrinsics,
     settings: SceneSettings,
 }
@@ -111,7 +112,7 @@ impl SimScene {
         SimScene {
             robot,
             camera,
-            camera_from_base,
+            camera_from_base: RwLock::new(camera_from_base),
             intrinsics,
             settings,
         }
@@ -119,7 +120,19 @@ impl SimScene {
 
     /// The true pose (tests and the final error report only).
     pub fn camera_from_base(&self) -> Isometry3<f64> {
-        self.camera_from_base
+        *self
+            .camera_from_base
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Moves the simulated camera: what a knock against the tripod does. Frames rendered
+    /// afterwards show the cell from `camera_from_base` (bump-detection tests).
+    pub fn set_camera_from_base(&self, camera_from_base: Isometry3<f64>) {
+        *self
+            .camera_from_base
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = camera_from_base;
     }
 
     fn background(&self, ray_base: &Vector3<f64>, eye: &Point3<f64>) -> [f64; 3] {
@@ -169,7 +182,9 @@ impl SimScene {
     fn render_pinhole(&self, q: &[f64]) -> (Vec<[f64; 3]>, crate::mask::Mask) {
         let cam = self.camera.undistorted();
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let base_from_camera = self.camera_from_base.inverse();
+        // One pose for the whole frame, even if a test bumps the camera meanwhile.
+        let camera_from_base = self.camera_from_base();
+        let base_from_camera = camera_from_base.inverse();
         let eye = Point3::from(base_from_camera.translation.vector);
         let rot = base_from_camera.rotation;
         let mut rgb: Vec<[f64; 3]> = Vec::with_capacity(w * h);
@@ -185,7 +200,7 @@ impl SimScene {
         }
         // Robot: z-buffered, flat-shaded, double-sided triangles.
         let posed = self.robot.posed_vertices(q);
-        let in_cam: Vec<Point3<f64>> = posed.iter().map(|p| self.camera_from_base * p).collect();
+        let in_cam: Vec<Point3<f64>> = posed.iter().map(|p| camera_from_base * p).collect();
         let mut depth = vec![f64::INFINITY; w * h];
         let light = Vector3::new(0.35, -0.75, -0.55).normalize();
         let mesh = &self.robot.visual;
@@ -248,7 +263,7 @@ impl SimScene {
         }
         let robot = PosedRobot::new(&self.robot, q);
         let mask = CpuRenderer
-            .render(&robot, &cam, &self.camera_from_base, None)
+            .render(&robot, &cam, &camera_from_base, None)
             .mask;
         (rgb, mask)
     }

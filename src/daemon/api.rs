@@ -1,0 +1,469 @@
+//! The HTTP API (axum). Every `/api/v1` route and `/metrics` need `Authorization: Bearer
+//! TOKEN`; `/`, `/app.js`, `/openapi.json` and `/healthz` are open (the page holds no data
+//! until it has the token; health says only whether the daemon runs). Errors are JSON
+//! `{"error": "…"}`; a start while the arm is leased is 409 with `"running": ID`.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::{Path, Request, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use serde_json::json;
+use tokio::sync::broadcast;
+
+use super::store::State as RunState;
+use super::{bump, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
+use crate::camera::Camera;
+use crate::geometry::from_rows;
+use crate::mask::Mask;
+use crate::overlay::overlay_image;
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::run::RunFile;
+
+/// The web page (embedded; no build step).
+const INDEX_HTML: &str = include_str!("web/index.html");
+/// The page's script.
+const APP_JS: &str = include_str!("web/app.js");
+/// The OpenAPI 3 description of this API.
+const OPENAPI_JSON: &str = include_str!("openapi.json");
+
+type Shared = Arc<Daemon>;
+
+impl IntoResponse for Refusal {
+    fn into_response(self) -> Response {
+        let (status, body) = match self {
+            Refusal::Busy(b) => {
+                let what = match &b {
+                    Busy::Calibration(id) => format!("calibration {id} is running"),
+                    Busy::Check => "a bump check is running".to_string(),
+                };
+                (
+                    StatusCode::CONFLICT,
+                    json!({
+                        "error": format!("{what}: the daemon runs one thing at a time on the arm; wait for it or cancel it"),
+                        "running": b.name(),
+                    }),
+                )
+            }
+            Refusal::ShuttingDown => (
+                StatusCode::SERVICE_UNAVAILABLE,
+                json!({"error": "the daemon is shutting down"}),
+            ),
+            Refusal::NotFound(m) => (StatusCode::NOT_FOUND, json!({ "error": m })),
+            Refusal::Conflict(m) => (StatusCode::CONFLICT, json!({ "error": m })),
+            Refusal::BadRequest(m) => (StatusCode::BAD_REQUEST, json!({ "error": m })),
+            Refusal::Internal(m) => (StatusCode::INTERNAL_SERVER_ERROR, json!({ "error": m })),
+        };
+        (status, Json(body)).into_response()
+    }
+}
+
+/// The whole router.
+pub fn router(daemon: Shared) -> Router {
+    let api = Router::new()
+        .route("/api/v1/calibrations", post(start).get(history))
+        .route("/api/v1/calibrations/{id}", get(status))
+        .route("/api/v1/calibrations/{id}/events", get(events))
+        .route(
+            "/api/v1/calibrations/{id}/views/{n}/overlay.png",
+            get(overlay),
+        )
+        .route("/api/v1/calibrations/{id}/cancel", post(cancel))
+        .route("/api/v1/calibrations/{id}/activate", post(activate))
+        .route("/api/v1/calibration", get(active))
+        .route("/api/v1/checks", post(run_check).get(checks))
+        .route("/metrics", get(metrics))
+        .route_layer(middleware::from_fn_with_state(daemon.clone(), auth));
+    Router::new()
+        .route("/", get(|| async { Html(INDEX_HTML) }))
+        .route(
+            "/app.js",
+            get(|| async {
+                (
+                    [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+                    APP_JS,
+                )
+            }),
+        )
+        .route(
+            "/openapi.json",
+            get(|| async { ([(header::CONTENT_TYPE, "application/json")], OPENAPI_JSON) }),
+        )
+        .route("/healthz", get(healthz))
+        .merge(api)
+        .fallback(|| async {
+            (
+                StatusCode::NOT_FOUND,
+                Json(json!({"error": "no such route: see /openapi.json"})),
+            )
+        })
+        .with_state(daemon)
+}
+
+async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
+    let given = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    match given {
+        Some(t) if d.token_matches(t) => next.run(req).await,
+        _ => {
+            let mut r = (
+                StatusCode::UNAUTHORIZED,
+                Json(json!({
+                    "error": "missing or wrong token: send `Authorization: Bearer TOKEN` with the daemon's token ([daemon] token or EASYHEC_TOKEN)"
+                })),
+            )
+                .into_response();
+            r.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"easyhec\""),
+            );
+            r
+        }
+    }
+}
+
+async fn healthz(State(d): State<Shared>) -> Json<serde_json::Value> {
+    Json(json!({
+        "status": "ok",
+        "busy": d.busy().map(|b| b.name().to_string()),
+    }))
+}
+
+async fn start(State(d): State<Shared>, body: Bytes) -> Result<Response, Refusal> {
+    let opts: StartOptions = if body.iter().all(u8::is_ascii_whitespace) {
+        StartOptions::default()
+    } else {
+        serde_json::from_slice(&body).map_err(|e| {
+            Refusal::BadRequest(format!(
+                "request body: {e} (expected {{\"max_views\": N, \"dry_run\": false}}, both optional)"
+            ))
+        })?
+    };
+    let id = d.start(opts, "api", None)?;
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, format!("/api/v1/calibrations/{id}"))],
+        Json(json!({ "id": id })),
+    )
+        .into_response())
+}
+
+async fn history(State(d): State<Shared>) -> Json<serde_json::Value> {
+    let mut records = d.store().records();
+    // Live records are fresher than the index for the running one.
+    for r in &mut records {
+        if let Some(j) = d.job(&r.id) {
+            *r = j.record();
+        }
+    }
+    records.reverse();
+    let active = d.store().active().map(|a| a.id);
+    Json(json!({ "calibrations": records, "active": active }))
+}
+
+async fn status(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    d.status(&id)
+        .map(|r| Json(r).into_response())
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))
+}
+
+fn sse_event(e: &Event) -> SseEvent {
+    SseEvent::default()
+        .event(e.kind.clone())
+        .json_data(e)
+        .unwrap_or_else(|_| SseEvent::default().comment("unserialisable event"))
+}
+
+async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    // Subscribe before reading the snapshot so no event falls between them.
+    let rx: Option<broadcast::Receiver<Event>> = d.job(&id).map(|j| j.subscribe());
+    let snapshot = d
+        .status(&id)
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let first = Event {
+        kind: "state".into(),
+        view: None,
+        status: snapshot,
+    };
+    let shutdown = d.shutdown_signal();
+    struct St {
+        first: Option<Event>,
+        rx: Option<broadcast::Receiver<Event>>,
+        shutdown: tokio::sync::watch::Receiver<bool>,
+        done: bool,
+    }
+    let init = St {
+        first: Some(first),
+        rx,
+        shutdown,
+        done: false,
+    };
+    let stream = futures_util::stream::unfold(init, |mut st| async move {
+        if st.done {
+            return None;
+        }
+        if let Some(e) = st.first.take() {
+            st.done = e.status.state.is_final() || st.rx.is_none();
+            return Some((Ok::<_, std::convert::Infallible>(sse_event(&e)), st));
+        }
+        let rx = st.rx.as_mut()?;
+        loop {
+            tokio::select! {
+                r = rx.recv() => match r {
+                    Ok(e) => {
+                        st.done = e.kind == "state" && e.status.state.is_final();
+                        return Some((Ok(sse_event(&e)), st));
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                    Err(broadcast::error::RecvError::Closed) => return None,
+                },
+                _ = st.shutdown.changed() => return None,
+            }
+        }
+    });
+    Ok(Sse::new(stream)
+        .keep_alive(KeepAlive::default())
+        .into_response())
+}
+
+async fn overlay(
+    State(d): State<Shared>,
+    Path((id, n)): Path<(String, String)>,
+) -> Result<Response, Refusal> {
+    let n: usize = n
+        .parse()
+        .map_err(|_| Refusal::BadRequest(format!("view {n:?}: use a view index (0, 1, …)")))?;
+    let record = d
+        .status(&id)
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let run_dir = d.store().run_dir(&record);
+    let json = run_dir.join("run.json");
+    let run = RunFile::read(&json)
+        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no views yet")))?;
+    let Some(view) = run.views.get(n).cloned() else {
+        return Err(Refusal::NotFound(format!(
+            "calibration {id} has {} views; view {n} does not exist",
+            run.views.len()
+        )));
+    };
+    let rows = record.camera_from_base.ok_or_else(|| {
+        Refusal::Conflict(format!(
+            "calibration {id} has no estimate yet: retry after its first round"
+        ))
+    })?;
+    let pose = from_rows(&rows).map_err(Refusal::Internal)?;
+    let cell = d.cell().clone();
+    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Refusal> {
+        let camera = Camera::from_intrinsics(cell.camera.intrinsics());
+        let mask_rel = view
+            .mask
+            .ok_or_else(|| Refusal::NotFound(format!("view {n} has no mask")))?;
+        let observed = camera.undistort_mask(&Mask::load(&run_dir.join(mask_rel))?);
+        if view.joints.len() != cell.robot.actuated.len() {
+            return Err(Refusal::Internal(format!(
+                "view {n} has {} joints; the cell's robot has {}",
+                view.joints.len(),
+                cell.robot.actuated.len()
+            )));
+        }
+        let rendered = CpuRenderer
+            .render(
+                &PosedRobot::new(&cell.robot, &view.joints),
+                &camera.undistorted(),
+                &pose,
+                None,
+            )
+            .mask;
+        // The colour frame is in the distorted image: only a pinhole camera's lines up.
+        let background = view
+            .image
+            .filter(|_| !camera.is_distorted())
+            .and_then(|p| image::open(run_dir.join(p)).ok())
+            .map(|i| i.to_rgb8());
+        let img = overlay_image(&rendered, &observed, background.as_ref());
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Png)
+            .map_err(|e| Refusal::Internal(format!("encoding the overlay: {e}")))?;
+        Ok(bytes.into_inner())
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("overlay task: {e}")))??;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        png,
+    )
+        .into_response())
+}
+
+async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let r = d.cancel(&id).await?;
+    Ok((
+        StatusCode::ACCEPTED,
+        Json(json!({ "id": r.id, "state": r.state, "cancelling": true })),
+    )
+        .into_response())
+}
+
+async fn activate(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let a = d.activate(&id)?;
+    Ok(Json(a).into_response())
+}
+
+async fn active(State(d): State<Shared>) -> Result<Response, Refusal> {
+    let a = d.store().active().ok_or_else(|| {
+        Refusal::NotFound(
+            "no active calibration yet: start one with POST /api/v1/calibrations".into(),
+        )
+    })?;
+    let last_check = d
+        .store()
+        .checks()
+        .into_iter()
+        .rev()
+        .find(|c| c.calibration_id == a.id);
+    Ok(Json(json!({
+        "id": a.id,
+        "activated_at": a.activated_at,
+        "stale": a.stale,
+        "stale_since": a.stale_since,
+        "last_check": last_check,
+        "result": a.result,
+    }))
+    .into_response())
+}
+
+async fn run_check(State(d): State<Shared>) -> Result<Response, Refusal> {
+    let c = bump::check(&d, "api").await?;
+    Ok(Json(c).into_response())
+}
+
+async fn checks(State(d): State<Shared>) -> Json<serde_json::Value> {
+    let mut c = d.store().checks();
+    c.reverse();
+    c.truncate(50);
+    Json(json!({ "checks": c }))
+}
+
+async fn metrics(State(d): State<Shared>) -> Response {
+    use std::fmt::Write;
+    let m = &d.metrics;
+    let mut s = String::new();
+    let mut metric = |name: &str, kind: &str, help: &str, lines: &[(String, f64)]| {
+        let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
+        for (labels, v) in lines {
+            let _ = writeln!(s, "{name}{labels} {v}");
+        }
+    };
+    let one = |v: f64| vec![(String::new(), v)];
+    let count = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed) as f64;
+    metric(
+        "easyhec_calibrations_started_total",
+        "counter",
+        "Calibrations started since the daemon started.",
+        &one(count(&m.started)),
+    );
+    let finished: Vec<(String, f64)> = FINISHED_STATES
+        .iter()
+        .zip(&m.finished)
+        .map(|(s, c)| (format!("{{state=\"{}\"}}", s.name()), count(c)))
+        .collect();
+    metric(
+        "easyhec_calibrations_finished_total",
+        "counter",
+        "Calibrations ended since the daemon started, by final state.",
+        &finished,
+    );
+    let running = matches!(d.busy(), Some(Busy::Calibration(_)));
+    metric(
+        "easyhec_calibration_running",
+        "gauge",
+        "1 while a calibration runs.",
+        &one(f64::from(u8::from(running))),
+    );
+    metric(
+        "easyhec_views_captured_total",
+        "counter",
+        "Views captured by calibrations.",
+        &one(count(&m.views)),
+    );
+    let active = d.store().active();
+    metric(
+        "easyhec_active_calibration",
+        "gauge",
+        "1 when a calibration is active.",
+        &one(f64::from(u8::from(active.is_some()))),
+    );
+    metric(
+        "easyhec_calibration_stale",
+        "gauge",
+        "1 when a bump check found the active calibration no longer fits.",
+        &one(f64::from(u8::from(
+            active.as_ref().is_some_and(|a| a.stale),
+        ))),
+    );
+    metric(
+        "easyhec_bump_checks_total",
+        "counter",
+        "Bump checks run.",
+        &one(count(&m.checks)),
+    );
+    metric(
+        "easyhec_bumps_detected_total",
+        "counter",
+        "Bump checks that found the camera moved.",
+        &one(count(&m.bumps)),
+    );
+    metric(
+        "easyhec_bump_check_errors_total",
+        "counter",
+        "Bump checks that failed (capture, motion, segmentation).",
+        &one(count(&m.check_errors)),
+    );
+    if m.checks.load(Ordering::Relaxed) > 0 {
+        metric(
+            "easyhec_last_check_iou",
+            "gauge",
+            "IoU of the last bump check.",
+            &one(f64::from_bits(m.last_iou.load(Ordering::Relaxed))),
+        );
+        metric(
+            "easyhec_last_check_boundary_px",
+            "gauge",
+            "Mean outline distance of the last bump check, pixels.",
+            &one(f64::from_bits(m.last_boundary_px.load(Ordering::Relaxed))),
+        );
+    }
+    let interrupted = d
+        .store()
+        .records()
+        .iter()
+        .filter(|r| r.state == RunState::Interrupted)
+        .count();
+    metric(
+        "easyhec_calibrations_interrupted_in_history",
+        "gauge",
+        "Calibrations in the history that a shutdown or crash interrupted.",
+        &one(interrupted as f64),
+    );
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        s,
+    )
+        .into_response()
+}

@@ -1,0 +1,210 @@
+//! Bump detection: is the active calibration still right? With the arm idle (or after a
+//! checked move to `[daemon] check_pose`), capture one frame, segment it with the cell's
+//! segmenter (the same path the loop uses), render the robot's silhouette under the active
+//! `camera_from_base` at the reported joints, and compare: mask IoU and the mean distance
+//! between the two outlines, both ways, in pixels. Below `bump_min_iou` or above
+//! `bump_max_boundary_px` the calibration is marked stale; with `recalibrate_on_bump` a
+//! recalibration starts, warm-started from the stale pose (a knocked camera moves by
+//! centimetres and degrees, well inside the solver's basin).
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+use easyhec_drivers::ArmStatus;
+use nalgebra::Isometry3;
+
+use super::store::CheckRecord;
+use super::{now, Busy, Daemon, Refusal, StartOptions};
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::mask::{Mask, SignedDistance};
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::safety::SafeArm;
+
+/// Agreement of an observed mask with a rendered one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Agreement {
+    /// Intersection over union.
+    pub iou: f64,
+    /// Mean outline distance, both ways, pixels.
+    pub boundary_px: f64,
+}
+
+/// Mean absolute distance from `from`'s outline crossings to `to`'s boundary, pixels
+/// (`None` when `from` has no outline inside the image).
+fn mean_outline_distance(from: &Mask, to: &SignedDistance) -> Option<f64> {
+    let crossings = from.outline_crossings();
+    let d: Vec<f64> = crossings
+        .iter()
+        .filter_map(|c| to.sample(c[0], c[1]).map(|(v, _)| v.abs()))
+        .collect();
+    (!d.is_empty()).then(|| d.iter().sum::<f64>() / d.len() as f64)
+}
+
+/// IoU and symmetric mean outline distance of two masks of the same image.
+pub fn agreement(observed: &Mask, rendered: &Mask) -> Agreement {
+    let iou = observed.iou(rendered);
+    let (sd_obs, sd_ren) = (SignedDistance::of(observed), SignedDistance::of(rendered));
+    let a = mean_outline_distance(rendered, &sd_obs);
+    let b = mean_outline_distance(observed, &sd_ren);
+    let boundary_px = match (a, b) {
+        (Some(a), Some(b)) => 0.5 * (a + b),
+        // One of them shows no robot at all: as far off as it gets.
+        _ => f64::from(observed.width.max(observed.height)),
+    };
+    Agreement { iou, boundary_px }
+}
+
+/// Runs one bump check under the arm lease. `trigger` is `api` or `schedule`.
+pub async fn check(
+    daemon: &Arc<Daemon>,
+    trigger: &str,
+) -> std::result::Result<CheckRecord, Refusal> {
+    let Some((id, pose)) = daemon.active_pose() else {
+        return Err(Refusal::Conflict(
+            "no active calibration to check: run one first (POST /api/v1/calibrations)".into(),
+        ));
+    };
+    daemon.lease(Busy::Check)?;
+    let measured = measure(daemon, &pose).await;
+    daemon.release(&Busy::Check);
+    let m = &daemon.metrics;
+    m.checks.fetch_add(1, Ordering::Relaxed);
+    let (joints, moved, a) = match measured {
+        Ok(v) => v,
+        Err(e) => {
+            m.check_errors.fetch_add(1, Ordering::Relaxed);
+            eprintln!("easyhec daemon: bump check failed: {e}");
+            return Err(Refusal::Internal(format!("bump check failed: {e}")));
+        }
+    };
+    let s = daemon.settings();
+    let stale = a.iou < s.bump_min_iou || a.boundary_px > s.bump_max_boundary_px;
+    m.last_iou.store(a.iou.to_bits(), Ordering::Relaxed);
+    m.last_boundary_px
+        .store(a.boundary_px.to_bits(), Ordering::Relaxed);
+    let mut record = CheckRecord {
+        at: now(),
+        trigger: trigger.to_string(),
+        calibration_id: id.clone(),
+        joints,
+        moved_to_check_pose: moved,
+        iou: a.iou,
+        boundary_px: a.boundary_px,
+        min_iou: s.bump_min_iou,
+        max_boundary_px: s.bump_max_boundary_px,
+        stale,
+        recalibration: None,
+    };
+    daemon.store().push_check(&record)?;
+    if !stale {
+        return Ok(record);
+    }
+    m.bumps.fetch_add(1, Ordering::Relaxed);
+    eprintln!(
+        "easyhec daemon: bump detected: calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {} px)",
+        a.iou, s.bump_min_iou, a.boundary_px, s.bump_max_boundary_px
+    );
+    daemon.store().mark_stale(&id, &record.at)?;
+    if s.recalibrate_on_bump {
+        match daemon.start(StartOptions::default(), "bump", Some((id.clone(), pose))) {
+            Ok(new_id) => {
+                eprintln!("easyhec daemon: recalibrating as {new_id}, warm-started from {id}");
+                record.recalibration = Some(new_id);
+                daemon.store().update_last_check(&record)?;
+            }
+            Err(e) => eprintln!("easyhec daemon: cannot start the recalibration: {e:?}"),
+        }
+    }
+    Ok(record)
+}
+
+/// Moves to `check_pose` if configured, captures, segments and compares.
+async fn measure(
+    daemon: &Arc<Daemon>,
+    pose: &Isometry3<f64>,
+) -> Result<(Vec<f64>, bool, Agreement)> {
+    let cell = daemon.cell().clone();
+    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
+    match cell.arm.status().await.map_err(hw)? {
+        ArmStatus::Fault(f) => {
+            return Err(Error::Hardware(format!(
+                "the arm reports a fault ({f}): clear it before checking"
+            )))
+        }
+        ArmStatus::Moving => return Err(Error::Hardware("the arm is moving".into())),
+        _ => {}
+    }
+    let mut moved = false;
+    if let Some(target) = &daemon.settings().check_pose {
+        let from = cell.arm.read_joints().await.map_err(hw)?;
+        let far = from
+            .iter()
+            .zip(target)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        if far > 1e-3 {
+            let speed = cell.config.calibration.speed_rad_s;
+            let mv = cell.checker.check_move(&from, target, speed).map_err(|v| {
+                Error::Hardware(format!("check_pose refused by the safety checker: {v}"))
+            })?;
+            SafeArm::new(cell.arm.clone())
+                .execute(&mv)
+                .await?
+                .wait()
+                .await
+                .map_err(|e| Error::Hardware(format!("moving to check_pose: {e}")))?;
+            moved = true;
+        }
+    }
+    let joints = cell.arm.read_joints().await.map_err(hw)?;
+    let frame = cell.camera.grab().await.map_err(hw)?;
+    let pose = *pose;
+    let q = joints.clone();
+    let agreement = tokio::task::spawn_blocking(move || -> Result<Agreement> {
+        let camera = Camera::from_intrinsics(cell.camera.intrinsics());
+        if frame.width != camera.width || frame.height != camera.height {
+            return Err(Error::Hardware(format!(
+                "camera returned a {}x{} frame; its intrinsics say {}x{}",
+                frame.width, frame.height, camera.width, camera.height
+            )));
+        }
+        let observed = camera.undistort_mask(&cell.segmenter.segment(&frame)?);
+        let rendered = CpuRenderer
+            .render(
+                &PosedRobot::new(&cell.robot, &q),
+                &camera.undistorted(),
+                &pose,
+                None,
+            )
+            .mask;
+        Ok(agreement(&observed, &rendered))
+    })
+    .await
+    .map_err(|e| Error::Hardware(format!("check task: {e}")))??;
+    Ok((joints, moved, agreement))
+}
+
+/// Scheduled checks every `interval` while the daemon runs; skipped while the arm is leased
+/// or nothing is active.
+pub async fn schedule(daemon: Arc<Daemon>, interval: Duration) {
+    let mut shutdown = daemon.shutdown_signal();
+    let mut tick = tokio::time::interval(interval);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    tick.tick().await;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = shutdown.changed() => return,
+        }
+        if daemon.busy().is_some() || daemon.active_pose().is_none() {
+            continue;
+        }
+        match check(&daemon, "schedule").await {
+            Ok(c) if !c.stale => {}
+            Ok(_) | Err(Refusal::Busy(_)) => {}
+            Err(e) => eprintln!("easyhec daemon: scheduled check: {e:?}"),
+        }
+    }
+}

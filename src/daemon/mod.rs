@@ -1,0 +1,679 @@
+//! `easyhec daemon`: a long-running service that owns one cell's arm and camera and runs
+//! calibrations on request, with an HTTP API, a web page, bump checks and crash-safe storage.
+//!
+//! # Layout
+//! - [`settings`]: the `[daemon]` table of a cell config.
+//! - [`store`]: the data folder (history index, active calibration, checks, run directories).
+//! - [`bump`]: the bump check (silhouette under the active calibration vs a fresh mask).
+//! - [`api`]: the axum router (JSON API, SSE progress, overlays, metrics, OpenAPI, web page).
+//!
+//! One device lease: a calibration or a bump check holds the arm and camera; a second request
+//! gets 409 naming the holder. The loop's planning and solving are CPU-bound and blocking, so
+//! each calibration runs on its own named thread with a single-threaded tokio runtime; the
+//! HTTP runtime only ever waits on channels and locks held for microseconds.
+
+pub mod api;
+pub mod bump;
+pub mod settings;
+pub mod store;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+
+use nalgebra::Isometry3;
+use serde::Serialize;
+use tokio::sync::{broadcast, watch};
+
+use crate::calibrate::{calibrate, rfc3339, Progress, RunOptions};
+use crate::cell::Cell;
+use crate::error::{Error, Result};
+use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use crate::run::ResultFile;
+
+pub use settings::DaemonSettings;
+use store::{CalibrationRecord, Recovery, State, Store, TruthError};
+
+/// The current time as RFC 3339.
+fn now() -> String {
+    rfc3339(SystemTime::now())
+}
+
+/// Locks a std mutex, recovering the data if a holder panicked (no holder does I/O that
+/// could leave it half-updated).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// What holds the arm and camera.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Busy {
+    /// A calibration, by id.
+    Calibration(String),
+    /// A bump check.
+    Check,
+}
+
+impl Busy {
+    /// The id a 409 names (`check` for a bump check).
+    pub fn name(&self) -> &str {
+        match self {
+            Busy::Calibration(id) => id,
+            Busy::Check => "check",
+        }
+    }
+}
+
+/// Why a request cannot be served now.
+#[derive(Debug)]
+pub enum Refusal {
+    /// The arm is leased (409).
+    Busy(Busy),
+    /// The daemon is shutting down (503).
+    ShuttingDown,
+    /// Nothing to act on (404), with the reason.
+    NotFound(String),
+    /// The request does not fit the current state (409), with the reason.
+    Conflict(String),
+    /// The request itself is wrong (400).
+    BadRequest(String),
+    /// The cell or the disk failed (500).
+    Internal(String),
+}
+
+impl From<Error> for Refusal {
+    fn from(e: Error) -> Self {
+        Refusal::Internal(e.to_string())
+    }
+}
+
+/// One SSE event: what happened and the calibration's status after it.
+#[derive(Clone, Debug, Serialize)]
+pub struct Event {
+    /// `state`, `view`, `round`, `planned` or `moving`.
+    pub kind: String,
+    /// For `view`: the view's index.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view: Option<usize>,
+    /// The status after the event.
+    pub status: CalibrationRecord,
+}
+
+/// A calibration started by this process: its status, cancel flag and event channel.
+pub struct Job {
+    record: Mutex<CalibrationRecord>,
+    cancel: Arc<AtomicBool>,
+    events: broadcast::Sender<Event>,
+    thread: Mutex<Option<std::thread::JoinHandle<()>>>,
+}
+
+impl Job {
+    /// The status now.
+    pub fn record(&self) -> CalibrationRecord {
+        lock(&self.record).clone()
+    }
+
+    /// Events from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<Event> {
+        self.events.subscribe()
+    }
+}
+
+/// Counters for `/metrics`.
+#[derive(Default)]
+pub struct Metrics {
+    /// Calibrations started.
+    pub started: AtomicU64,
+    /// Finished, by final state: succeeded, failed, cancelled, interrupted.
+    pub finished: [AtomicU64; 4],
+    /// Views captured by calibrations.
+    pub views: AtomicU64,
+    /// Bump checks run.
+    pub checks: AtomicU64,
+    /// Bump checks that found the camera moved.
+    pub bumps: AtomicU64,
+    /// Bump checks that failed (capture, motion).
+    pub check_errors: AtomicU64,
+    /// Last check's IoU, as f64 bits.
+    pub last_iou: AtomicU64,
+    /// Last check's boundary distance, as f64 bits.
+    pub last_boundary_px: AtomicU64,
+}
+
+/// Final states in [`Metrics::finished`] order.
+pub const FINISHED_STATES: [State; 4] = [
+    State::Succeeded,
+    State::Failed,
+    State::Cancelled,
+    State::Interrupted,
+];
+
+/// The daemon: the cell, the store and the live calibrations.
+pub struct Daemon {
+    cell: Arc<Cell>,
+    settings: DaemonSettings,
+    token: String,
+    store: Store,
+    jobs: Mutex<BTreeMap<String, Arc<Job>>>,
+    busy: Mutex<Option<Busy>>,
+    shutting_down: AtomicBool,
+    shutdown_tx: watch::Sender<bool>,
+    /// Counters for `/metrics`.
+    pub metrics: Metrics,
+    recovery: Recovery,
+}
+
+/// Options of `POST /api/v1/calibrations`.
+#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartOptions {
+    /// Views at most (default: the config's `calibration.max_views`).
+    #[serde(default)]
+    pub max_views: Option<usize>,
+    /// Plan only, never move.
+    #[serde(default)]
+    pub dry_run: bool,
+}
+
+impl Daemon {
+    /// Opens the data folder at `data_dir` (repairing what a crash left) for `cell`, serving
+    /// API calls that carry `token`.
+    pub fn open(cell: Cell, data_dir: &Path, token: String) -> Result<Arc<Daemon>> {
+        if token.trim().is_empty() {
+            return Err(Error::input(
+                &cell.config_path,
+                "daemon.token",
+                "no API token: set [daemon] token or the EASYHEC_TOKEN environment variable",
+            ));
+        }
+        let (store, recovery) = Store::open(data_dir, &now())?;
+        let (shutdown_tx, _) = watch::channel(false);
+        Ok(Arc::new(Daemon {
+            settings: cell.config.daemon.clone(),
+            cell: Arc::new(cell),
+            token,
+            store,
+            jobs: Mutex::new(BTreeMap::new()),
+            busy: Mutex::new(None),
+            shutting_down: AtomicBool::new(false),
+            shutdown_tx,
+            metrics: Metrics::default(),
+            recovery,
+        }))
+    }
+
+    /// The cell.
+    pub fn cell(&self) -> &Arc<Cell> {
+        &self.cell
+    }
+
+    /// The `[daemon]` settings.
+    pub fn settings(&self) -> &DaemonSettings {
+        &self.settings
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// Calibrations the last start found interrupted.
+    pub fn recovered(&self) -> &[String] {
+        &self.recovery.interrupted
+    }
+
+    /// Whether `given` is the API token (compared in constant time).
+    pub fn token_matches(&self, given: &str) -> bool {
+        let (a, b) = (self.token.as_bytes(), given.as_bytes());
+        a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    }
+
+    /// What holds the arm now.
+    pub fn busy(&self) -> Option<Busy> {
+        lock(&self.busy).clone()
+    }
+
+    /// A live job of this process.
+    pub fn job(&self, id: &str) -> Option<Arc<Job>> {
+        lock(&self.jobs).get(id).cloned()
+    }
+
+    /// A calibration's status: live when this process runs it, else from the history.
+    pub fn status(&self, id: &str) -> Option<CalibrationRecord> {
+        self.job(id)
+            .map(|j| j.record())
+            .or_else(|| self.store.record(id))
+    }
+
+    /// Resolves when shutdown begins (SSE streams end on it).
+    pub fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.shutdown_tx.subscribe()
+    }
+
+    /// Takes the arm lease for `who`, or says who holds it.
+    fn lease(&self, who: Busy) -> std::result::Result<(), Refusal> {
+        if self.shutting_down.load(Ordering::SeqCst) {
+            return Err(Refusal::ShuttingDown);
+        }
+        let mut busy = lock(&self.busy);
+        if let Some(b) = &*busy {
+            return Err(Refusal::Busy(b.clone()));
+        }
+        *busy = Some(who);
+        Ok(())
+    }
+
+    fn release(&self, who: &Busy) {
+        let mut busy = lock(&self.busy);
+        if busy.as_ref() == Some(who) {
+            *busy = None;
+        }
+    }
+
+    /// Starts a calibration on its own thread; returns its id at once.
+    pub fn start(
+        self: &Arc<Self>,
+        opts: StartOptions,
+        trigger: &str,
+        warm_start: Option<(String, Isometry3<f64>)>,
+    ) -> std::result::Result<String, Refusal> {
+        if opts.max_views == Some(0) {
+            return Err(Refusal::BadRequest(
+                "max_views: a calibration needs at least 1 view".into(),
+            ));
+        }
+        // Hold the jobs lock while choosing the id so two starts cannot pick the same one.
+        let jobs_guard = lock(&self.jobs);
+        let id = self.store.next_id();
+        self.lease(Busy::Calibration(id.clone()))?;
+        let record = CalibrationRecord {
+            id: id.clone(),
+            state: State::Queued,
+            trigger: trigger.to_string(),
+            dry_run: opts.dry_run,
+            max_views: opts
+                .max_views
+                .unwrap_or(self.cell.config.calibration.max_views),
+            created_at: now(),
+            started_at: None,
+            finished_at: None,
+            run_dir: format!("runs/{id}"),
+            phase: None,
+            round: None,
+            views: 0,
+            loss: None,
+            mean_iou: None,
+            best_variance: None,
+            camera_from_base: None,
+            uncertainty: None,
+            stop_reason: None,
+            error: None,
+            warm_start_from: warm_start.as_ref().map(|(id, _)| id.clone()),
+            planned_poses: None,
+            truth_error: None,
+        };
+        if let Err(e) = self.store.save(&record) {
+            self.release(&Busy::Calibration(id.clone()));
+            return Err(e.into());
+        }
+        let (events, _) = broadcast::channel(256);
+        let job = Arc::new(Job {
+            record: Mutex::new(record),
+            cancel: Arc::new(AtomicBool::new(false)),
+            events,
+            thread: Mutex::new(None),
+        });
+        let mut jobs_guard = jobs_guard;
+        jobs_guard.insert(id.clone(), job.clone());
+        drop(jobs_guard);
+        self.metrics.started.fetch_add(1, Ordering::Relaxed);
+        let daemon = self.clone();
+        let warm = warm_start.map(|(_, pose)| pose);
+        let thread_job = job.clone();
+        let spawned = std::thread::Builder::new()
+            .name(format!("easyhec-{id}"))
+            .spawn(move || daemon.run_job(&thread_job, opts, warm));
+        match spawned {
+            Ok(handle) => {
+                *lock(&job.thread) = Some(handle);
+                Ok(id)
+            }
+            Err(e) => {
+                let msg = format!("cannot start the calibration thread: {e}");
+                self.finish(&job, State::Failed, |r| r.error = Some(msg.clone()));
+                Err(Refusal::Internal(msg))
+            }
+        }
+    }
+
+    /// Updates a job's record, persists it (logging a failed write: the run directory still
+    /// has everything) and broadcasts an event.
+    fn update(
+        &self,
+        job: &Job,
+        kind: &str,
+        view: Option<usize>,
+        f: impl FnOnce(&mut CalibrationRecord),
+    ) {
+        let record = {
+            let mut r = lock(&job.record);
+            f(&mut r);
+            r.clone()
+        };
+        if let Err(e) = self.store.save(&record) {
+            eprintln!(
+                "easyhec daemon: {}: cannot update the index: {e}",
+                record.id
+            );
+        }
+        let _ = job.events.send(Event {
+            kind: kind.to_string(),
+            view,
+            status: record,
+        });
+    }
+
+    fn finish(&self, job: &Job, state: State, f: impl FnOnce(&mut CalibrationRecord)) {
+        let mut id = String::new();
+        self.update(job, "state", None, |r| {
+            f(r);
+            r.state = state;
+            r.phase = None;
+            r.finished_at = Some(now());
+            id = r.id.clone();
+        });
+        if let Some(k) = FINISHED_STATES.iter().position(|s| *s == state) {
+            self.metrics.finished[k].fetch_add(1, Ordering::Relaxed);
+        }
+        self.release(&Busy::Calibration(id));
+    }
+
+    /// The calibration thread: runs the loop on a single-threaded runtime and records the end.
+    fn run_job(self: &Arc<Self>, job: &Arc<Job>, opts: StartOptions, warm: Option<Isometry3<f64>>) {
+        let (id, run_dir) = {
+            let r = job.record();
+            (r.id.clone(), self.store.run_dir(&r))
+        };
+        self.update(job, "state", None, |r| {
+            r.state = State::Running;
+            r.started_at = Some(now());
+            r.phase = Some("capturing".into());
+        });
+        let sink_daemon = Arc::downgrade(self);
+        let sink_job = Arc::downgrade(job);
+        let on_progress: crate::calibrate::ProgressSink = Arc::new(move |p: &Progress| {
+            let (Some(d), Some(j)) = (sink_daemon.upgrade(), sink_job.upgrade()) else {
+                return;
+            };
+            d.on_progress(&j, p);
+        });
+        let run_opts = RunOptions {
+            dry_run: opts.dry_run,
+            on_progress: Some(on_progress),
+            cancel: Some(job.cancel.clone()),
+            initial_guess: warm,
+            max_views: opts.max_views,
+            ..RunOptions::default()
+        };
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build();
+        let outcome = match runtime {
+            Ok(rt) => rt.block_on(calibrate(&self.cell, &run_dir, &run_opts)),
+            Err(e) => Err(Error::Hardware(format!(
+                "cannot start the calibration runtime: {e}"
+            ))),
+        };
+        let shutting_down = self.shutting_down.load(Ordering::SeqCst);
+        match outcome {
+            Ok(o) => {
+                let truth = self.truth_error(&o.result.camera_from_base());
+                let state = if o.cancelled && shutting_down {
+                    State::Interrupted
+                } else if o.cancelled {
+                    State::Cancelled
+                } else {
+                    State::Succeeded
+                };
+                let result = o.result.clone();
+                self.finish(job, state, |r| {
+                    r.stop_reason = Some(o.result.stop_reason.clone());
+                    r.camera_from_base = Some(o.result.camera_from_base);
+                    r.uncertainty = o.result.uncertainty.clone();
+                    r.mean_iou = Some(o.report.mean_iou());
+                    r.loss = Some(o.report.loss);
+                    r.truth_error = truth;
+                    if r.dry_run {
+                        r.planned_poses = Some(o.planned.len());
+                    }
+                    if state == State::Interrupted {
+                        r.error = Some(
+                            "the daemon shut down during this run; the arm was stopped".into(),
+                        );
+                    }
+                });
+                eprintln!(
+                    "easyhec daemon: {id} {}: {}",
+                    state.name(),
+                    o.result.stop_reason
+                );
+                if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
+                    if let Err(e) = self.store.activate(&id, result, &now()) {
+                        eprintln!("easyhec daemon: {id}: cannot activate: {e}");
+                    }
+                }
+            }
+            Err(e) => {
+                // The loop stops the arm when a move fails; stop again in case it failed
+                // elsewhere with the arm in motion.
+                if let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                {
+                    let _ = rt.block_on(self.cell.arm.stop());
+                }
+                let state = if shutting_down {
+                    State::Interrupted
+                } else {
+                    State::Failed
+                };
+                eprintln!("easyhec daemon: {id} {}: {e}", state.name());
+                self.finish(job, state, |r| r.error = Some(e.to_string()));
+            }
+        }
+    }
+
+    fn on_progress(&self, job: &Job, p: &Progress) {
+        match p {
+            Progress::ViewCaptured { index, .. } => {
+                self.metrics.views.fetch_add(1, Ordering::Relaxed);
+                self.update(job, "view", Some(*index), |r| {
+                    r.views = index + 1;
+                    r.phase = Some("solving".into());
+                });
+            }
+            Progress::Round {
+                round,
+                views,
+                loss,
+                mean_iou,
+                camera_from_base,
+                uncertainty,
+            } => self.update(job, "round", None, |r| {
+                r.round = Some(*round);
+                r.views = *views;
+                r.loss = Some(*loss);
+                r.mean_iou = Some(*mean_iou);
+                r.camera_from_base = Some(*camera_from_base);
+                r.uncertainty = uncertainty.clone();
+                r.phase = Some("planning".into());
+            }),
+            Progress::Planned { best_variance, .. } => self.update(job, "planned", None, |r| {
+                r.best_variance = *best_variance;
+            }),
+            Progress::Moving { .. } => self.update(job, "moving", None, |r| {
+                r.phase = Some("moving".into());
+            }),
+        }
+    }
+
+    /// Error against the simulated camera's true pose now (simulated cells only).
+    fn truth_error(&self, est: &Isometry3<f64>) -> Option<TruthError> {
+        let truth = self.cell.sim.scene.as_ref()?.camera_from_base();
+        Some(TruthError {
+            rotation_deg: rotation_error_deg(est, &truth),
+            translation_mm: translation_error_mm(est, &truth),
+        })
+    }
+
+    /// Cancels a running calibration: sets its flag and stops the arm at once.
+    pub async fn cancel(&self, id: &str) -> std::result::Result<CalibrationRecord, Refusal> {
+        let Some(job) = self.job(id) else {
+            return match self.store.record(id) {
+                Some(r) => Err(Refusal::Conflict(format!(
+                    "calibration {id} is {}: only a queued or running one can be cancelled",
+                    r.state.name()
+                ))),
+                None => Err(Refusal::NotFound(format!("no calibration {id}"))),
+            };
+        };
+        let record = job.record();
+        if record.state.is_final() {
+            return Err(Refusal::Conflict(format!(
+                "calibration {id} is {}: only a queued or running one can be cancelled",
+                record.state.name()
+            )));
+        }
+        job.cancel.store(true, Ordering::SeqCst);
+        // Stop first; the loop notices the flag and ends the run as cancelled.
+        if let Err(e) = self.cell.arm.stop().await {
+            eprintln!("easyhec daemon: {id}: stop after cancel failed: {e}");
+        }
+        Ok(job.record())
+    }
+
+    /// Makes calibration `id` active: any ended calibration whose run directory holds a
+    /// `result.json` (a succeeded run, or an interrupted one re-solved with `easyhec solve`).
+    pub fn activate(&self, id: &str) -> std::result::Result<store::ActiveFile, Refusal> {
+        let record = self
+            .status(id)
+            .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+        if !record.state.is_final() {
+            return Err(Refusal::Conflict(format!(
+                "calibration {id} is still {}",
+                record.state.name()
+            )));
+        }
+        let path = self.store.run_dir(&record).join("result.json");
+        if !path.is_file() {
+            return Err(Refusal::Conflict(format!(
+                "calibration {id} has no result ({} is missing; a dry run has none, an interrupted run gets one from `easyhec solve`)",
+                path.display()
+            )));
+        }
+        let result = ResultFile::read(&path).map_err(|e| Refusal::Conflict(e.to_string()))?;
+        Ok(self.store.activate(id, result, &now())?)
+    }
+
+    /// Begins shutdown: refuses new work, cancels a running calibration (stopping the arm
+    /// first) and waits for its thread to end, so the run directory and index are final.
+    pub async fn shutdown(self: &Arc<Self>) {
+        self.shutting_down.store(true, Ordering::SeqCst);
+        let _ = self.shutdown_tx.send(true);
+        let running: Vec<Arc<Job>> = lock(&self.jobs).values().cloned().collect();
+        let mut any = false;
+        for job in &running {
+            if !job.record().state.is_final() {
+                job.cancel.store(true, Ordering::SeqCst);
+                any = true;
+            }
+        }
+        if any || matches!(self.busy(), Some(Busy::Check)) {
+            if let Err(e) = self.cell.arm.stop().await {
+                eprintln!("easyhec daemon: stopping the arm at shutdown failed: {e}");
+            }
+        }
+        for job in running {
+            let handle = lock(&job.thread).take();
+            if let Some(h) = handle {
+                // Planning can take a few seconds before the loop sees the flag.
+                let joined = tokio::time::timeout(
+                    Duration::from_secs(60),
+                    tokio::task::spawn_blocking(move || h.join()),
+                )
+                .await;
+                if joined.is_err() {
+                    eprintln!("easyhec daemon: a calibration did not end within 60 s of shutdown");
+                }
+            }
+        }
+    }
+
+    /// The active calibration's pose, for bump checks and warm starts.
+    pub fn active_pose(&self) -> Option<(String, Isometry3<f64>)> {
+        let a = self.store.active()?;
+        let pose = from_rows(&a.result.camera_from_base).ok()?;
+        Some((a.id, pose))
+    }
+}
+
+/// Resolves the daemon's data folder: `--data` as given, else `[daemon] data_dir` relative to
+/// the config file.
+pub fn data_dir(cell: &Cell, arg: Option<&Path>) -> PathBuf {
+    match arg {
+        Some(p) => p.to_path_buf(),
+        None => cell
+            .config_path
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(&cell.config.daemon.data_dir),
+    }
+}
+
+/// The API token: `EASYHEC_TOKEN` when set and non-empty, else `[daemon] token`.
+pub fn resolve_token(cell: &Cell) -> Result<String> {
+    if let Ok(t) = std::env::var("EASYHEC_TOKEN") {
+        if !t.trim().is_empty() {
+            return Ok(t.trim().to_string());
+        }
+    }
+    cell.config.daemon.token.clone().ok_or_else(|| {
+        Error::input(
+            &cell.config_path,
+            "daemon.token",
+            "no API token: set [daemon] token in the config or the EASYHEC_TOKEN environment variable",
+        )
+    })
+}
+
+/// Runs the daemon on `listener` until `shutdown` resolves, then stops any calibration
+/// (arm first) and drains the server. Scheduled bump checks run when configured.
+pub async fn serve(
+    daemon: Arc<Daemon>,
+    listener: tokio::net::TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<()> {
+    let router = api::router(daemon.clone());
+    let scheduler = daemon
+        .settings
+        .check_interval_s
+        .map(|s| tokio::spawn(bump::schedule(daemon.clone(), Duration::from_secs_f64(s))));
+    let d = daemon.clone();
+    let addr = listener
+        .local_addr()
+        .map(|a| a.to_string())
+        .unwrap_or_default();
+    let served = axum::serve(listener, router)
+        .with_graceful_shutdown(async move {
+            shutdown.await;
+            eprintln!("easyhec daemon: shutting down (stopping any motion first)");
+            d.shutdown().await;
+        })
+        .await;
+    if let Some(s) = scheduler {
+        s.abort();
+    }
+    served.map_err(|e| Error::Hardware(format!("HTTP server on {addr}: {e}")))
+}

@@ -1,0 +1,127 @@
+//! `[daemon]` in a cell config: where the daemon listens, its token, its data folder and the
+//! bump check. Every key has a default, so a cell config without the table still runs a
+//! daemon (given a token in `EASYHEC_TOKEN`).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// `[daemon]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonSettings {
+    /// `HOST:PORT` to listen on (default `127.0.0.1:8787`; `--listen` overrides).
+    #[serde(default = "default_listen")]
+    pub listen: String,
+    /// Bearer token every API call must send. `EASYHEC_TOKEN` overrides it, so the secret
+    /// can stay out of the file; the daemon refuses to start with neither.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub token: Option<String>,
+    /// Data folder (run directories, history, active calibration), relative to the config
+    /// file (default `easyhec-data`; `--data` overrides).
+    #[serde(default = "default_data_dir")]
+    pub data_dir: PathBuf,
+    /// Seconds between scheduled bump checks; absent: checks only on demand.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub check_interval_s: Option<f64>,
+    /// A check whose silhouette IoU falls below this marks the calibration stale.
+    #[serde(default = "default_min_iou")]
+    pub bump_min_iou: f64,
+    /// A check whose mean boundary distance (pixels, both ways) exceeds this marks the
+    /// calibration stale.
+    #[serde(default = "default_max_boundary_px")]
+    pub bump_max_boundary_px: f64,
+    /// Recalibrate, warm-started from the stale pose, when a check finds a bump.
+    #[serde(default)]
+    pub recalibrate_on_bump: bool,
+    /// Joints to move to before each check (through the safety checker, at
+    /// `calibration.speed_rad_s`). Setting it is what allows checks to move the arm; absent:
+    /// checks capture wherever the idle arm stands.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub check_pose: Option<Vec<f64>>,
+    /// Make a successful calibration the active one at once (default true); otherwise only
+    /// `POST /api/v1/calibrations/{id}/activate` does.
+    #[serde(default = "yes")]
+    pub activate_on_success: bool,
+}
+
+fn default_listen() -> String {
+    "127.0.0.1:8787".into()
+}
+fn default_data_dir() -> PathBuf {
+    PathBuf::from("easyhec-data")
+}
+fn default_min_iou() -> f64 {
+    0.9
+}
+fn default_max_boundary_px() -> f64 {
+    1.5
+}
+fn yes() -> bool {
+    true
+}
+
+impl Default for DaemonSettings {
+    fn default() -> Self {
+        toml::from_str("").expect("every field has a default")
+    }
+}
+
+impl DaemonSettings {
+    /// Checks ranges, naming the key at fault; `joints` is the arm's joint count.
+    pub fn validate(&self, path: &Path, joints: usize) -> Result<()> {
+        let bad = |f: &str, m: String| Err(Error::input(path, format!("daemon.{f}"), m));
+        if self.listen.trim().is_empty() {
+            return bad(
+                "listen",
+                "is empty: use HOST:PORT, e.g. \"127.0.0.1:8787\"".into(),
+            );
+        }
+        if let Some(t) = &self.token {
+            if t.trim().is_empty() || t.chars().any(|c| c.is_whitespace() || c.is_control()) {
+                return bad(
+                    "token",
+                    "must be non-empty without spaces (it is sent as `Authorization: Bearer TOKEN`)"
+                        .into(),
+                );
+            }
+        }
+        if let Some(s) = self.check_interval_s {
+            if !(s.is_finite() && s >= 1.0) {
+                return bad(
+                    "check_interval_s",
+                    format!("{s}: use at least 1 second, or leave it out for on-demand checks"),
+                );
+            }
+        }
+        if !(self.bump_min_iou > 0.0 && self.bump_min_iou <= 1.0) {
+            return bad(
+                "bump_min_iou",
+                format!("{}: use an IoU in (0, 1], e.g. 0.9", self.bump_min_iou),
+            );
+        }
+        if !(self.bump_max_boundary_px.is_finite() && self.bump_max_boundary_px > 0.0) {
+            return bad(
+                "bump_max_boundary_px",
+                format!(
+                    "{}: use a positive number of pixels, e.g. 1.5",
+                    self.bump_max_boundary_px
+                ),
+            );
+        }
+        if let Some(q) = &self.check_pose {
+            if q.len() != joints {
+                return bad(
+                    "check_pose",
+                    format!("{} values for the {joints} actuated joints", q.len()),
+                );
+            }
+            if q.iter().any(|v| !v.is_finite()) {
+                return bad("check_pose", "every joint must be a finite number".into());
+            }
+        }
+        Ok(())
+    }
+}

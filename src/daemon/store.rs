@@ -1,0 +1,420 @@
+//! The daemon's data folder, written so that nothing is lost:
+//!
+//! ```text
+//! DATA/index.json          history: one record per calibration (easyhec-daemon-index/1)
+//! DATA/active.json         the active calibration with its easyhec-result/1 body
+//! DATA/checks.json         the latest bump checks (easyhec-daemon-checks/1)
+//! DATA/runs/<id>/          one easyhec-run/1 directory per calibration (run.json, views/,
+//!                          rounds.json, result.json), written by the loop as it goes
+//! ```
+//!
+//! Every file is replaced atomically (temp file, fsync, rename: [`crate::io`]). A record is
+//! rewritten at each state change and each round, so after a crash the index says how far a
+//! run got; [`Store::open`] marks runs that were queued or running as `interrupted`, with the
+//! view count read back from their `run.json`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::io::write_json_atomic;
+use crate::run::{ResultFile, RunFile, UncertaintyEntry};
+
+/// `index.json` format tag.
+pub const INDEX_FORMAT: &str = "easyhec-daemon-index/1";
+/// `active.json` format tag.
+pub const ACTIVE_FORMAT: &str = "easyhec-daemon-active/1";
+/// `checks.json` format tag.
+pub const CHECKS_FORMAT: &str = "easyhec-daemon-checks/1";
+/// Bump checks kept in `checks.json`.
+const CHECKS_KEPT: usize = 200;
+
+/// Where a calibration is in its life.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum State {
+    /// Accepted, not started yet.
+    Queued,
+    /// The loop is running.
+    Running,
+    /// Finished with a result.
+    Succeeded,
+    /// Ended by an error (the error field says which).
+    Failed,
+    /// Ended by `POST …/cancel`; the arm was stopped.
+    Cancelled,
+    /// The daemon stopped (shut down or killed) while it ran; the views taken are on disk.
+    Interrupted,
+}
+
+impl State {
+    /// Whether the calibration has ended.
+    pub fn is_final(self) -> bool {
+        !matches!(self, State::Queued | State::Running)
+    }
+
+    /// Lower-case name, as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Queued => "queued",
+            State::Running => "running",
+            State::Succeeded => "succeeded",
+            State::Failed => "failed",
+            State::Cancelled => "cancelled",
+            State::Interrupted => "interrupted",
+        }
+    }
+}
+
+/// Error of an estimate against a simulated cell's true pose.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+pub struct TruthError {
+    /// Rotation error, degrees.
+    pub rotation_deg: f64,
+    /// Translation error, millimetres.
+    pub translation_mm: f64,
+}
+
+/// One calibration: what `GET /api/v1/calibrations/{id}` returns and `index.json` keeps.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+pub struct CalibrationRecord {
+    /// `cal-NNNN`, also the run directory's name.
+    pub id: String,
+    /// Life-cycle state.
+    pub state: State,
+    /// `api` (a start request) or `bump` (a bump check's recalibration).
+    pub trigger: String,
+    /// Planned only, never moved.
+    pub dry_run: bool,
+    /// Views at most for this run.
+    pub max_views: usize,
+    /// RFC 3339 times.
+    pub created_at: String,
+    /// When the loop started.
+    #[serde(default)]
+    pub started_at: Option<String>,
+    /// When it ended.
+    #[serde(default)]
+    pub finished_at: Option<String>,
+    /// The run directory, relative to the data folder.
+    pub run_dir: String,
+    /// What the loop is doing now (`capturing`, `solving`, `planning`, `moving`).
+    #[serde(default)]
+    pub phase: Option<String>,
+    /// Last solved round (0-based).
+    #[serde(default)]
+    pub round: Option<usize>,
+    /// Views captured and recorded.
+    pub views: usize,
+    /// Mask loss at the current estimate.
+    #[serde(default)]
+    pub loss: Option<f64>,
+    /// Mean mask IoU at the current estimate.
+    #[serde(default)]
+    pub mean_iou: Option<f64>,
+    /// Best variance found by the last planning step (scoring pixels).
+    #[serde(default)]
+    pub best_variance: Option<f64>,
+    /// The current estimate, row-major 4x4.
+    #[serde(default)]
+    pub camera_from_base: Option<[[f64; 4]; 4]>,
+    /// 1-sigma uncertainty of the current estimate.
+    #[serde(default)]
+    pub uncertainty: Option<UncertaintyEntry>,
+    /// Why the loop stopped.
+    #[serde(default)]
+    pub stop_reason: Option<String>,
+    /// Why it failed or was interrupted.
+    #[serde(default)]
+    pub error: Option<String>,
+    /// The calibration whose pose this one was warm-started from.
+    #[serde(default)]
+    pub warm_start_from: Option<String>,
+    /// Dry runs: poses planned.
+    #[serde(default)]
+    pub planned_poses: Option<usize>,
+    /// Simulated cells only: error of the estimate against the camera's true pose now.
+    #[serde(default)]
+    pub truth_error: Option<TruthError>,
+}
+
+/// `active.json`: the calibration in use, with its result, surviving restarts.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+pub struct ActiveFile {
+    /// Always [`ACTIVE_FORMAT`].
+    pub format: String,
+    /// Calibration id.
+    pub id: String,
+    /// When it became active.
+    pub activated_at: String,
+    /// A bump check found the camera moved since.
+    pub stale: bool,
+    /// When it became stale.
+    #[serde(default)]
+    pub stale_since: Option<String>,
+    /// The `easyhec-result/1` body.
+    pub result: ResultFile,
+}
+
+/// One bump check.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+pub struct CheckRecord {
+    /// RFC 3339 time.
+    pub at: String,
+    /// `api` or `schedule`.
+    pub trigger: String,
+    /// The calibration checked.
+    pub calibration_id: String,
+    /// Reported joints at capture.
+    pub joints: Vec<f64>,
+    /// Whether the arm was moved to `check_pose` first.
+    pub moved_to_check_pose: bool,
+    /// IoU of the observed mask and the silhouette rendered under the calibration.
+    pub iou: f64,
+    /// Mean distance between the two outlines, both ways, pixels.
+    pub boundary_px: f64,
+    /// Thresholds applied: IoU below…
+    pub min_iou: f64,
+    /// …or boundary distance above this marks the calibration stale.
+    pub max_boundary_px: f64,
+    /// The verdict.
+    pub stale: bool,
+    /// The recalibration this check started, if any.
+    #[serde(default)]
+    pub recalibration: Option<String>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct IndexFile {
+    format: String,
+    calibrations: Vec<CalibrationRecord>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct ChecksFile {
+    format: String,
+    checks: Vec<CheckRecord>,
+}
+
+struct Inner {
+    records: Vec<CalibrationRecord>,
+    active: Option<ActiveFile>,
+    checks: Vec<CheckRecord>,
+}
+
+/// The data folder, with the index, active calibration and checks held in memory and
+/// written through on every change.
+pub struct Store {
+    dir: PathBuf,
+    inner: Mutex<Inner>,
+}
+
+/// What [`Store::open`] repaired.
+#[derive(Clone, Debug, Default)]
+pub struct Recovery {
+    /// Calibrations found queued or running, now `interrupted`.
+    pub interrupted: Vec<String>,
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path, tag: &str) -> Result<Option<T>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(Error::io(path, format!("cannot read: {e}"))),
+    };
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+        Error::input(
+            path,
+            format!("line {} column {}", e.line(), e.column()),
+            format!("invalid JSON ({e}): restore it from a backup or move it away (the run directories are intact)"),
+        )
+    })?;
+    match value.get("format").and_then(|f| f.as_str()) {
+        Some(t) if t == tag => {}
+        other => {
+            return Err(Error::input(
+                path,
+                "format",
+                format!("{other:?}: this easyhec reads {tag}; move the file away to start afresh"),
+            ))
+        }
+    }
+    serde_json::from_value(value)
+        .map(Some)
+        .map_err(|e| Error::input(path, "content", format!("{e}")))
+}
+
+fn lock(m: &Mutex<Inner>) -> std::sync::MutexGuard<'_, Inner> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl Store {
+    /// Opens (or creates) the data folder and repairs what a crash left: calibrations that
+    /// were queued or running become `interrupted`, with their recorded view count.
+    pub fn open(dir: &Path, now: &str) -> Result<(Store, Recovery)> {
+        std::fs::create_dir_all(dir.join("runs"))
+            .map_err(|e| Error::io(dir, format!("cannot create the data folder: {e}")))?;
+        let mut records = read_json::<IndexFile>(&dir.join("index.json"), INDEX_FORMAT)?
+            .map(|f| f.calibrations)
+            .unwrap_or_default();
+        let active = read_json::<ActiveFile>(&dir.join("active.json"), ACTIVE_FORMAT)?;
+        let checks = read_json::<ChecksFile>(&dir.join("checks.json"), CHECKS_FORMAT)?
+            .map(|f| f.checks)
+            .unwrap_or_default();
+        let mut recovery = Recovery::default();
+        for r in records.iter_mut().filter(|r| !r.state.is_final()) {
+            r.state = State::Interrupted;
+            r.phase = None;
+            r.finished_at = Some(now.to_string());
+            if let Ok(run) = RunFile::read(&dir.join(&r.run_dir).join("run.json")) {
+                r.views = run.views.len();
+            }
+            r.error = Some(format!(
+                "the daemon stopped during this run ({} views recorded); re-solve it with `easyhec solve {}`",
+                r.views,
+                dir.join(&r.run_dir).display()
+            ));
+            recovery.interrupted.push(r.id.clone());
+        }
+        let store = Store {
+            dir: dir.to_path_buf(),
+            inner: Mutex::new(Inner {
+                records,
+                active,
+                checks,
+            }),
+        };
+        if !recovery.interrupted.is_empty() {
+            store.write_index(&lock(&store.inner))?;
+        }
+        Ok((store, recovery))
+    }
+
+    /// The data folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Absolute run directory of a record.
+    pub fn run_dir(&self, record: &CalibrationRecord) -> PathBuf {
+        self.dir.join(&record.run_dir)
+    }
+
+    fn write_index(&self, inner: &Inner) -> Result<()> {
+        write_json_atomic(
+            &self.dir.join("index.json"),
+            &IndexFile {
+                format: INDEX_FORMAT.into(),
+                calibrations: inner.records.clone(),
+            },
+        )
+    }
+
+    /// A fresh id: one past the highest `cal-NNNN` in the history.
+    pub fn next_id(&self) -> String {
+        let inner = lock(&self.inner);
+        let n = inner
+            .records
+            .iter()
+            .filter_map(|r| r.id.strip_prefix("cal-")?.parse::<u64>().ok())
+            .max()
+            .unwrap_or(0);
+        format!("cal-{:04}", n + 1)
+    }
+
+    /// Inserts or replaces a record (by id) and rewrites `index.json`.
+    pub fn save(&self, record: &CalibrationRecord) -> Result<()> {
+        let mut inner = lock(&self.inner);
+        match inner.records.iter_mut().find(|r| r.id == record.id) {
+            Some(r) => *r = record.clone(),
+            None => inner.records.push(record.clone()),
+        }
+        self.write_index(&inner)
+    }
+
+    /// Every record, oldest first.
+    pub fn records(&self) -> Vec<CalibrationRecord> {
+        lock(&self.inner).records.clone()
+    }
+
+    /// One record.
+    pub fn record(&self, id: &str) -> Option<CalibrationRecord> {
+        lock(&self.inner)
+            .records
+            .iter()
+            .find(|r| r.id == id)
+            .cloned()
+    }
+
+    /// The active calibration.
+    pub fn active(&self) -> Option<ActiveFile> {
+        lock(&self.inner).active.clone()
+    }
+
+    /// Makes `result` of calibration `id` the active one.
+    pub fn activate(&self, id: &str, result: ResultFile, now: &str) -> Result<ActiveFile> {
+        let active = ActiveFile {
+            format: ACTIVE_FORMAT.into(),
+            id: id.to_string(),
+            activated_at: now.to_string(),
+            stale: false,
+            stale_since: None,
+            result,
+        };
+        let mut inner = lock(&self.inner);
+        write_json_atomic(&self.dir.join("active.json"), &active)?;
+        inner.active = Some(active.clone());
+        Ok(active)
+    }
+
+    /// Marks the active calibration stale (when it is still `id`).
+    pub fn mark_stale(&self, id: &str, now: &str) -> Result<()> {
+        let mut inner = lock(&self.inner);
+        let Some(active) = inner.active.as_mut().filter(|a| a.id == id) else {
+            return Ok(());
+        };
+        if !active.stale {
+            active.stale = true;
+            active.stale_since = Some(now.to_string());
+        }
+        let copy = active.clone();
+        write_json_atomic(&self.dir.join("active.json"), &copy)
+    }
+
+    /// Appends a bump check (the latest [`CHECKS_KEPT`] are kept).
+    pub fn push_check(&self, check: &CheckRecord) -> Result<()> {
+        let mut inner = lock(&self.inner);
+        inner.checks.push(check.clone());
+        let excess = inner.checks.len().saturating_sub(CHECKS_KEPT);
+        inner.checks.drain(..excess);
+        write_json_atomic(
+            &self.dir.join("checks.json"),
+            &ChecksFile {
+                format: CHECKS_FORMAT.into(),
+                checks: inner.checks.clone(),
+            },
+        )
+    }
+
+    /// Updates the latest check (e.g. with the recalibration it started).
+    pub fn update_last_check(&self, check: &CheckRecord) -> Result<()> {
+        let mut inner = lock(&self.inner);
+        if let Some(last) = inner.checks.last_mut() {
+            *last = check.clone();
+        }
+        write_json_atomic(
+            &self.dir.join("checks.json"),
+            &ChecksFile {
+                format: CHECKS_FORMAT.into(),
+                checks: inner.checks.clone(),
+            },
+        )
+    }
+
+    /// Bump checks, oldest first.
+    pub fn checks(&self) -> Vec<CheckRecord> {
+        lock(&self.inner).checks.clone()
+    }
+}

@@ -1,0 +1,325 @@
+// The easyhec daemon's page: one button, live progress from the SSE stream, overlays as
+// views arrive, the active result with its uncertainty, bump checks and history.
+//
+// The token comes from `?token=` (then removed from the address bar) or the login form and
+// is kept in sessionStorage for this tab only. Every API call sends it as a bearer token;
+// EventSource cannot send headers, so the SSE stream is read with fetch().
+"use strict";
+
+const TOKEN_KEY = "easyhec-token";
+const $ = (id) => document.getElementById(id);
+let following = null; // id whose event stream is open
+let shownId = null; // calibration whose views are in the overlay strip
+const overlayViews = new Map(); // view index -> <img>
+
+function token() {
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+
+function takeTokenFromUrl() {
+  const url = new URL(window.location.href);
+  const t = url.searchParams.get("token");
+  if (t) {
+    sessionStorage.setItem(TOKEN_KEY, t);
+    url.searchParams.delete("token");
+    window.history.replaceState(null, "", url.pathname + url.search + url.hash);
+  }
+}
+
+function showLogin(message) {
+  $("app").hidden = true;
+  $("login").hidden = false;
+  $("login-message").textContent = message || "";
+}
+
+class Unauthorized extends Error {}
+
+async function api(path, options = {}) {
+  const headers = Object.assign({}, options.headers || {}, {
+    Authorization: "Bearer " + (token() || ""),
+  });
+  const resp = await fetch(path, Object.assign({}, options, { headers }));
+  if (resp.status === 401) {
+    sessionStorage.removeItem(TOKEN_KEY);
+    showLogin("The daemon refused that token.");
+    throw new Unauthorized("unauthorized");
+  }
+  return resp;
+}
+
+async function json(path, options) {
+  const resp = await api(path, options);
+  let body = null;
+  try {
+    body = await resp.json();
+  } catch (_) {
+    body = null;
+  }
+  return { status: resp.status, body };
+}
+
+function fmt(v, digits) {
+  return v === null || v === undefined ? "—" : Number(v).toFixed(digits);
+}
+
+function setState(el, state) {
+  el.textContent = state;
+  el.className = "state " + state;
+}
+
+function showStatus(s) {
+  $("cal-id").textContent = s.id + (s.trigger === "bump" ? " (after a bump)" : "") + (s.dry_run ? " (dry run)" : "");
+  setState($("state"), s.state);
+  $("phase").textContent = s.phase ? s.phase : "";
+  $("views").textContent = s.views;
+  $("max").textContent = s.max_views;
+  $("round").textContent = s.round === null || s.round === undefined ? "—" : s.round;
+  $("loss").textContent = fmt(s.loss, 5);
+  $("iou").textContent = fmt(s.mean_iou, 4);
+  $("variance").textContent = s.best_variance === null || s.best_variance === undefined ? "—" : fmt(s.best_variance, 1) + " px";
+  let reason = s.stop_reason || "—";
+  if (s.error) reason = s.error;
+  if (s.planned_poses !== null && s.planned_poses !== undefined) reason += " (" + s.planned_poses + " poses planned)";
+  if (s.truth_error) {
+    reason += " — vs simulated truth " + fmt(s.truth_error.rotation_deg, 3) + "° / " + fmt(s.truth_error.translation_mm, 2) + " mm";
+  }
+  $("stop-reason").textContent = reason;
+  const p = $("progress");
+  p.max = Math.max(1, s.max_views);
+  p.value = s.views;
+  const running = s.state === "running" || s.state === "queued";
+  $("start").disabled = running;
+  $("cancel").hidden = !running;
+  $("cancel").dataset.id = s.id;
+}
+
+function resetOverlays(id) {
+  shownId = id;
+  overlayViews.clear();
+  $("overlays").replaceChildren();
+}
+
+async function loadOverlay(id, n) {
+  let img = overlayViews.get(n);
+  if (!img) {
+    const fig = document.createElement("figure");
+    img = document.createElement("img");
+    img.alt = "view " + n;
+    const cap = document.createElement("figcaption");
+    cap.textContent = "view " + n;
+    fig.append(img, cap);
+    $("overlays").append(fig);
+    overlayViews.set(n, img);
+  }
+  const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/views/" + n + "/overlay.png");
+  if (!resp.ok || shownId !== id) return;
+  const blob = await resp.blob();
+  const old = img.src;
+  img.src = URL.createObjectURL(blob);
+  img.dataset.loaded = "1";
+  if (old && old.startsWith("blob:")) URL.revokeObjectURL(old);
+}
+
+async function showOverlays(s, reloadAll) {
+  if (shownId !== s.id) resetOverlays(s.id);
+  if (!s.camera_from_base) return;
+  for (let n = 0; n < s.views; n++) {
+    if (reloadAll || !overlayViews.has(n)) await loadOverlay(s.id, n);
+  }
+}
+
+function handleEvent(e) {
+  const s = e.status;
+  showStatus(s);
+  if (e.kind === "round") showOverlays(s, false);
+  if (e.kind === "state" && s.state !== "running" && s.state !== "queued") {
+    showOverlays(s, true);
+  }
+}
+
+async function follow(id) {
+  if (following === id) return;
+  following = id;
+  resetOverlays(id);
+  try {
+    const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/events");
+    if (!resp.ok || !resp.body) throw new Error("event stream: HTTP " + resp.status);
+    const reader = resp.body.getReader();
+    const decoder = new TextDecoder();
+    let buffer = "";
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      buffer += decoder.decode(value, { stream: true }).replace(/\r/g, "");
+      let end;
+      while ((end = buffer.indexOf("\n\n")) >= 0) {
+        const block = buffer.slice(0, end);
+        buffer = buffer.slice(end + 2);
+        const data = block
+          .split("\n")
+          .filter((l) => l.startsWith("data:"))
+          .map((l) => l.slice(5).trim())
+          .join("\n");
+        if (data) handleEvent(JSON.parse(data));
+      }
+    }
+  } catch (err) {
+    if (!(err instanceof Unauthorized)) $("message").textContent = String(err);
+  } finally {
+    following = null;
+  }
+  await refresh();
+}
+
+function showActive(a) {
+  if (!a) {
+    $("no-result").hidden = false;
+    $("result-body").hidden = true;
+    return;
+  }
+  $("no-result").hidden = true;
+  $("result-body").hidden = false;
+  $("result-id").textContent = a.id;
+  $("result").dataset.id = a.id;
+  const stale = $("stale");
+  stale.textContent = a.stale ? "stale: camera moved" : "fits";
+  stale.className = "badge " + (a.stale ? "bad" : "ok");
+  $("activated-at").textContent = "active since " + a.activated_at;
+  const r = a.result;
+  $("matrix").textContent = r.camera_from_base
+    .map((row) => row.map((v) => (v >= 0 ? " " : "") + v.toFixed(5)).join("  "))
+    .join("\n");
+  if (r.uncertainty) {
+    $("unc-rot").textContent = r.uncertainty.rotation_deg.map((v) => v.toFixed(4)).join(", ") + " °";
+    $("unc-trans").textContent = r.uncertainty.translation_mm.map((v) => v.toFixed(3)).join(", ") + " mm";
+  }
+  $("views-used").textContent = r.views_used.join(", ");
+  $("result-reason").textContent = r.stop_reason;
+}
+
+function showCheck(c) {
+  if (!c) return;
+  const v = $("check-verdict");
+  v.textContent = c.stale ? "bump detected: calibration stale" : "camera has not moved";
+  v.className = "badge " + (c.stale ? "bad" : "ok");
+  $("check-at").textContent = c.at + " (" + c.trigger + ", " + c.calibration_id + ")";
+  $("check-iou").textContent = fmt(c.iou, 4) + " (stale below " + c.min_iou + ")";
+  $("check-boundary").textContent = fmt(c.boundary_px, 2) + " px (stale above " + c.max_boundary_px + " px)";
+  $("check-recal").textContent = c.recalibration || "—";
+}
+
+function showHistory(list, activeId) {
+  const rows = list.map((c) => {
+    const tr = document.createElement("tr");
+    const cells = [
+      c.id + (c.id === activeId ? " ★" : ""),
+      c.state,
+      String(c.views),
+      c.started_at || c.created_at,
+      c.error || c.stop_reason || "",
+    ];
+    for (const [i, text] of cells.entries()) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      if (i === 1) td.className = "state " + c.state;
+      tr.append(td);
+    }
+    const td = document.createElement("td");
+    const final = !["queued", "running"].includes(c.state);
+    if (final && c.id !== activeId && !c.dry_run && c.state !== "failed") {
+      const b = document.createElement("button");
+      b.textContent = "Activate";
+      b.onclick = async () => {
+        const { status, body } = await json("/api/v1/calibrations/" + encodeURIComponent(c.id) + "/activate", { method: "POST" });
+        $("message").textContent = status === 200 ? "" : body && body.error;
+        refresh();
+      };
+      td.append(b);
+    }
+    tr.append(td);
+    return tr;
+  });
+  $("history").replaceChildren(...rows);
+}
+
+async function refresh() {
+  try {
+    const [hist, active, checks] = await Promise.all([
+      json("/api/v1/calibrations"),
+      json("/api/v1/calibration"),
+      json("/api/v1/checks"),
+    ]);
+    const list = (hist.body && hist.body.calibrations) || [];
+    showHistory(list, hist.body && hist.body.active);
+    showActive(active.status === 200 ? active.body : null);
+    showCheck(checks.body && checks.body.checks && checks.body.checks[0]);
+    const live = list.find((c) => c.state === "running" || c.state === "queued");
+    if (live) {
+      follow(live.id);
+    } else if (list.length && !following) {
+      showStatus(list[0]);
+      if (shownId !== list[0].id) showOverlays(list[0], true);
+    }
+  } catch (err) {
+    if (!(err instanceof Unauthorized)) $("message").textContent = String(err);
+  }
+}
+
+async function start() {
+  $("message").textContent = "";
+  const mv = parseInt($("max-views").value, 10);
+  const body = Number.isFinite(mv) ? { max_views: mv } : {};
+  const { status, body: reply } = await json("/api/v1/calibrations", {
+    method: "POST",
+    headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body),
+  });
+  if (status === 202) {
+    follow(reply.id);
+  } else {
+    $("message").textContent = (reply && reply.error) || "HTTP " + status;
+  }
+}
+
+async function cancel() {
+  const id = $("cancel").dataset.id;
+  const { status, body } = await json("/api/v1/calibrations/" + encodeURIComponent(id) + "/cancel", { method: "POST" });
+  if (status !== 202) $("message").textContent = (body && body.error) || "HTTP " + status;
+}
+
+async function check() {
+  $("check").disabled = true;
+  $("message").textContent = "";
+  try {
+    const { status, body } = await json("/api/v1/checks", { method: "POST" });
+    if (status === 200) showCheck(body);
+    else $("message").textContent = (body && body.error) || "HTTP " + status;
+  } finally {
+    $("check").disabled = false;
+  }
+  refresh();
+}
+
+function boot() {
+  takeTokenFromUrl();
+  $("login-form").onsubmit = (e) => {
+    e.preventDefault();
+    sessionStorage.setItem(TOKEN_KEY, $("token-input").value.trim());
+    boot();
+  };
+  if (!token()) {
+    showLogin("");
+    return;
+  }
+  $("login").hidden = true;
+  $("app").hidden = false;
+  $("start").onclick = start;
+  $("cancel").onclick = cancel;
+  $("check").onclick = check;
+  refresh();
+}
+
+boot();
+setInterval(() => {
+  if (token() && !following) refresh();
+}, 5000);

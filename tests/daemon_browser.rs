@@ -1,0 +1,321 @@
+//! The daemon's web page in headless Chromium, driven over WebDriver (Debian's `chromium` and
+//! `chromium-driver`): open `/?token=…`, click Calibrate, watch the run finish live, see the
+//! result with its uncertainty and the overlays, run a bump check; a screenshot goes to
+//! `target/daemon-browser.png`. Without Chromium the test fails under CI (`CI=true`) and
+//! prints SKIPPED elsewhere.
+
+mod daemon_common;
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use daemon_common::{start, write_config, TOKEN};
+use serde_json::{json, Value};
+
+fn find(names: &[&str]) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    for dir in std::env::split_paths(&path) {
+        for n in names {
+            let p = dir.join(n);
+            if p.is_file() {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+/// chromedriver on a free loopback port, killed on drop.
+struct Driver {
+    child: Child,
+    base: String,
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::AgentBuilder::new()
+        .timeout_connect(Duration::from_secs(5))
+        .timeout_read(Duration::from_secs(60))
+        .build()
+}
+
+/// One WebDriver command; returns its `value`.
+fn wd(method: &str, url: &str, body: Option<Value>) -> Value {
+    let req = agent().request(method, url);
+    let resp = match body {
+        Some(b) => req.send_json(b),
+        None => req.call(),
+    };
+    let resp = match resp {
+        Ok(r) => r,
+        Err(ureq::Error::Status(code, r)) => {
+            panic!(
+                "WebDriver {method} {url}: {code} {}",
+                r.into_string().unwrap_or_default()
+            )
+        }
+        Err(e) => panic!("WebDriver {method} {url}: {e}"),
+    };
+    let v: Value = resp.into_json().expect("WebDriver JSON");
+    v["value"].clone()
+}
+
+fn start_driver(chromedriver: &Path) -> Driver {
+    let port = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let child = Command::new(chromedriver)
+        .arg(format!("--port={port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromedriver starts");
+    let driver = Driver {
+        child,
+        base: format!("http://127.0.0.1:{port}"),
+    };
+    let t = Instant::now();
+    loop {
+        if let Ok(r) = agent().get(&format!("{}/status", driver.base)).call() {
+            if r.into_json::<Value>()
+                .is_ok_and(|v| v["value"]["ready"] == true)
+            {
+                return driver;
+            }
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(30),
+            "chromedriver not ready"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Runs `script` in the page (WebDriver execute/sync) and returns its result.
+fn js(session: &str, script: &str) -> Value {
+    wd(
+        "POST",
+        &format!("{session}/execute/sync"),
+        Some(json!({ "script": script, "args": [] })),
+    )
+}
+
+fn wait_js(session: &str, script: &str, timeout: Duration, what: &str) -> Value {
+    let t = Instant::now();
+    loop {
+        let v = js(session, script);
+        if v != Value::Null && v != Value::Bool(false) {
+            return v;
+        }
+        if t.elapsed() > timeout {
+            let state = js(session, "return document.body.innerText");
+            panic!("{what}: not within {timeout:?}; page text:\n{state}");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Standard base64 decoding (the screenshot), without a dependency for it.
+fn base64_decode(s: &str) -> Vec<u8> {
+    let val = |c: u8| -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return None,
+        })
+    };
+    let mut out = Vec::with_capacity(s.len() * 3 / 4);
+    let (mut acc, mut bits) = (0u32, 0);
+    for c in s.bytes().filter_map(val) {
+        acc = (acc << 6) | c;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+        }
+    }
+    out
+}
+
+fn screenshot(session: &str, path: &Path) {
+    let b64 = wd("GET", &format!("{session}/screenshot"), None);
+    let png = base64_decode(b64.as_str().expect("base64 screenshot"));
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    std::fs::write(path, &png).unwrap();
+    let img = image::load_from_memory(&png).expect("screenshot is a PNG");
+    assert!(
+        img.width() >= 800,
+        "screenshot {}x{}",
+        img.width(),
+        img.height()
+    );
+}
+
+#[test]
+fn web_page_calibrates_with_one_click_and_shows_the_result() {
+    let chromium = find(&["chromium", "chromium-browser", "google-chrome"]);
+    let chromedriver = find(&["chromedriver"]);
+    let (Some(chromium), Some(chromedriver)) = (chromium, chromedriver) else {
+        if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+            panic!("chromium and chromedriver are required under CI: apt-get install chromium chromium-driver");
+        }
+        eprintln!("SKIPPED: chromium / chromedriver not installed (apt-get install chromium chromium-driver)");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let d = start(&config, &dir.path().join("data"));
+    let driver = start_driver(&chromedriver);
+    let caps = json!({
+        "capabilities": { "alwaysMatch": {
+            "browserName": "chrome",
+            "goog:chromeOptions": {
+                "binary": chromium.to_string_lossy(),
+                "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                         "--disable-dev-shm-usage", "--window-size=1400,1200"]
+            }
+        }}
+    });
+    let created = wd("POST", &format!("{}/session", driver.base), Some(caps));
+    let session = format!(
+        "{}/session/{}",
+        driver.base,
+        created["sessionId"].as_str().expect("a session id")
+    );
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        // A wrong token is refused and the page asks for one.
+        wd(
+            "POST",
+            &format!("{session}/url"),
+            Some(json!({ "url": format!("{}/?token=wrong", d.base) })),
+        );
+        wait_js(
+            &session,
+            "return !document.getElementById('login').hidden",
+            Duration::from_secs(20),
+            "the login form after a wrong token",
+        );
+        // The token in the address: stored for the tab and removed from the address bar.
+        wd(
+            "POST",
+            &format!("{session}/url"),
+            Some(json!({ "url": format!("{}/?token={TOKEN}", d.base) })),
+        );
+        wait_js(
+            &session,
+            "return !document.getElementById('app').hidden && document.getElementById('start') !== null",
+            Duration::from_secs(20),
+            "the page",
+        );
+        let url = js(&session, "return window.location.href");
+        assert!(!url.as_str().unwrap().contains("token"), "{url}");
+        let button = wd(
+            "POST",
+            &format!("{session}/element"),
+            Some(json!({ "using": "css selector", "value": "#start" })),
+        );
+        let element = button
+            .as_object()
+            .and_then(|o| o.values().next())
+            .and_then(Value::as_str)
+            .expect("the button")
+            .to_string();
+        wd(
+            "POST",
+            &format!("{session}/element/{element}/click"),
+            Some(json!({})),
+        );
+        // Live progress: the state shows running, then succeeded.
+        wait_js(
+            &session,
+            "const s = document.getElementById('state').textContent; return s === 'running' || s === 'succeeded'",
+            Duration::from_secs(20),
+            "the run starting",
+        );
+        let id = wait_js(
+            &session,
+            "return document.getElementById('state').textContent === 'succeeded' && document.getElementById('cal-id').textContent",
+            Duration::from_secs(120),
+            "the run finishing",
+        );
+        let id = id.as_str().unwrap().to_string();
+        // The result with its uncertainty, and the overlays loaded.
+        let shown = wait_js(
+            &session,
+            "const r = document.getElementById('result-id').textContent; return r && !document.getElementById('result-body').hidden && r",
+            Duration::from_secs(20),
+            "the active result",
+        );
+        assert_eq!(shown.as_str(), Some(id.as_str()));
+        let unc = js(
+            &session,
+            "return document.getElementById('unc-rot').textContent",
+        );
+        assert!(unc.as_str().unwrap().contains('°'), "{unc}");
+        let matrix = js(
+            &session,
+            "return document.getElementById('matrix').textContent",
+        );
+        assert_eq!(matrix.as_str().unwrap().lines().count(), 4, "{matrix}");
+        let loaded = wait_js(
+            &session,
+            "const imgs = [...document.querySelectorAll('#overlays img')]; return imgs.length >= 3 && imgs.every(i => i.complete && i.naturalWidth === 320) && imgs.length",
+            Duration::from_secs(30),
+            "the overlays",
+        );
+        let views = d.daemon.store().record(&id).unwrap().views;
+        assert_eq!(loaded.as_u64(), Some(views as u64));
+        // History lists it; a bump check reports the camera in place.
+        let history = js(
+            &session,
+            "return document.getElementById('history').textContent",
+        );
+        assert!(history.as_str().unwrap().contains(&id), "{history}");
+        let check = wd(
+            "POST",
+            &format!("{session}/element"),
+            Some(json!({ "using": "css selector", "value": "#check" })),
+        );
+        let check = check
+            .as_object()
+            .unwrap()
+            .values()
+            .next()
+            .unwrap()
+            .as_str()
+            .unwrap()
+            .to_string();
+        wd(
+            "POST",
+            &format!("{session}/element/{check}/click"),
+            Some(json!({})),
+        );
+        wait_js(
+            &session,
+            "return document.getElementById('check-verdict').textContent === 'camera has not moved'",
+            Duration::from_secs(30),
+            "the bump check verdict",
+        );
+        let target = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/daemon-browser.png");
+        screenshot(&session, &target);
+        eprintln!("screenshot: {}", target.display());
+    }));
+    let _ = agent().delete(&session).call();
+    drop(driver);
+    if let Err(e) = result {
+        std::panic::resume_unwind(e);
+    }
+}

@@ -1,0 +1,229 @@
+//! Helpers for the daemon tests: a small simulated cell config, an in-process daemon on a
+//! free loopback port, and a plain HTTP client (ureq) that returns status and JSON.
+#![allow(dead_code)]
+
+use std::io::BufRead;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use easyhec::cell::{read_config, ArmConfig, CameraConfig, Cell, CellConfig};
+use easyhec::daemon::{serve, Daemon};
+use serde_json::Value;
+
+/// The token every test daemon uses.
+pub const TOKEN: &str = "test-token-1234";
+
+/// Writes `DIR/cell.toml`: the shipped simulated xArm6 cell at 320x240 with a light planner
+/// (each calibration takes a second or two), `tweak`ed.
+pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = read_config(&root.join("config/sim-xarm6.toml")).expect("shipped config");
+    cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
+    // Irrefutable while the simulated camera is the only kind; stays right when more come.
+    #[allow(irrefutable_let_patterns)]
+    if let CameraConfig::Sim {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        ..
+    } = &mut cfg.camera
+    {
+        *width /= 2;
+        *height /= 2;
+        *fx /= 2.0;
+        *fy /= 2.0;
+        *cx /= 2.0;
+        *cy /= 2.0;
+    }
+    cfg.calibration.max_views = 4;
+    cfg.calibration.joint_samples = 400;
+    cfg.calibration.candidates = 16;
+    cfg.daemon.token = Some(TOKEN.into());
+    tweak(&mut cfg);
+    let text = toml::to_string(&cfg).expect("config serialises");
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Simulated moves in real time (the sim arm's default is instant), so a run lasts long
+/// enough to be cancelled or killed mid-way.
+pub fn real_time_arm(cfg: &mut CellConfig) {
+    if let ArmConfig::Sim { speedup, .. } = &mut cfg.arm {
+        *speedup = Some(1.0);
+    }
+}
+
+/// A daemon served on a background runtime.
+pub struct Running {
+    /// `http://127.0.0.1:PORT`.
+    pub base: String,
+    /// The daemon (its cell's simulator handles).
+    pub daemon: Arc<Daemon>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Running {
+    /// Graceful shutdown, as SIGTERM does; waits for it.
+    pub fn stop(mut self) {
+        self.shutdown();
+    }
+
+    fn shutdown(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            t.join().expect("daemon thread");
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+/// Starts a daemon for `config` on `data`.
+pub fn start(config: &Path, data: &Path) -> Running {
+    let cell = Cell::open(config).expect("test cell builds");
+    let daemon = Daemon::open(cell, data, TOKEN.into()).expect("daemon opens");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let (addr_tx, addr_rx) = std::sync::mpsc::channel();
+    let d = daemon.clone();
+    let thread = std::thread::Builder::new()
+        .name("test-daemon".into())
+        .spawn(move || {
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()
+                .unwrap();
+            rt.block_on(async move {
+                let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+                addr_tx.send(listener.local_addr().unwrap()).unwrap();
+                serve(d, listener, async move {
+                    let _ = stop_rx.await;
+                })
+                .await
+                .unwrap();
+            });
+        })
+        .unwrap();
+    let addr = addr_rx
+        .recv_timeout(Duration::from_secs(10))
+        .expect("daemon binds");
+    Running {
+        base: format!("http://{addr}"),
+        daemon,
+        stop: Some(stop_tx),
+        thread: Some(thread),
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::AgentBuilder::new()
+        .timeout_connect(Duration::from_secs(5))
+        .timeout_read(Duration::from_secs(120))
+        .build()
+}
+
+/// One request with the test token (or `token`); returns status and JSON body (`Null` when
+/// the body is not JSON).
+pub fn call_as(method: &str, url: &str, token: Option<&str>, body: Option<&Value>) -> (u16, Value) {
+    let mut req = agent().request(method, url);
+    if let Some(t) = token {
+        req = req.set("Authorization", &format!("Bearer {t}"));
+    }
+    let result = match body {
+        Some(b) => req.send_json(b.clone()),
+        None => req.call(),
+    };
+    let resp = match result {
+        Ok(r) => r,
+        Err(ureq::Error::Status(_, r)) => r,
+        Err(e) => panic!("{method} {url}: {e}"),
+    };
+    let status = resp.status();
+    let text = resp.into_string().unwrap_or_default();
+    (status, serde_json::from_str(&text).unwrap_or(Value::Null))
+}
+
+/// [`call_as`] with the test token.
+pub fn call(method: &str, url: &str, body: Option<&Value>) -> (u16, Value) {
+    call_as(method, url, Some(TOKEN), body)
+}
+
+/// GET with the token; status, content type and raw body.
+pub fn get_bytes(url: &str) -> (u16, String, Vec<u8>) {
+    let resp = match agent()
+        .get(url)
+        .set("Authorization", &format!("Bearer {TOKEN}"))
+        .call()
+    {
+        Ok(r) => r,
+        Err(ureq::Error::Status(_, r)) => r,
+        Err(e) => panic!("GET {url}: {e}"),
+    };
+    let status = resp.status();
+    let ctype = resp.content_type().to_string();
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut resp.into_reader(), &mut bytes).unwrap();
+    (status, ctype, bytes)
+}
+
+/// Polls a calibration's status until `done` holds (panics after `timeout` with the last
+/// status).
+pub fn wait_for(base: &str, id: &str, timeout: Duration, done: impl Fn(&Value) -> bool) -> Value {
+    let start = Instant::now();
+    loop {
+        let (code, s) = call("GET", &format!("{base}/api/v1/calibrations/{id}"), None);
+        assert_eq!(code, 200, "status of {id}: {s}");
+        if done(&s) {
+            return s;
+        }
+        assert!(
+            start.elapsed() < timeout,
+            "{id} not there after {timeout:?}: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Waits for a final state.
+pub fn wait_final(base: &str, id: &str) -> Value {
+    wait_for(base, id, Duration::from_secs(180), |s| {
+        !matches!(s["state"].as_str(), Some("queued" | "running"))
+    })
+}
+
+/// Reads a calibration's SSE stream to its end: `(event name, data)` pairs.
+pub fn read_events(base: &str, id: &str) -> Vec<(String, Value)> {
+    let resp = agent()
+        .get(&format!("{base}/api/v1/calibrations/{id}/events"))
+        .set("Authorization", &format!("Bearer {TOKEN}"))
+        .call()
+        .expect("events stream");
+    assert_eq!(resp.content_type(), "text/event-stream");
+    let reader = std::io::BufReader::new(resp.into_reader());
+    let mut out = Vec::new();
+    let mut name = String::new();
+    for line in reader.lines() {
+        let line = line.expect("stream line");
+        if let Some(n) = line.strip_prefix("event:") {
+            name = n.trim().to_string();
+        } else if let Some(d) = line.strip_prefix("data:") {
+            out.push((
+                name.clone(),
+                serde_json::from_str(d.trim()).expect("JSON data"),
+            ));
+        }
+    }
+    out
+}
