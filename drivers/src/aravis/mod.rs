@@ -125,9 +125,11 @@ impl FromStr for PixelFormat {
             "bayerbg8" => PixelFormat::Bayer8(BayerPattern::Bggr),
             "bayergb8" => PixelFormat::Bayer8(BayerPattern::Gbrg),
             "rgb8" | "rgb8packed" => PixelFormat::Rgb8,
-            _ => return Err(format!(
+            _ => {
+                return Err(format!(
                 "{s:?} is not supported: use Mono8, BayerRG8, BayerGR8, BayerBG8, BayerGB8 or RGB8"
-            )),
+            ))
+            }
         })
     }
 }
@@ -164,11 +166,11 @@ pub fn demosaic_bilinear(
             for c in 0..3 {
                 out[c] = if c == own {
                     raw[y * w + x]
-                } else if count[c] > 0 {
-                    ((sum[c] + count[c] / 2) / count[c]) as u8
                 } else {
                     // A 1-pixel-wide image lacks some colours entirely: fall back to the sample.
-                    raw[y * w + x]
+                    (sum[c] + count[c] / 2)
+                        .checked_div(count[c])
+                        .map_or(raw[y * w + x], |mean| mean as u8)
                 };
             }
         }
