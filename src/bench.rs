@@ -187,7 +187,14 @@ pub fn seeded_sim_cell(
     let pose = truth.camera_from_base();
     let CameraConfig::Sim {
         truth: t, scene, ..
-    } = &mut cfg.camera;
+    } = &mut cfg.camera
+    else {
+        return Err(crate::Error::input(
+            config_path,
+            "camera.kind",
+            "the loop benchmark needs a simulated camera (kind = \"sim\")",
+        ));
+    };
     *t = truth;
     scene.seed = seed;
     cfg.calibration.seed = seed;
@@ -203,7 +210,11 @@ pub fn seeded_sim_cell(
     *s = seed;
     // A start pose that is safe and shows the robot to the true camera.
     let cell = Cell::build(cfg.clone(), config_path)?;
-    let camera = cfg.camera.camera().undistorted();
+    let camera = cfg
+        .camera
+        .camera()
+        .ok_or_else(|| crate::Error::input(config_path, "camera.kind", "needs a simulated camera"))?
+        .undistorted();
     for _ in 0..10_000 {
         let q: Vec<f64> = cell
             .checker

@@ -9,9 +9,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use easyhec_drivers::aravis::PixelFormat as AravisPixelFormat;
 use easyhec_drivers::dynamixel::{Family, ServoArm, ServoArmConfig, ServoJoint};
+use easyhec_drivers::intrinsics::{check_frame_size, load_intrinsics, IntrinsicsError};
+use easyhec_drivers::v4l2::V4l2PixelFormat;
 use easyhec_drivers::xarm::{Model as XArmModel, XArm, XArmConfig};
-use easyhec_drivers::{Arm, Camera as CameraDevice, JointLimit};
+use easyhec_drivers::{Arm, Camera as CameraDevice, Intrinsics, JointLimit};
 use easyhec_mocks::ur::UrRtdeJoints;
 use easyhec_mocks::xarm::XArmReportJoints;
 use easyhec_mocks::{Fault, JointSource, SimArm, SimArmConfig, SimCamera};
@@ -310,6 +313,59 @@ pub enum CameraConfig {
         #[serde(default)]
         joints_from: Option<JointsFrom>,
     },
+    /// A UVC webcam through V4L2. Needs the `v4l2` cargo feature; the variant exists without
+    /// it so such a config gets a one-line "rebuild" error.
+    V4l2 {
+        /// A device path (`/dev/video0`, `/dev/v4l/by-id/…`) or the camera's name as its
+        /// driver reports it (a unique part of it is enough).
+        device: String,
+        /// Stream width, pixels: must equal the calibration file's `image_width`.
+        width: u32,
+        /// Stream height, pixels: must equal the calibration file's `image_height`.
+        height: u32,
+        /// `"YUYV"` or `"MJPG"`.
+        pixel_format: String,
+        /// Fixed exposure, microseconds (default: the camera's own, usually automatic).
+        #[serde(default)]
+        exposure_us: Option<u32>,
+        /// The calibration file: ROS `camera_info` or OpenCV YAML.
+        intrinsics: PathBuf,
+        /// Limit for one frame, seconds (default 2).
+        #[serde(default)]
+        frame_timeout_s: Option<f64>,
+    },
+    /// A GigE Vision or USB3 Vision camera through Aravis. Needs the `aravis` cargo feature;
+    /// the variant exists without it so such a config gets a one-line "rebuild" error.
+    Aravis {
+        /// Aravis device id (`<vendor>-<model>-<serial>`, `<vendor>-<serial>`, user id, MAC or
+        /// IP; default: the first camera found). `"Fake_1"` is Aravis's built-in test camera.
+        #[serde(default)]
+        device_id: Option<String>,
+        /// `"Mono8"`, `"BayerRG8"`, `"BayerGR8"`, `"BayerBG8"`, `"BayerGB8"` or `"RGB8"`.
+        pixel_format: String,
+        /// Fixed exposure, microseconds (default: the camera's setting).
+        #[serde(default)]
+        exposure_us: Option<f64>,
+        /// Fixed gain, dB (default: the camera's setting).
+        #[serde(default)]
+        gain_db: Option<f64>,
+        /// The calibration file: ROS `camera_info` or OpenCV YAML; its size must be the
+        /// camera's region, which is checked when the camera opens.
+        intrinsics: PathBuf,
+        /// Limit for one frame, seconds (default 2).
+        #[serde(default)]
+        frame_timeout_s: Option<f64>,
+    },
+}
+
+/// A hardware camera's calibration, read and checked when the cell is built, before the arm
+/// is touched.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraCalibration {
+    /// The intrinsics in the file.
+    pub intrinsics: Intrinsics,
+    /// The file (resolved against the config's folder).
+    pub file: PathBuf,
 }
 
 /// The true-joint side channel of a simulated camera filming an arm that is not a
@@ -336,9 +392,10 @@ pub enum JointsFrom {
 }
 
 impl CameraConfig {
-    /// The camera model the config describes.
-    pub fn camera(&self) -> Camera {
-        match self {
+    /// The camera model written in the config itself: a simulated camera's. Hardware cameras
+    /// (`None` here) take theirs from their calibration file ([`CameraConfig::calibration`]).
+    pub fn camera(&self) -> Option<Camera> {
+        Some(match self {
             CameraConfig::Sim {
                 width,
                 height,
@@ -357,8 +414,93 @@ impl CameraConfig {
                 cy: *cy,
                 distortion: *distortion,
             },
+            CameraConfig::V4l2 { .. } | CameraConfig::Aravis { .. } => return None,
+        })
+    }
+
+    /// Reads a hardware camera's calibration file (relative to the config at `config_path`)
+    /// and checks what can be checked without the device: the pixel format and settings
+    /// parse, and a V4L2 stream size equals the calibrated size. `None` for the simulated
+    /// camera. Errors name the calibration file (or the config) and the field.
+    pub fn calibration(&self, config_path: &Path) -> Result<Option<CameraCalibration>> {
+        let dir = config_path.parent().unwrap_or(Path::new("."));
+        let load = |file: &Path| -> Result<CameraCalibration> {
+            let file = dir.join(file);
+            let intrinsics =
+                load_intrinsics(&file).map_err(|e| intrinsics_error(e, config_path))?;
+            Ok(CameraCalibration { intrinsics, file })
+        };
+        match self {
+            CameraConfig::Sim { .. } => Ok(None),
+            CameraConfig::V4l2 {
+                width,
+                height,
+                pixel_format,
+                exposure_us,
+                intrinsics,
+                frame_timeout_s,
+                ..
+            } => {
+                pixel_format
+                    .parse::<V4l2PixelFormat>()
+                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+                if *exposure_us == Some(0) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.exposure_us",
+                        "0: give a positive exposure in microseconds, or leave it out for the camera's own",
+                    ));
+                }
+                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+                let calibration = load(intrinsics)?;
+                check_frame_size(&calibration.intrinsics, &calibration.file, *width, *height)
+                    .map_err(|e| intrinsics_error(e, config_path))?;
+                Ok(Some(calibration))
+            }
+            CameraConfig::Aravis {
+                pixel_format,
+                exposure_us,
+                gain_db,
+                intrinsics,
+                frame_timeout_s,
+                ..
+            } => {
+                pixel_format
+                    .parse::<AravisPixelFormat>()
+                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+                if let Some(us) = exposure_us.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.exposure_us",
+                        format!("{us}: give a positive exposure in microseconds"),
+                    ));
+                }
+                if let Some(db) = gain_db.filter(|v| !v.is_finite()) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.gain_db",
+                        format!("{db}: give a finite gain in dB"),
+                    ));
+                }
+                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+                Ok(Some(load(intrinsics)?))
+            }
         }
     }
+}
+
+/// A calibration-file error as a library error: the file and field at fault, and which
+/// config points at the file.
+fn intrinsics_error(e: IntrinsicsError, config_path: &Path) -> Error {
+    Error::input(
+        &e.file,
+        e.field,
+        format!(
+            "{} (the [camera] intrinsics of {})",
+            e.message,
+            config_path.display()
+        ),
+    )
 }
 
 /// Handles into the simulated hardware, for tests and the truth report.
@@ -436,6 +578,8 @@ impl Cell {
 
     /// Builds from an already parsed config (`path` resolves relative paths).
     pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
+        // A bad calibration file fails here, before any hardware is opened.
+        let calibration = config.camera.calibration(path)?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let r = &config.robot;
         let source = RobotSource {
@@ -587,18 +731,26 @@ impl Cell {
                     }
                 };
                 let pose = truth.camera_from_base();
-                let scene = Arc::new(SimScene::new(
-                    robot.clone(),
-                    config.camera.camera(),
-                    pose,
-                    scene.clone(),
-                ));
+                let model = config.camera.camera().ok_or_else(|| {
+                    Error::input(path, "camera", "a simulated camera without its intrinsics")
+                })?;
+                let scene = Arc::new(SimScene::new(robot.clone(), model, pose, scene.clone()));
                 (
                     Arc::new(SimCamera::watching(source, scene.clone())),
                     Some(pose),
                     Some(scene),
                 )
             }
+            CameraConfig::V4l2 { .. } => (
+                v4l2_camera(&config.camera, calibration, path)?,
+                None,
+                None,
+            ),
+            CameraConfig::Aravis { .. } => (
+                aravis_camera(&config.camera, calibration, path)?,
+                None,
+                None,
+            ),
         };
         let controller: Vec<(f64, f64, f64)> = arm
             .joints()
@@ -803,5 +955,134 @@ fn piper_arm(_: &ArmConfig, _: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>>
         path,
         "arm.kind",
         "\"piper\" drives SocketCAN, which this build leaves out: rebuild with --features socketcan",
+    ))
+}
+
+/// The calibration [`CameraConfig::calibration`] read for a hardware camera kind.
+#[cfg(any(feature = "v4l2", feature = "aravis"))]
+fn calibration_of(
+    calibration: Option<CameraCalibration>,
+    path: &Path,
+) -> Result<CameraCalibration> {
+    calibration.ok_or_else(|| {
+        Error::input(
+            path,
+            "camera.intrinsics",
+            "a hardware camera needs its calibration file",
+        )
+    })
+}
+
+/// A driver error while opening a camera: a calibration-size mismatch names the calibration
+/// file and field; anything else the config's `[camera]` table.
+#[cfg(any(feature = "v4l2", feature = "aravis"))]
+fn camera_open_error(e: easyhec_drivers::DriverError, path: &Path) -> Error {
+    if let easyhec_drivers::DriverError::Backend(inner) = &e {
+        if let Some(ie) = inner.downcast_ref::<IntrinsicsError>() {
+            return intrinsics_error(ie.clone(), path);
+        }
+    }
+    Error::input(path, "camera", e.to_string())
+}
+
+/// The webcam of a `[camera] kind = "v4l2"` table (opened and streaming).
+#[cfg(feature = "v4l2")]
+fn v4l2_camera(
+    camera: &CameraConfig,
+    calibration: Option<CameraCalibration>,
+    path: &Path,
+) -> Result<Arc<dyn CameraDevice>> {
+    use easyhec_drivers::v4l2::{V4l2Camera, V4l2Config};
+    let CameraConfig::V4l2 {
+        device,
+        width,
+        height,
+        pixel_format,
+        exposure_us,
+        frame_timeout_s,
+        ..
+    } = camera
+    else {
+        unreachable!("called for kind = \"v4l2\" only")
+    };
+    let calibration = calibration_of(calibration, path)?;
+    let format = pixel_format
+        .parse()
+        .map_err(|e: String| Error::input(path, "camera.pixel_format", e))?;
+    let mut cfg = V4l2Config::new(
+        device.clone(),
+        *width,
+        *height,
+        format,
+        calibration.intrinsics,
+        calibration.file,
+    );
+    cfg.exposure_us = *exposure_us;
+    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+    let camera = V4l2Camera::open(cfg).map_err(|e| camera_open_error(e, path))?;
+    Ok(Arc::new(camera))
+}
+
+/// Without the `v4l2` feature a webcam config is an error that says how to get one.
+#[cfg(not(feature = "v4l2"))]
+fn v4l2_camera(
+    _: &CameraConfig,
+    _: Option<CameraCalibration>,
+    path: &Path,
+) -> Result<Arc<dyn CameraDevice>> {
+    Err(Error::input(
+        path,
+        "camera.kind",
+        "\"v4l2\" needs the V4L2 camera driver, which this build leaves out: rebuild with --features v4l2",
+    ))
+}
+
+/// The camera of a `[camera] kind = "aravis"` table (opened and streaming).
+#[cfg(feature = "aravis")]
+fn aravis_camera(
+    camera: &CameraConfig,
+    calibration: Option<CameraCalibration>,
+    path: &Path,
+) -> Result<Arc<dyn CameraDevice>> {
+    use easyhec_drivers::aravis::{AravisCamera, AravisConfig};
+    let CameraConfig::Aravis {
+        device_id,
+        pixel_format,
+        exposure_us,
+        gain_db,
+        frame_timeout_s,
+        ..
+    } = camera
+    else {
+        unreachable!("called for kind = \"aravis\" only")
+    };
+    let calibration = calibration_of(calibration, path)?;
+    let format = pixel_format
+        .parse()
+        .map_err(|e: String| Error::input(path, "camera.pixel_format", e))?;
+    let mut cfg = AravisConfig::new(
+        device_id.clone(),
+        format,
+        calibration.intrinsics,
+        calibration.file,
+    );
+    cfg.exposure_us = *exposure_us;
+    cfg.gain_db = *gain_db;
+    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+    let camera = AravisCamera::open(cfg).map_err(|e| camera_open_error(e, path))?;
+    Ok(Arc::new(camera))
+}
+
+/// Without the `aravis` feature a GenICam camera config is an error that says how to get one.
+#[cfg(not(feature = "aravis"))]
+fn aravis_camera(
+    _: &CameraConfig,
+    _: Option<CameraCalibration>,
+    path: &Path,
+) -> Result<Arc<dyn CameraDevice>> {
+    Err(Error::input(
+        path,
+        "camera.kind",
+        "\"aravis\" needs the Aravis (GigE Vision / USB3 Vision) driver, which this build leaves out: rebuild with --features aravis",
     ))
 }

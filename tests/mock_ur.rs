@@ -61,7 +61,9 @@ fn cell_config(mock: &MockUr, views: usize) -> CellConfig {
         panic!("config/mock-ur.toml drives a UR arm")
     };
     *host = mock.host().to_string();
-    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera;
+    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+        panic!("the camera is simulated")
+    };
     let Some(JointsFrom::UrRtde { addr, .. }) = joints_from else {
         panic!("the camera films the controller's RTDE stream")
     };
