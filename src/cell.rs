@@ -741,11 +741,9 @@ impl Cell {
                     Some(scene),
                 )
             }
-            CameraConfig::V4l2 { .. } => (
-                v4l2_camera(&config.camera, calibration, path)?,
-                None,
-                None,
-            ),
+            CameraConfig::V4l2 { .. } => {
+                (v4l2_camera(&config.camera, calibration, path)?, None, None)
+            }
             CameraConfig::Aravis { .. } => (
                 aravis_camera(&config.camera, calibration, path)?,
                 None,

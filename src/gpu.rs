@@ -345,10 +345,9 @@ impl WgpuRenderer {
             desc.backends = backends;
             let instance = wgpu::Instance::new(desc);
             adapters = pollster::block_on(instance.enumerate_adapters(backends));
-            let fits = adapters.iter().any(|a| {
-                policy == AdapterPolicy::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
-            });
-            if fits {
+            // Any Vulkan adapter settles it: a machine with a GPU but no Vulkan driver is
+            // the case GL is for, and probing EGL where Vulkan works only adds noise.
+            if !adapters.is_empty() {
                 break;
             }
         }

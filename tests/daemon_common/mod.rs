@@ -20,8 +20,6 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut cfg = read_config(&root.join("config/sim-xarm6.toml")).expect("shipped config");
     cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
-    // Irrefutable while the simulated camera is the only kind; stays right when more come.
-    #[allow(irrefutable_let_patterns)]
     if let CameraConfig::Sim {
         width,
         height,
@@ -48,6 +46,36 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
     let path = dir.join("cell.toml");
     std::fs::write(&path, text).unwrap();
     path
+}
+
+/// Undoes [`write_config`]'s half resolution and small planning budget: the shipped cell's
+/// 640x480 camera and default exploration, with up to 8 views, for the tests that hold the
+/// calibration to the accuracy bound (1 mm / 0.05°).
+pub fn full_resolution(cfg: &mut CellConfig) {
+    if let CameraConfig::Sim {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        ..
+    } = &mut cfg.camera
+    {
+        *width *= 2;
+        *height *= 2;
+        *fx *= 2.0;
+        *fy *= 2.0;
+        *cx *= 2.0;
+        *cy *= 2.0;
+    }
+    let defaults = easyhec::cell::read_config(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/sim-xarm6.toml"),
+    )
+    .expect("shipped config");
+    cfg.calibration.max_views = 8;
+    cfg.calibration.joint_samples = defaults.calibration.joint_samples;
+    cfg.calibration.candidates = defaults.calibration.candidates;
 }
 
 /// Simulated moves in real time (the sim arm's default is instant), so a run lasts long
