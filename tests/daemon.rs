@@ -71,20 +71,32 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
     let (_, _, page) = get_bytes(&format!("{base}/"));
     assert!(String::from_utf8_lossy(&page).contains("easyhec"));
 
-    // Token: missing or wrong is 401 with a JSON error, on the API and on /metrics.
+    // Token: every route that acts refuses a missing or wrong one (401, JSON error) before
+    // anything moves; read-only routes answer without it.
     for token in [None, Some("wrong-token")] {
         for (method, route) in [
-            ("GET", "/api/v1/calibrations"),
             ("POST", "/api/v1/calibrations"),
-            ("GET", "/api/v1/calibration"),
             ("POST", "/api/v1/checks"),
-            ("GET", "/metrics"),
+            ("POST", "/api/v1/calibrations/cal-0001/cancel"),
+            ("POST", "/api/v1/calibrations/cal-0001/activate"),
         ] {
             let (code, body) = call_as(method, &format!("{base}{route}"), token, None);
             assert_eq!(code, 401, "{method} {route} with {token:?}");
             assert!(body["error"].as_str().unwrap().contains("Bearer"), "{body}");
         }
+        let (code, body) = call_as("GET", &format!("{base}/api/v1/calibrations"), token, None);
+        assert_eq!(code, 200, "history reads without the token: {body}");
+        let (code, _) = call_as("GET", &format!("{base}/api/v1/calibration"), token, None);
+        assert_eq!(code, 404, "nothing active yet, but no 401");
+        let (code, _) = call_as("GET", &format!("{base}/metrics"), token, None);
+        assert_eq!(code, 200, "metrics read without the token");
     }
+    let (_, history) = call("GET", &format!("{base}/api/v1/calibrations"), None);
+    assert_eq!(
+        history["calibrations"],
+        json!([]),
+        "nothing was started by the refused calls"
+    );
     let (code, body) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(code, 404, "nothing active yet: {body}");
     let (code, body) = call(
@@ -682,4 +694,19 @@ fn scheduled_checks_run_while_the_arm_is_idle() {
     }
     let (_, active) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(active["last_check"]["trigger"], "schedule");
+}
+
+#[test]
+fn protect_reads_puts_the_read_only_routes_behind_the_token_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |c| c.daemon.protect_reads = true);
+    let d = start(&config, &dir.path().join("data"));
+    for route in ["/api/v1/calibrations", "/api/v1/calibration", "/metrics"] {
+        let (code, body) = call_as("GET", &format!("{}{route}", d.base), None, None);
+        assert_eq!(code, 401, "{route}: {body}");
+    }
+    let (code, _) = call("GET", &format!("{}/api/v1/calibrations", d.base), None);
+    assert_eq!(code, 200);
+    let (code, _) = call_as("GET", &format!("{}/healthz", d.base), None, None);
+    assert_eq!(code, 200, "health stays open");
 }

@@ -176,7 +176,8 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let config = write_config(dir.path(), |_| {});
+    // Reads need the token too, so a wrong one shows on the first refresh.
+    let config = write_config(dir.path(), |c| c.daemon.protect_reads = true);
     let d = start(&config, &dir.path().join("data"));
     let driver = start_driver(&chromedriver);
     let caps = json!({

@@ -1,6 +1,6 @@
-//! The HTTP API (axum). Every `/api/v1` route and `/metrics` need `Authorization: Bearer
-//! TOKEN`; `/`, `/app.js`, `/openapi.json` and `/healthz` are open (the page holds no data
-//! until it has the token; health says only whether the daemon runs). Errors are JSON
+//! The HTTP API (axum). Every route that acts (`POST`: start, cancel, activate, check) needs
+//! `Authorization: Bearer TOKEN`; read-only routes (`GET`) are open unless `[daemon]
+//! protect_reads = true`; `/`, `/app.js`, `/openapi.json` and `/healthz` are always open. Errors are JSON
 //! `{"error": "…"}`; a start while the arm is leased is 409 with `"running": ID`.
 
 use std::sync::atomic::Ordering;
@@ -107,6 +107,13 @@ pub fn router(daemon: Shared) -> Router {
 }
 
 async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
+    let read_only = matches!(
+        *req.method(),
+        axum::http::Method::GET | axum::http::Method::HEAD
+    );
+    if read_only && !d.settings().protect_reads {
+        return next.run(req).await;
+    }
     let given = req
         .headers()
         .get(header::AUTHORIZATION)

@@ -15,10 +15,17 @@ pub struct DaemonSettings {
     /// `HOST:PORT` to listen on (default `127.0.0.1:8787`; `--listen` overrides).
     #[serde(default = "default_listen")]
     pub listen: String,
-    /// Bearer token every API call must send. `EASYHEC_TOKEN` overrides it, so the secret
-    /// can stay out of the file; the daemon refuses to start with neither.
+    /// Bearer token every call that acts (starts, cancels, activates, checks: anything that
+    /// can move the arm or change the active calibration) must send. `EASYHEC_TOKEN`
+    /// overrides it, so the secret can stay out of the file; the daemon refuses to start with
+    /// neither.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub token: Option<String>,
+    /// Require the token for read-only routes too (status, history, events, overlays, the
+    /// active calibration, metrics). Default false: dashboards and cell controllers read
+    /// without it.
+    #[serde(default)]
+    pub protect_reads: bool,
     /// Data folder (run directories, history, active calibration), relative to the config
     /// file (default `easyhec-data`; `--data` overrides).
     #[serde(default = "default_data_dir")]
