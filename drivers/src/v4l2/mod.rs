@@ -131,7 +131,7 @@ pub fn yuyv_to_rgb(
     stride_bytes: u32,
     range: YuvRange,
 ) -> Result<Vec<u8>, FrameError> {
-    if width == 0 || height == 0 || width % 2 != 0 {
+    if width == 0 || height == 0 || !width.is_multiple_of(2) {
         return Err(FrameError::Geometry(format!(
             "YUYV {width}x{height}: the width must be even and both sides non-zero"
         )));
