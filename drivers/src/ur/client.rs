@@ -277,7 +277,9 @@ impl Inner {
             .clone()
     }
 
-    /// Connects the receive interface if needed.
+    /// Connects the receive interface if needed. A process whose receive link broke while it
+    /// holds a control interface is replaced first: that interface is reconnecting on its own
+    /// threads, and ur_rtde can crash when a new interface is created next to it.
     async fn ensure_receive(&self) -> Result<()> {
         let connected: bool = self
             .worker
@@ -289,6 +291,9 @@ impl Inner {
             .await?;
         if connected {
             return Ok(());
+        }
+        if self.control_connected().await?.is_some() {
+            self.fresh_worker().await?;
         }
         probe(&self.cfg.host, self.cfg.call_timeout).await?;
         self.worker
@@ -445,8 +450,13 @@ impl Inner {
         if matches!(stopped, Ok(true)) {
             return Ok(());
         }
-        // The control link is gone: replace the process holding the broken interface and
-        // stop through the dashboard, which ends the program and with it the motion.
+        self.dashboard_stop().await
+    }
+
+    /// The dashboard's `stop` from a fresh worker process over new connections: the process
+    /// holding a broken control interface (whose background reconnection can crash it, or
+    /// reconnect to a controller that no longer runs its script) is replaced first.
+    async fn dashboard_stop(&self) -> Result<()> {
         self.fresh_worker().await?;
         probe(&self.cfg.host, self.cfg.call_timeout).await?;
         self.worker
@@ -517,9 +527,10 @@ impl Inner {
         }
     }
 
-    /// The link dropped during a move: stop the arm (reconnecting if possible) and say so.
+    /// The link dropped during a move: stop the arm through the dashboard, from a fresh
+    /// worker process, and say so.
     async fn lost_mid_move(&self, cause: &str) -> DriverError {
-        let stop = self.send_stop().await;
+        let stop = self.dashboard_stop().await;
         let outcome = match &stop {
             Ok(()) => "arm stopped through the dashboard".to_string(),
             Err(e) => format!("could not stop the arm: {e}"),

@@ -32,7 +32,10 @@ pub fn serve_worker_if_asked() {
     #[cfg(feature = "ur")]
     {
         worker::HOST_EXE.store(true, std::sync::atomic::Ordering::Relaxed);
-        if std::env::args_os().nth(1).is_some_and(|a| a == proto::WORKER_ARG) {
+        if std::env::args_os()
+            .nth(1)
+            .is_some_and(|a| a == proto::WORKER_ARG)
+        {
             std::process::exit(i32::from(serve::serve()));
         }
     }

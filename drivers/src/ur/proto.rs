@@ -75,7 +75,9 @@ pub(super) enum WireError {
     Refused(String),
     MotionFailed(String),
     Connection(String),
-    Timeout { ms: u64 },
+    Timeout {
+        ms: u64,
+    },
     /// The ur_rtde package cannot be used (`UrError::Sdk`).
     Sdk(String),
     /// A malformed request or anything else.
@@ -115,9 +117,7 @@ impl WireError {
             WireError::Refused(s) => DriverError::Refused(s),
             WireError::MotionFailed(s) => DriverError::MotionFailed(s),
             WireError::Connection(s) => DriverError::Connection(s),
-            WireError::Timeout { ms } => {
-                DriverError::Timeout(std::time::Duration::from_millis(ms))
-            }
+            WireError::Timeout { ms } => DriverError::Timeout(std::time::Duration::from_millis(ms)),
             WireError::Sdk(s) => DriverError::Backend(Box::new(super::UrError::Sdk(s))),
             WireError::Other(s) => DriverError::Connection(format!("ur_rtde worker: {s}")),
         }

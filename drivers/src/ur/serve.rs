@@ -192,12 +192,9 @@ fn handle(py: Python<'_>, s: &mut Session, req: Request) -> Result<serde_json::V
             s.control = Some(c.unbind());
             json(())
         }
-        Request::IsProgramRunning => json(call::<bool, _>(
-            py,
-            control(s)?,
-            "isProgramRunning",
-            (),
-        )?),
+        Request::IsProgramRunning => {
+            json(call::<bool, _>(py, control(s)?, "isProgramRunning", ())?)
+        }
         Request::ReuploadScript => {
             call::<bool, _>(py, control(s)?, "reuploadScript", ())?;
             json(())
