@@ -290,6 +290,8 @@ enum BenchCommand {
 }
 
 fn main() -> ExitCode {
+    // With `--features ur`, this executable is also the UR driver's `ur_rtde` child process.
+    easyhec_drivers::ur::serve_worker_if_asked();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e)

@@ -179,7 +179,6 @@ async fn local_control_is_refused_before_anything_moves() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "ur_rtde 1.6.5 can crash the process (SIGSEGV in its own background reconnection threads) when the controller comes back after a drop: about 1 run in 4"]
 async fn link_lost_mid_move_stops_the_arm() {
     let _serial = SERIAL.lock().await;
     // Real-time motion; the controller keeps moving after the drop, so only the driver's

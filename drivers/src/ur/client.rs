@@ -10,17 +10,17 @@
 //! and reading joints never start a program on the robot.
 //!
 //! Moves are ur_rtde's asynchronous moveJ, watched by polling the receive interface (joints,
-//! speeds, modes) and the control script's progress register: a synchronous moveJ would hold
-//! the GIL for the whole motion and leave no way to stop it. Every ur_rtde constructor is
+//! speeds, modes) and the control script's progress register: a synchronous moveJ would block
+//! the worker for the whole motion and leave no way to stop it. Every ur_rtde constructor is
 //! preceded by a native probe of the controller's ports with a time limit, because ur_rtde
-//! blocks forever on a peer that accepts and never answers.
+//! blocks forever on a peer that accepts and never answers. Every SDK call runs in a child
+//! process (`worker`), so that ur_rtde crashing after a lost link kills only that process: the
+//! driver reports it and stops the arm from a fresh one.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use async_trait::async_trait;
-use pyo3::exceptions::PyImportError;
-use pyo3::prelude::*;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::TcpStream;
 
@@ -28,7 +28,8 @@ use super::model::{
     self, robot_mode_name, safety_mode_advice, DASHBOARD_PORT, ROBOT_MODE_RUNNING, RTDE_PORT,
     SAFETY_MODE_NORMAL, SAFETY_MODE_REDUCED, SCRIPT_PORT, UR5E_JOINT_NAMES, UR5E_LIMITS,
 };
-use super::worker::{Session, Worker};
+use super::proto::{Request, State};
+use super::worker::Worker;
 use crate::{Arm, ArmStatus, DriverError, JointLimit, Motion, Result};
 
 /// The receive interface's recipe: what the driver reads.
@@ -107,20 +108,6 @@ fn config_error(msg: String) -> DriverError {
     DriverError::Backend(Box::new(UrError::Config(msg)))
 }
 
-/// One reading of everything the driver watches.
-#[derive(Clone, Debug)]
-struct State {
-    q: Vec<f64>,
-    qd: Vec<f64>,
-    robot_mode: i32,
-    safety_mode: i32,
-    runtime_state: u32,
-    /// Both RTDE interfaces (the control one if it exists) are connected.
-    connected: bool,
-    /// The control script reports an asynchronous operation running.
-    async_running: bool,
-}
-
 struct Inner {
     cfg: UrConfig,
     joints: Vec<JointLimit>,
@@ -143,76 +130,6 @@ impl std::fmt::Debug for UrArm {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "UrArm({})", self.inner.cfg.host)
     }
-}
-
-/// A Python exception as a driver error, with what to do about the common ones.
-fn py_error(py: Python<'_>, what: &str, e: PyErr) -> DriverError {
-    if e.is_instance_of::<PyImportError>(py) {
-        return DriverError::Backend(Box::new(UrError::Sdk(format!(
-            "python3 cannot import ur_rtde ({}): python3 -m pip install ur-rtde==1.6.5",
-            e.value(py)
-        ))));
-    }
-    let msg = e.value(py).to_string().replace('\n', " ");
-    if msg.contains("remote control") {
-        DriverError::Refused(format!(
-            "{what}: the controller is not in remote control: switch the pendant to Remote Control"
-        ))
-    } else {
-        DriverError::Connection(format!("{what}: {msg}"))
-    }
-}
-
-fn import<'py>(py: Python<'py>, module: &str) -> Result<Bound<'py, PyModule>> {
-    py.import(module).map_err(|e| py_error(py, "import", e))
-}
-
-/// Calls `name` on `obj` with `args` and extracts the result.
-fn call<'py, T, A>(py: Python<'py>, obj: &Py<PyAny>, name: &str, args: A) -> Result<T>
-where
-    T: for<'a> FromPyObject<'a, 'py>,
-    A: pyo3::call::PyCallArgs<'py>,
-{
-    obj.bind(py)
-        .call_method1(name, args)
-        .and_then(|v| v.extract::<T>().map_err(Into::into))
-        .map_err(|e| py_error(py, name, e))
-}
-
-fn read_state(py: Python<'_>, s: &Session) -> Result<State> {
-    let r = s
-        .receive
-        .as_ref()
-        .ok_or_else(|| DriverError::Connection("not connected".into()))?;
-    let rx_connected: bool = call(py, r, "isConnected", ())?;
-    let (ctl_connected, async_running) = match &s.control {
-        Some(c) => {
-            let connected: bool = call(py, c, "isConnected", ())?;
-            let running = if connected {
-                let status = c
-                    .bind(py)
-                    .call_method0("getAsyncOperationProgressEx")
-                    .map_err(|e| py_error(py, "getAsyncOperationProgressEx", e))?;
-                status
-                    .call_method0("isAsyncOperationRunning")
-                    .and_then(|v| v.extract::<bool>())
-                    .map_err(|e| py_error(py, "isAsyncOperationRunning", e))?
-            } else {
-                false
-            };
-            (connected, running)
-        }
-        None => (true, false),
-    };
-    Ok(State {
-        q: call(py, r, "getActualQ", ())?,
-        qd: call(py, r, "getActualQd", ())?,
-        robot_mode: call(py, r, "getRobotMode", ())?,
-        safety_mode: call(py, r, "getSafetyMode", ())?,
-        runtime_state: call(py, r, "getRuntimeState", ())?,
-        connected: rx_connected && ctl_connected,
-        async_running,
-    })
 }
 
 /// Probes the controller's ports natively, within `limit`: ur_rtde's constructors block
@@ -360,106 +277,106 @@ impl Inner {
             .clone()
     }
 
-    /// Connects the receive interface (and the dashboard) if needed.
+    /// Connects the receive interface if needed. A process whose receive link broke while it
+    /// holds a control interface is replaced first: that interface is reconnecting on its own
+    /// threads, and ur_rtde can crash when a new interface is created next to it.
     async fn ensure_receive(&self) -> Result<()> {
-        let connected = self
+        let connected: bool = self
             .worker
-            .call("isConnected", self.cfg.call_timeout, |py, s| {
-                match &s.receive {
-                    Some(r) => call::<bool, _>(py, r, "isConnected", ()),
-                    None => Ok(false),
-                }
-            })
+            .call(
+                "isConnected",
+                self.cfg.call_timeout,
+                Request::ReceiveConnected,
+            )
             .await?;
         if connected {
             return Ok(());
         }
+        if self.control_connected().await?.is_some() {
+            self.fresh_worker().await?;
+        }
         probe(&self.cfg.host, self.cfg.call_timeout).await?;
-        let host = self.cfg.host.clone();
-        let freq = self.cfg.frequency_hz;
         self.worker
             .call(
                 "RTDEReceiveInterface",
                 self.cfg.connect_timeout,
-                move |py, s| {
-                    if let Some(r) = s.receive.take() {
-                        let _ = r.call_method0(py, "disconnect");
-                    }
-                    let module = import(py, "rtde_receive")?;
-                    let r = module
-                        .getattr("RTDEReceiveInterface")
-                        .and_then(|c| c.call1((host.as_str(), freq, VARIABLES.to_vec())))
-                        .map_err(|e| py_error(py, "RTDEReceiveInterface", e))?;
-                    s.receive = Some(r.unbind());
-                    Ok(())
+                Request::ConnectReceive {
+                    host: self.cfg.host.clone(),
+                    frequency_hz: self.cfg.frequency_hz,
+                    variables: VARIABLES.iter().map(|v| v.to_string()).collect(),
                 },
             )
             .await
     }
 
-    /// Reconnects whichever RTDE interface lost its link (the control one only if it
-    /// exists), probing first so a silent controller cannot hang ur_rtde.
-    async fn ensure_links(&self) -> Result<()> {
-        self.ensure_receive().await?;
-        let control_ok = self
-            .worker
-            .call("isConnected", self.cfg.call_timeout, |py, s| {
-                match &s.control {
-                    Some(c) => call::<bool, _>(py, c, "isConnected", ()),
-                    None => Ok(true),
-                }
-            })
-            .await?;
-        if control_ok {
-            return Ok(());
-        }
-        // Retired: moves are refused from now on (see `ensure_ready`).
+    /// Whether the control interface is connected (`None`: there is none).
+    async fn control_connected(&self) -> Result<Option<bool>> {
         self.worker
-            .call("retire control", self.cfg.call_timeout, |_py, s| {
-                if let Some(c) = s.control.take() {
-                    s.retired.push(c);
-                }
-                Ok(())
-            })
+            .call(
+                "isConnected",
+                self.cfg.call_timeout,
+                Request::ControlConnected,
+            )
             .await
     }
 
-    /// Asks the dashboard (a fresh connection) whether the pendant is in remote control.
+    /// Replaces the worker process: whatever ur_rtde interfaces it held (a broken control
+    /// interface whose background threads may still be reconnecting, or crash) die with it.
+    /// The next call starts a fresh process, and every interface is reconnected when needed.
+    async fn fresh_worker(&self) -> Result<()> {
+        self.worker.restart(self.cfg.call_timeout).await
+    }
+
+    /// Reconnects whichever RTDE interface lost its link, probing first so a silent
+    /// controller cannot hang ur_rtde. A control interface that lost its link is never
+    /// reconnected in place (ur_rtde's own reconnection races with it): its process is
+    /// replaced, and the next move creates a new one.
+    async fn ensure_links(&self) -> Result<()> {
+        self.ensure_receive().await?;
+        if self.control_connected().await? == Some(false) {
+            self.fresh_worker().await?;
+            self.ensure_receive().await?;
+        }
+        Ok(())
+    }
+
+    /// Asks the dashboard whether the pendant is in remote control.
     async fn remote_control(&self) -> Result<bool> {
         probe(&self.cfg.host, self.cfg.call_timeout).await?;
-        let host = self.cfg.host.clone();
         self.worker
-            .call("DashboardClient", self.cfg.call_timeout, move |py, s| {
-                let d = dashboard(py, s, &host)?;
-                call::<bool, _>(py, &d, "isInRemoteControl", ())
-            })
+            .call(
+                "DashboardClient",
+                self.cfg.call_timeout,
+                Request::IsInRemoteControl {
+                    host: self.cfg.host.clone(),
+                },
+            )
             .await
     }
 
     async fn state(&self) -> Result<State> {
         self.worker
-            .call("read state", self.cfg.call_timeout, |py, s| {
-                read_state(py, s)
-            })
+            .call("read state", self.cfg.call_timeout, Request::ReadState)
+            .await
+    }
+
+    async fn program_running(&self) -> Result<bool> {
+        self.worker
+            .call(
+                "isProgramRunning",
+                self.cfg.call_timeout,
+                Request::IsProgramRunning,
+            )
             .await
     }
 
     /// Everything a move needs: receive and control interfaces, remote control, power,
     /// brakes, safety mode, and ur_rtde's script running.
     async fn ensure_ready(&self) -> Result<()> {
-        let retired = self
-            .worker
-            .call("retired", self.cfg.call_timeout, |_py, s| {
-                Ok(s.retired.len())
-            })
-            .await?;
-        if retired > 0 {
-            // The lost interface may still be reconnecting in the background; a second one
-            // next to it would fight over the controller's input registers.
-            return Err(DriverError::Connection(format!(
-                "the RTDE control link to {} was lost earlier and ur_rtde cannot be reconnected safely in-process: restart easyhec",
-                self.cfg.host
-            )));
+        if self.control_connected().await? == Some(false) {
+            // Lost earlier: its process goes, with its background reconnection threads, so
+            // that a new interface does not fight it over the controller's input registers.
+            self.fresh_worker().await?;
         }
         self.ensure_receive().await?;
         let st = self.state().await?;
@@ -477,112 +394,79 @@ impl Inner {
                 "the controller is in local control: switch the pendant to Remote Control".into(),
             ));
         }
-        let has_control = self
-            .worker
-            .call("isConnected", self.cfg.call_timeout, |py, s| {
-                match &s.control {
-                    Some(c) => call::<bool, _>(py, c, "isConnected", ()),
-                    None => Ok(false),
-                }
-            })
-            .await?;
-        let host = self.cfg.host.clone();
-        let freq = self.cfg.frequency_hz;
-        if !has_control {
+        if self.control_connected().await? != Some(true) {
             probe(&self.cfg.host, self.cfg.call_timeout).await?;
             self.worker
-                .call(
+                .call::<()>(
                     "RTDEControlInterface",
                     self.cfg.connect_timeout,
-                    move |py, s| new_control(py, s, &host, freq),
+                    Request::ConnectControl {
+                        host: self.cfg.host.clone(),
+                        frequency_hz: self.cfg.frequency_hz,
+                    },
                 )
                 .await?;
-        } else {
-            let running = self
-                .worker
-                .call("isProgramRunning", self.cfg.call_timeout, |py, s| {
-                    let c = s.control.as_ref().expect("checked above");
-                    call::<bool, _>(py, c, "isProgramRunning", ())
-                })
+        } else if !self.program_running().await? {
+            // A protective stop or a dashboard `stop` ended ur_rtde's script.
+            self.worker
+                .call::<()>(
+                    "reuploadScript",
+                    self.cfg.connect_timeout,
+                    Request::ReuploadScript,
+                )
                 .await?;
-            if !running {
-                // A protective stop or a dashboard `stop` ended ur_rtde's script.
-                self.worker
-                    .call("reuploadScript", self.cfg.connect_timeout, |py, s| {
-                        let c = s.control.as_ref().expect("checked above");
-                        call::<bool, _>(py, c, "reuploadScript", ()).map(|_| ())
-                    })
-                    .await?;
-                // ur_rtde returns before its own state shows the script running, and its
-                // next command would be turned down until it does.
-                let deadline = Instant::now() + self.cfg.connect_timeout;
-                loop {
-                    let running = self
-                        .worker
-                        .call("isProgramRunning", self.cfg.call_timeout, |py, s| {
-                            let c = s.control.as_ref().expect("checked above");
-                            call::<bool, _>(py, c, "isProgramRunning", ())
-                        })
-                        .await?;
-                    if running {
-                        break;
-                    }
-                    if Instant::now() > deadline {
-                        return Err(DriverError::Refused(
-                            "ur_rtde's control script did not start after a re-upload: check the pendant for a popup or a stopped program".into(),
-                        ));
-                    }
-                    tokio::time::sleep(self.cfg.poll_interval).await;
+            // ur_rtde returns before its own state shows the script running, and its
+            // next command would be turned down until it does.
+            let deadline = Instant::now() + self.cfg.connect_timeout;
+            loop {
+                if self.program_running().await? {
+                    break;
                 }
+                if Instant::now() > deadline {
+                    return Err(DriverError::Refused(
+                        "ur_rtde's control script did not start after a re-upload: check the pendant for a popup or a stopped program".into(),
+                    ));
+                }
+                tokio::time::sleep(self.cfg.poll_interval).await;
             }
         }
         Ok(())
     }
 
-    /// stopJ through the control interface, reconnecting it if the link was lost; the
-    /// dashboard's `stop` (which ends the program, halting the arm) as the last resort.
+    /// stopJ through the control interface; if its link is gone (or its process died), the
+    /// dashboard's `stop` (which ends the program, halting the arm) from a fresh worker
+    /// process over a new connection.
     async fn send_stop(&self) -> Result<()> {
-        let decel = self.cfg.stop_decel_rad_s2;
         let stopped = self
             .worker
-            .call("stopJ", self.cfg.call_timeout, move |py, s| {
-                match &s.control {
-                    Some(c) if call::<bool, _>(py, c, "isConnected", ())? => {
-                        call::<Py<PyAny>, _>(py, c, "stopJ", (decel,))?;
-                        Ok(true)
-                    }
-                    _ => Ok(false),
-                }
-            })
+            .call::<bool>(
+                "stopJ",
+                self.cfg.call_timeout,
+                Request::StopJ {
+                    decel: self.cfg.stop_decel_rad_s2,
+                },
+            )
             .await;
         if matches!(stopped, Ok(true)) {
             return Ok(());
         }
-        // The control link is gone: retire the interface (see `new_control`) and stop through
-        // the dashboard, which ends the program and with it the motion.
-        self.worker
-            .call("retire control", self.cfg.call_timeout, |_py, s| {
-                if let Some(c) = s.control.take() {
-                    s.retired.push(c);
-                }
-                Ok(())
-            })
-            .await?;
+        self.dashboard_stop().await
+    }
+
+    /// The dashboard's `stop` from a fresh worker process over new connections: the process
+    /// holding a broken control interface (whose background reconnection can crash it, or
+    /// reconnect to a controller that no longer runs its script) is replaced first.
+    async fn dashboard_stop(&self) -> Result<()> {
+        self.fresh_worker().await?;
         probe(&self.cfg.host, self.cfg.call_timeout).await?;
-        let host = self.cfg.host.clone();
         self.worker
-            .call("dashboard stop", self.cfg.call_timeout, move |py, s| {
-                let d = dashboard(py, s, &host)?;
-                let reply: String = call(py, &d, "send", ("stop\n",))
-                    .and_then(|_: Py<PyAny>| call(py, &d, "receive", ()))?;
-                if reply.contains("Stopped") {
-                    Ok(())
-                } else {
-                    Err(DriverError::Refused(format!(
-                        "dashboard stop answered {reply:?}"
-                    )))
-                }
-            })
+            .call(
+                "dashboard stop",
+                self.cfg.call_timeout,
+                Request::DashboardStop {
+                    host: self.cfg.host.clone(),
+                },
+            )
             .await
     }
 
@@ -643,9 +527,10 @@ impl Inner {
         }
     }
 
-    /// The link dropped during a move: stop the arm (reconnecting if possible) and say so.
+    /// The link dropped during a move: stop the arm through the dashboard, from a fresh
+    /// worker process, and say so.
     async fn lost_mid_move(&self, cause: &str) -> DriverError {
-        let stop = self.send_stop().await;
+        let stop = self.dashboard_stop().await;
         let outcome = match &stop {
             Ok(()) => "arm stopped through the dashboard".to_string(),
             Err(e) => format!("could not stop the arm: {e}"),
@@ -654,41 +539,6 @@ impl Inner {
         self.set_interrupted(Some(why.clone()));
         DriverError::Connection(why)
     }
-}
-
-/// Creates the control interface, which uploads and starts ur_rtde's control script. Never
-/// used to replace a broken one: ur_rtde's `reconnect()` and its destructor race with the
-/// interface's own background reconnection and can crash the process, so a lost interface is
-/// retired (kept, untouched) and the driver refuses further moves.
-fn new_control(py: Python<'_>, s: &mut Session, host: &str, freq: f64) -> Result<()> {
-    if let Some(c) = s.control.take() {
-        s.retired.push(c);
-    }
-    let module = import(py, "rtde_control")?;
-    let c = module
-        .getattr("RTDEControlInterface")
-        .and_then(|c| c.call1((host, freq)))
-        .map_err(|e| py_error(py, "RTDEControlInterface", e))?;
-    s.control = Some(c.unbind());
-    Ok(())
-}
-
-/// A connected dashboard client (reconnected if its link dropped).
-fn dashboard(py: Python<'_>, s: &mut Session, host: &str) -> Result<Py<PyAny>> {
-    if let Some(d) = &s.dashboard {
-        if call::<bool, _>(py, d, "isConnected", ()).unwrap_or(false) {
-            return Ok(d.clone_ref(py));
-        }
-    }
-    let module = import(py, "dashboard_client")?;
-    let d = module
-        .getattr("DashboardClient")
-        .and_then(|c| c.call1((host,)))
-        .map_err(|e| py_error(py, "DashboardClient", e))?
-        .unbind();
-    call::<Py<PyAny>, _>(py, &d, "connect", (2000,))?;
-    s.dashboard = Some(d.clone_ref(py));
-    Ok(d)
 }
 
 #[async_trait]
@@ -737,16 +587,18 @@ impl Arm for UrArm {
         inner.ensure_ready().await?;
         let from = inner.state().await?.q;
         let q = target.to_vec();
-        let sent = q.clone();
-        let accepted = inner
+        let accepted: bool = inner
             .worker
-            .call("moveJ", inner.cfg.call_timeout, move |py, s| {
-                let c = s
-                    .control
-                    .as_ref()
-                    .ok_or_else(|| DriverError::Connection("no control interface".into()))?;
-                call::<bool, _>(py, c, "moveJ", (sent, speed, accel, true))
-            })
+            .call(
+                "moveJ",
+                inner.cfg.call_timeout,
+                Request::MoveJ {
+                    q: q.clone(),
+                    speed,
+                    accel,
+                    asynchronous: true,
+                },
+            )
             .await?;
         if !accepted {
             let st = inner.state().await?;
@@ -819,15 +671,15 @@ impl Arm for UrArm {
     async fn clear_fault(&self) -> Result<()> {
         let inner = &self.inner;
         probe(&inner.cfg.host, inner.cfg.call_timeout).await?;
-        let host = inner.cfg.host.clone();
         inner
             .worker
-            .call("dashboard", inner.cfg.call_timeout, move |py, s| {
-                let d = dashboard(py, s, &host)?;
-                call::<Py<PyAny>, _>(py, &d, "closeSafetyPopup", ())?;
-                call::<Py<PyAny>, _>(py, &d, "unlockProtectiveStop", ())?;
-                Ok(())
-            })
+            .call::<()>(
+                "dashboard",
+                inner.cfg.call_timeout,
+                Request::ClearFault {
+                    host: inner.cfg.host.clone(),
+                },
+            )
             .await?;
         inner.ensure_links().await?;
         // The RTDE stream shows the new mode a package or two later.

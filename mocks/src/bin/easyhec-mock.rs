@@ -89,6 +89,9 @@ struct XarmArgs {
 const DEMO_XARM6_START: [f64; 6] = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0];
 
 fn main() -> ExitCode {
+    // With `--features ur`, this executable can also host the UR driver's `ur_rtde` child
+    // process (used by the UR driver tests of this package).
+    easyhec_drivers::ur::serve_worker_if_asked();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Xarm(args) => run_xarm(args),
