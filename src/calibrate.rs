@@ -612,12 +612,23 @@ pub fn rank_poses(
     );
     let estimate = report.camera_from_base;
     let t_start = std::time::Instant::now();
+    // The variance score only needs coarse masks: one decimation per robot (link frames),
+    // posed per sample. The information score reads outline samples, which follow the
+    // posed surface more faithfully when each pose is clustered in the base frame.
     let coarse = CoarseRobot::new(&cell.robot, cell_m);
+    let per_pose = settings.score == ScoreSetting::Information;
+    let pose_coarse = |q: &[f64]| {
+        if per_pose {
+            PosedRobot::new(&cell.robot, q).decimated(cell_m)
+        } else {
+            coarse.pose(&cell.robot, q)
+        }
+    };
     let safe: Vec<(Vec<f64>, PosedRobot)> = samples
         .into_par_iter()
         .filter(|q| checker.check_pose(q).is_ok())
         .map(|q| {
-            let posed = coarse.pose(&cell.robot, &q);
+            let posed = pose_coarse(&q);
             (q, posed)
         })
         .collect();
@@ -675,7 +686,7 @@ pub fn rank_poses(
             // (a tiny ridge keeps a one-view matrix invertible).
             let current: Matrix6<f64> = taken
                 .par_iter()
-                .map(|q| info(&coarse.pose(&cell.robot, q), q))
+                .map(|q| info(&pose_coarse(q), q))
                 .reduce(Matrix6::zeros, |a, b| a + b)
                 + Matrix6::identity() * 1e-6;
             in_view
