@@ -292,6 +292,19 @@ impl std::str::FromStr for RendererChoice {
     }
 }
 
+/// Whether Linux exposes a GPU: a DRM render node (Mesa, AMD, Intel, virtio) or NVIDIA's
+/// proprietary device nodes.
+#[cfg(all(feature = "wgpu", target_os = "linux"))]
+fn linux_gpu_device_present() -> bool {
+    let render_node = std::fs::read_dir("/dev/dri")
+        .map(|d| {
+            d.flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with("renderD"))
+        })
+        .unwrap_or(false);
+    render_node || std::path::Path::new("/dev/nvidia0").exists()
+}
+
 /// Opens the renderer `choice` asks for and logs which one (and which adapter) runs, on
 /// stderr unless `quiet`. `wgpu` fails when there is no adapter or the `wgpu` feature is off;
 /// `auto` falls back to the CPU and says why.
@@ -307,6 +320,13 @@ pub fn open_renderer(
     match choice {
         RendererChoice::Cpu => {
             log("renderer: cpu".into());
+            Ok(Arc::new(CpuRenderer))
+        }
+        #[cfg(all(feature = "wgpu", target_os = "linux"))]
+        RendererChoice::Auto if !linux_gpu_device_present() => {
+            // No GPU device node: only a software adapter could answer, and probing one
+            // makes Mesa print display-server noise on headless machines.
+            log("renderer: cpu (no GPU device in /dev/dri or /dev/nvidia*)".into());
             Ok(Arc::new(CpuRenderer))
         }
         #[cfg(feature = "wgpu")]
