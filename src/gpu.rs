@@ -111,6 +111,8 @@ pub struct WgpuRenderer {
     targets: Mutex<Vec<Targets>>,
     /// Renders of fewer pixels than this (all views together) run on the CPU.
     min_pixels: u64,
+    /// Whether a GPU failure has been reported (once is enough).
+    warned: std::sync::atomic::AtomicBool,
 }
 
 /// Default of [`WgpuRenderer`]'s CPU hand-off: below about a quarter-resolution 5-view
@@ -594,6 +596,7 @@ impl WgpuRenderer {
                 .ok()
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(DEFAULT_MIN_PIXELS),
+            warned: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -697,30 +700,43 @@ impl WgpuRenderer {
         pool.push(targets);
     }
 
-    /// Maps `buffer` for reading and waits for the GPU.
-    fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Vec<u8> {
+    /// Maps `buffer` for reading and waits for the GPU; `None` when the device fails (lost,
+    /// out of memory), after which callers redo the work on the CPU.
+    fn read(&self, buffer: &wgpu::Buffer, size: u64) -> Option<Vec<u8>> {
         let slice = buffer.slice(..size);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
         loop {
-            let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
+            let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
             match rx.try_recv() {
                 Ok(Ok(())) => break,
-                Ok(Err(e)) => panic!("wgpu readback failed: {e}"),
-                Err(std::sync::mpsc::TryRecvError::Empty) => continue,
+                Ok(Err(e)) => return self.failed(&format!("readback: {e}")),
+                Err(std::sync::mpsc::TryRecvError::Empty) => {
+                    if let Err(e) = polled {
+                        return self.failed(&format!("waiting for the GPU: {e}"));
+                    }
+                }
                 Err(std::sync::mpsc::TryRecvError::Disconnected) => {
-                    panic!("wgpu readback callback dropped")
+                    return self.failed("readback callback dropped")
                 }
             }
         }
-        let out = slice
-            .get_mapped_range()
-            .map(|v| v.to_vec())
-            .unwrap_or_default();
+        let out = slice.get_mapped_range().map(|v| v.to_vec()).ok();
         buffer.unmap();
         out
+    }
+
+    /// Reports a GPU failure once per renderer; the caller falls back to the CPU.
+    fn failed(&self, what: &str) -> Option<Vec<u8>> {
+        if !self.warned.swap(true, std::sync::atomic::Ordering::Relaxed) {
+            eprintln!(
+                "renderer: wgpu on {} failed ({what}); rendering on the CPU instead",
+                self.adapter
+            );
+        }
+        None
     }
 
     /// Masks of every robot at one camera pose, in one submission.
@@ -847,10 +863,17 @@ impl WgpuRenderer {
                 },
             );
             self.queue.submit([encoder.finish()]);
-            let bytes = self.read(
+            let Some(bytes) = self.read(
                 &targets.readback,
                 u64::from(row) * u64::from(h) * u64::from(layers),
-            );
+            ) else {
+                drop(keep);
+                for (robot, (pixels, points)) in group.iter().zip(projected) {
+                    let mask = crate::render::rasterize(&robot.topology, &pixels, w, h);
+                    out.push((mask, (pixels, points)));
+                }
+                continue;
+            };
             drop(keep);
             self.give_back(targets);
             let (wu, hu, ru) = (w as usize, h as usize, row as usize);
@@ -1085,7 +1108,12 @@ impl WgpuRenderer {
             }
             encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, u64::from(layers) * 4);
             self.queue.submit([encoder.finish()]);
-            let bytes = self.read(&readback, u64::from(layers) * 4);
+            let Some(bytes) = self.read(&readback, u64::from(layers) * 4) else {
+                scores.extend(crate::render::cpu_disagreement_many(
+                    camera, group, candidates,
+                ));
+                continue;
+            };
             let kk = f64::from(k) * f64::from(k);
             scores.extend(
                 bytes
