@@ -87,29 +87,7 @@ pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Iso
 }
 
 /// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the
-/// scoring image.
-pub fn disagreement(
-    renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
-    robot: &PosedRobot,
-    candidates: &[Isometry3<f64>],
-) -> f64 {
-    let k = candidates.len() as f64;
-    let mut counts = vec![0u16; (camera.width * camera.height) as usize];
-    for pose in candidates {
-        let m = renderer.render(robot, camera, pose, None).mask;
-        for (c, &v) in counts.iter_mut().zip(&m.data) {
-            *c += u16::from(v);
-        }
-    }
-    counts
-        .iter()
-        .map(|&c| f64::from(c) * (k - f64::from(c)))
-        .sum::<f64>()
-        / (k * k)
-}
-
-/// [`disagreement`] for the CPU rasteriser, single-threaded with reused buffers: callers
+/// scoring image, on the CPU rasteriser: single-threaded with reused buffers, because callers
 /// score many poses in parallel, where per-render thread fan-out and allocation would cost
 /// more than the rasterisation of a coarse mesh at scoring resolution.
 pub fn disagreement_cpu(camera: &Camera, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {

@@ -453,87 +453,58 @@ impl WgpuRenderer {
                 storage(2),
             ],
         });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("raster"),
-            source: wgpu::ShaderSource::Wgsl(RASTER_WGSL.into()),
-        });
-        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("raster"),
-            bind_group_layouts: &[Some(&raster_layout)],
-            immediate_size: 0,
-        });
-        let raster = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("raster"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive,
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
-                targets: &target,
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let render_pipeline =
+            |label: &str,
+             source: &str,
+             bind: &wgpu::BindGroupLayout,
+             buffers: &[Option<wgpu::VertexBufferLayout>]| {
+                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(label),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+                let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some(label),
+                    bind_group_layouts: &[Some(bind)],
+                    immediate_size: 0,
+                });
+                device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                    label: Some(label),
+                    layout: Some(&layout),
+                    vertex: wgpu::VertexState {
+                        module: &module,
+                        entry_point: Some("vs"),
+                        compilation_options: Default::default(),
+                        buffers,
+                    },
+                    primitive,
+                    depth_stencil: None,
+                    multisample: Default::default(),
+                    fragment: Some(wgpu::FragmentState {
+                        module: &module,
+                        entry_point: Some("fs"),
+                        compilation_options: Default::default(),
+                        targets: &target,
+                    }),
+                    multiview_mask: None,
+                    cache: None,
+                })
+            };
+        let raster = render_pipeline("raster", RASTER_WGSL, &raster_layout, &[]);
 
         let tiles_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("tiles"),
-            entries: &[
-                uniform(0, wgpu::ShaderStages::VERTEX_FRAGMENT),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::VERTEX,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: true },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-            ],
+            entries: &[uniform(0, wgpu::ShaderStages::VERTEX_FRAGMENT), storage(1)],
         });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("tiles"),
-            source: wgpu::ShaderSource::Wgsl(TILES_WGSL.into()),
-        });
-        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("tiles"),
-            bind_group_layouts: &[Some(&tiles_layout)],
-            immediate_size: 0,
-        });
-        let tiles = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("tiles"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: 12,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-                })],
-            },
-            primitive,
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
-                targets: &target,
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let tiles = render_pipeline(
+            "tiles",
+            TILES_WGSL,
+            &tiles_layout,
+            &[Some(wgpu::VertexBufferLayout {
+                array_stride: 12,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
+            })],
+        );
 
         let reduce_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("reduce"),
@@ -809,36 +780,16 @@ impl WgpuRenderer {
                         },
                     ],
                 });
-                let view = targets.texture.create_view(&wgpu::TextureViewDescriptor {
-                    dimension: Some(wgpu::TextureViewDimension::D2),
-                    base_array_layer: layer as u32,
-                    array_layer_count: Some(1),
-                    ..Default::default()
-                });
                 {
-                    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                        label: Some("silhouette"),
-                        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                            view: &view,
-                            depth_slice: None,
-                            resolve_target: None,
-                            ops: wgpu::Operations {
-                                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                                store: wgpu::StoreOp::Store,
-                            },
-                        })],
-                        depth_stencil_attachment: None,
-                        timestamp_writes: None,
-                        occlusion_query_set: None,
-                        multiview_mask: None,
-                    });
+                    let mut pass =
+                        layer_pass(&mut encoder, &targets.texture, layer as u32, "silhouette");
                     if count > 0 {
                         pass.set_pipeline(&self.raster);
                         pass.set_bind_group(0, &bind, &[]);
                         pass.draw(0..count, 0..1);
                     }
                 }
-                keep.push((vertices, indices, view, bind));
+                keep.push((vertices, indices, bind));
             }
             let row = padded_row(w);
             encoder.copy_texture_to_buffer(
@@ -897,7 +848,7 @@ impl WgpuRenderer {
     }
 
     /// Per-sample disagreement of `candidates` over `pool` (see
-    /// [`crate::explore::disagreement`]), on the GPU, in batches.
+    /// [`crate::explore::disagreement_cpu`]), on the GPU, in batches.
     fn disagreement_gpu(
         &self,
         camera: &Camera,
@@ -1045,28 +996,7 @@ impl WgpuRenderer {
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
             encoder.clear_buffer(&out, 0, None);
             for (layer, (range, base)) in draws.iter().enumerate() {
-                let view = atlas.create_view(&wgpu::TextureViewDescriptor {
-                    dimension: Some(wgpu::TextureViewDimension::D2),
-                    base_array_layer: layer as u32,
-                    array_layer_count: Some(1),
-                    ..Default::default()
-                });
-                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                    label: Some("candidates"),
-                    color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                        view: &view,
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    })],
-                    depth_stencil_attachment: None,
-                    timestamp_writes: None,
-                    occlusion_query_set: None,
-                    multiview_mask: None,
-                });
+                let mut pass = layer_pass(&mut encoder, &atlas, layer as u32, "candidates");
                 if !range.is_empty() {
                     pass.set_pipeline(&self.tiles);
                     pass.set_bind_group(0, &tiles_bind, &[]);
@@ -1123,6 +1053,37 @@ impl WgpuRenderer {
         }
         scores
     }
+}
+
+/// A render pass into layer `layer` of `texture`, cleared to background.
+fn layer_pass<'e>(
+    encoder: &'e mut wgpu::CommandEncoder,
+    texture: &wgpu::Texture,
+    layer: u32,
+    label: &str,
+) -> wgpu::RenderPass<'e> {
+    let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2),
+        base_array_layer: layer,
+        array_layer_count: Some(1),
+        ..Default::default()
+    });
+    encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view: &view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: wgpu::Operations {
+                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                store: wgpu::StoreOp::Store,
+            },
+        })],
+        depth_stencil_attachment: None,
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
 }
 
 /// Bytes per row of a readback copy: a multiple of 256, as wgpu requires.

@@ -243,7 +243,7 @@ pub trait SilhouetteRenderer: Send + Sync {
     }
 
     /// Exploration's score of every pool entry: the candidates' total per-pixel silhouette
-    /// variance ([`crate::explore::disagreement`]) at `camera`'s (scoring) resolution, in
+    /// variance ([`crate::explore::disagreement_cpu`]) at `camera`'s (scoring) resolution, in
     /// pool order. Backends may batch; the default runs the CPU rasteriser on all cores.
     fn disagreement_many(
         &self,
