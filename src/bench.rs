@@ -206,8 +206,9 @@ pub fn seeded_sim_cell(
             (0.02, 0.08),
         )),
     });
-    let crate::segment::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter;
-    *s = seed;
+    if let crate::segment::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
+        *s = seed;
+    }
     // A start pose that is safe and shows the robot to the true camera.
     let cell = Cell::build(cfg.clone(), config_path)?;
     let camera = cfg

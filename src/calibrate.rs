@@ -475,6 +475,17 @@ impl Recorder {
         Ok(i)
     }
 
+    /// Replaces view `i`'s mask (a context-aware segmenter re-segmented it with more views
+    /// or a better estimate): written atomically, the frame and `run.json` untouched.
+    pub fn replace_mask(&self, i: usize, mask: &Mask) -> Result<()> {
+        let Some(rel) = self.run.views.get(i).and_then(|v| v.mask.as_ref()) else {
+            return Err(Error::Solve(format!(
+                "re-segmented view {i}, which the run does not hold"
+            )));
+        };
+        write_atomic(&self.dir.join(rel), &mask.to_png_bytes())
+    }
+
     /// Writes `rounds.json`.
     pub fn write_rounds(&self, rounds: &[RoundRecord]) -> Result<()> {
         #[derive(Serialize)]
@@ -823,6 +834,108 @@ async fn capture(
     })
 }
 
+/// Prior band (pixels) around the silhouette under the initial guess: a guess several
+/// degrees and centimetres off moves the outline by tens of pixels.
+const GUESS_BAND_PX: f32 = 80.0;
+
+/// What a context-aware segmenter keeps between captures.
+struct Context<'a> {
+    renderer: &'a dyn SilhouetteRenderer,
+    frames: Vec<Frame>,
+    min_band_px: f32,
+}
+
+impl Context<'_> {
+    /// Segments every frame so far with priors under `estimate` (bands from `report` when
+    /// there is one), rewrites the earlier views' masks that changed, and rebuilds `views`.
+    #[allow(clippy::too_many_arguments)]
+    fn resegment(
+        &self,
+        cell: &Cell,
+        camera: &Camera,
+        rec: &Recorder,
+        taken: &[Vec<f64>],
+        estimate: Option<&Isometry3<f64>>,
+        report: Option<&SolveReport>,
+        views: &mut Vec<View>,
+    ) -> Result<Vec<Mask>> {
+        let robots: Vec<PosedRobot> = taken
+            .iter()
+            .map(|q| PosedRobot::new(&cell.robot, q))
+            .collect();
+        let priors = estimate
+            .map(|pose| crate::segment::refine::priors(self.renderer, camera, &robots, pose));
+        let bands = match (report, &priors) {
+            (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, self.min_band_px),
+            _ => vec![GUESS_BAND_PX; robots.len()],
+        };
+        let inputs: Vec<crate::segment::ViewInput> = self
+            .frames
+            .iter()
+            .enumerate()
+            .map(|(i, frame)| crate::segment::ViewInput {
+                frame,
+                prior: priors.as_ref().map(|p| &p[i]),
+                band_px: bands[i],
+            })
+            .collect();
+        let masks = cell.segmenter.segment_views(&inputs)?;
+        for (i, m) in masks.iter().enumerate().take(views.len()) {
+            let observed = camera.undistort_mask(m);
+            if observed != views[i].observed {
+                rec.replace_mask(i, m)?;
+                views[i].observed = observed;
+            }
+        }
+        views.truncate(masks.len());
+        for (m, r) in masks.iter().zip(robots).skip(views.len()) {
+            views.push(View {
+                robot: r,
+                observed: camera.undistort_mask(m),
+            });
+        }
+        Ok(masks)
+    }
+}
+
+/// [`capture`] for a context-aware segmenter: the new frame is segmented together with every
+/// earlier one (background plate) under the current estimate, and earlier masks are
+/// re-segmented and rewritten when they change.
+#[allow(clippy::too_many_arguments)]
+async fn capture_in_context(
+    cell: &Cell,
+    camera: &Camera,
+    rec: &mut Recorder,
+    taken: &mut Vec<Vec<f64>>,
+    ctx: &mut Context<'_>,
+    views: &mut Vec<View>,
+    estimate: Option<&Isometry3<f64>>,
+    report: Option<&SolveReport>,
+) -> Result<()> {
+    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
+    let joints = cell.arm.read_joints().await.map_err(hw)?;
+    let frame = cell.camera.grab().await.map_err(hw)?;
+    if frame.width != camera.width || frame.height != camera.height {
+        return Err(Error::Hardware(format!(
+            "camera returned a {}x{} frame; its intrinsics say {}x{}",
+            frame.width, frame.height, camera.width, camera.height
+        )));
+    }
+    ctx.frames.push(frame);
+    taken.push(joints.clone());
+    let masks = match ctx.resegment(cell, camera, rec, taken, estimate, report, views) {
+        Ok(m) => m,
+        Err(e) => {
+            ctx.frames.pop();
+            taken.pop();
+            return Err(e);
+        }
+    };
+    let last = ctx.frames.last().expect("just pushed");
+    rec.add_view(&joints, last, masks.last().expect("one mask per frame"))?;
+    Ok(())
+}
+
 fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
     if !opts.progress {
         return indicatif::ProgressBar::hidden();
@@ -898,7 +1011,31 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let (mut solve_s, mut explore_s, mut motion_s) = (0.0, 0.0, 0.0);
 
     let mut taken = Vec::new();
-    let mut views = vec![capture(cell, &camera, &mut rec, &mut taken).await?];
+    let mut ctx = cell.segmenter.uses_context().then(|| Context {
+        renderer: renderer.as_ref(),
+        frames: Vec::new(),
+        min_band_px: match &cell.config.segmenter {
+            crate::segment::SegmenterConfig::Builtin { min_band_px } => *min_band_px,
+            _ => 8.0,
+        },
+    });
+    let mut views = Vec::new();
+    match ctx.as_mut() {
+        Some(ctx) => {
+            capture_in_context(
+                cell,
+                &camera,
+                &mut rec,
+                &mut taken,
+                ctx,
+                &mut views,
+                guess.as_ref(),
+                None,
+            )
+            .await?;
+        }
+        None => views.push(capture(cell, &camera, &mut rec, &mut taken).await?),
+    }
     emit_view(opts, &taken);
     pb.set_position(1);
     let t = Instant::now();
@@ -1073,7 +1210,22 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             // Re-plan from wherever the arm stopped.
             continue;
         }
-        views.push(capture(cell, &camera, &mut rec, &mut taken).await?);
+        match ctx.as_mut() {
+            Some(ctx) => {
+                capture_in_context(
+                    cell,
+                    &camera,
+                    &mut rec,
+                    &mut taken,
+                    ctx,
+                    &mut views,
+                    Some(&report.camera_from_base),
+                    Some(&report),
+                )
+                .await?;
+            }
+            None => views.push(capture(cell, &camera, &mut rec, &mut taken).await?),
+        }
         emit_view(opts, &taken);
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;
@@ -1109,6 +1261,36 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         ));
     }
     pb.finish_and_clear();
+    if let Some(ctx) = &ctx {
+        if !opts.dry_run && !cancelled {
+            // The last views were segmented under the previous estimate: re-segment all of
+            // them under the final one and solve once more.
+            let t = Instant::now();
+            ctx.resegment(
+                cell,
+                &camera,
+                &rec,
+                &taken,
+                Some(&report.camera_from_base),
+                Some(&report),
+                &mut views,
+            )?;
+            report = solve(
+                renderer.as_ref(),
+                &camera,
+                &views,
+                &report.camera_from_base,
+                &solve_opts,
+            )?;
+            solve_s += t.elapsed().as_secs_f64();
+            let last = rounds.last_mut().expect("round 0 exists");
+            last.camera_from_base = to_rows(&report.camera_from_base);
+            last.mean_iou = report.mean_iou();
+            last.loss = report.loss;
+            last.events
+                .push("re-segmented every view under the final estimate and re-solved".into());
+        }
+    }
     rec.write_rounds(&rounds)?;
     let mut result = ResultFile::new(&report.camera_from_base, &cell.robot.links[cell.robot.base]);
     result.views_used = (0..views.len()).collect();

@@ -285,6 +285,9 @@ pub enum FaultConfig {
 /// `[camera]`.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+// The simulated camera's scene dressing makes `Sim` large; a config is parsed once per cell,
+// and boxing the field would change how every caller reaches `scene`.
+#[allow(clippy::large_enum_variant)]
 pub enum CameraConfig {
     /// The simulated camera.
     Sim {
@@ -580,6 +583,8 @@ impl Cell {
     pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
         // A bad calibration file fails here, before any hardware is opened.
         let calibration = config.camera.calibration(path)?;
+        // So does a bad segmentation model.
+        let segmenter = config.segmenter.build(path)?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let r = &config.robot;
         let source = RobotSource {
@@ -734,6 +739,7 @@ impl Cell {
                 let model = config.camera.camera().ok_or_else(|| {
                     Error::input(path, "camera", "a simulated camera without its intrinsics")
                 })?;
+                scene.validate(path, "camera.scene")?;
                 let scene = Arc::new(SimScene::new(robot.clone(), model, pose, scene.clone()));
                 (
                     Arc::new(SimCamera::watching(source, scene.clone())),
@@ -759,7 +765,7 @@ impl Cell {
         config.calibration.validate(path)?;
         config.daemon.validate(path, n)?;
         Ok(Cell {
-            segmenter: config.segmenter.build(),
+            segmenter,
             config,
             config_path: path.to_path_buf(),
             robot,

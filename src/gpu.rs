@@ -8,10 +8,13 @@
 //!   a single submission; the masks come back and the outline samples are taken from them on
 //!   the CPU with [`outline_samples`], so the solver's gradient is the CPU's code on the
 //!   GPU's mask.
-//! - **Exploration** ([`SilhouetteRenderer::disagreement_many`]): each joint sample's coarse
-//!   robot is drawn once per camera candidate (instancing) into tiles of an atlas layer, a
-//!   compute pass counts per pixel how many candidates cover it and reduces
-//!   `count * (K - count)` to one integer per sample, and only those integers are read back.
+//! - **Exploration** ([`SilhouetteRenderer::disagreement_many`]): a compute rasteriser, one
+//!   thread per (triangle, camera candidate, joint sample), applies the CPU's pixel rule in f32
+//!   and sets one bit per covered pixel in the candidate's bitmask; a second pass counts per
+//!   pixel how many candidates cover it and reduces `count * (K - count)` to one integer per
+//!   sample, and only those integers are read back. Compute instead of the graphics pipeline:
+//!   exploration's triangles are mostly smaller than a scoring pixel, and on data-centre GPUs
+//!   (an H100 has graphics units in only a few of its clusters) every shader core can run it.
 //!   Batches are sized so GPU memory stays bounded whatever the sample count.
 //!
 //! Pixel centres: the CPU samples pixel `(u, v)` at image coordinates `(u, v)`; the GPU samples
@@ -35,10 +38,10 @@ use crate::render::{
     outline_samples, project_vertices, PosedRobot, Silhouette, SilhouetteRenderer,
 };
 
-/// GPU memory one exploration batch may use for its atlas layers, bytes.
+/// GPU memory one exploration batch may use for its candidate bitmasks and vertices, bytes.
 const EXPLORE_BATCH_BYTES: u64 = 256 << 20;
-/// Threads per workgroup of the variance reduction.
-const REDUCE_WORKGROUP: u32 = 256;
+/// Threads per workgroup of the exploration shaders (`@workgroup_size` in their WGSL).
+const BITS_WORKGROUP: u32 = 64;
 
 /// Which adapters a caller accepts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -100,13 +103,13 @@ pub struct WgpuRenderer {
     queue: wgpu::Queue,
     adapter: AdapterSummary,
     max_layers: u32,
-    max_dimension: u32,
     raster: wgpu::RenderPipeline,
     raster_layout: wgpu::BindGroupLayout,
-    tiles: wgpu::RenderPipeline,
-    tiles_layout: wgpu::BindGroupLayout,
-    reduce: wgpu::ComputePipeline,
-    reduce_layout: wgpu::BindGroupLayout,
+    max_storage_binding: u64,
+    bits_raster: wgpu::ComputePipeline,
+    bits_raster_layout: wgpu::BindGroupLayout,
+    bits_reduce: wgpu::ComputePipeline,
+    bits_reduce_layout: wgpu::BindGroupLayout,
     meshes: Mutex<HashMap<usize, CachedMesh>>,
     targets: Mutex<Vec<Targets>>,
     /// Renders of fewer pixels than this (all views together) run on the CPU.
@@ -197,115 +200,162 @@ fn fs(in: Out) -> @location(0) vec4<f32> {
 }
 "#;
 
-const TILES_WGSL: &str = r#"
+const BITS_RASTER_WGSL: &str = r#"
 struct Params {
     intrinsics: vec4<f32>,   // fx fy cx cy
-    tile: vec2<f32>,         // tile width, height
-    atlas: vec2<f32>,        // atlas width, height
-    columns: u32,
+    tile: vec2<u32>,         // tile width, height
+    words: u32,              // 32-pixel words per tile
     candidates: u32,
+    triangles: u32,          // most triangles of any entry in the batch
+    table: u32,              // u32s of the entry table heading `indices`
     near: f32,
     pad: u32,
 };
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> camera_from_base: array<mat4x4<f32>>;
+@group(0) @binding(2) var<storage, read> vertices: array<f32>;
+// Per pool entry (first index position, triangle count, first vertex), then the indices of
+// every distinct mesh in the batch.
+@group(0) @binding(3) var<storage, read> indices: array<u32>;
+@group(0) @binding(4) var<storage, read_write> bits: array<atomic<u32>>;
 
-struct Out {
-    @builtin(position) position: vec4<f32>,
-    @location(0) @interpolate(flat) origin: vec2<f32>,
-};
-
-@vertex
-fn vs(@location(0) base: vec3<f32>, @builtin(instance_index) k: u32) -> Out {
-    let p = camera_from_base[k] * vec4<f32>(base, 1.0);
-    let origin = vec2<f32>(f32(k % params.columns) * params.tile.x,
-                           f32(k / params.columns) * params.tile.y);
-    var out: Out;
-    out.origin = origin;
+// Pixel position and 1, or 0 in z when the vertex is not in front of the near plane.
+fn project(m: mat4x4<f32>, v: u32) -> vec3<f32> {
+    let p = m * vec4<f32>(vertices[3u * v], vertices[3u * v + 1u], vertices[3u * v + 2u], 1.0);
     if (p.z <= params.near) {
-        // Behind the near plane: outside the clip volume (the CPU drops such triangles).
-        out.position = vec4<f32>(0.0, 0.0, -1.0, 1.0);
-        return out;
+        return vec3<f32>(0.0, 0.0, 0.0);
     }
-    let pixel = vec2<f32>(params.intrinsics.x * p.x / p.z + params.intrinsics.z,
-                          params.intrinsics.y * p.y / p.z + params.intrinsics.w);
-    let at = origin + pixel;
-    out.position = vec4<f32>((at.x + 0.5) / params.atlas.x * 2.0 - 1.0,
-                             1.0 - (at.y + 0.5) / params.atlas.y * 2.0, 0.0, 1.0);
-    return out;
+    return vec3<f32>(params.intrinsics.x * p.x / p.z + params.intrinsics.z,
+                     params.intrinsics.y * p.y / p.z + params.intrinsics.w, 1.0);
 }
 
-@fragment
-fn fs(in: Out) -> @location(0) vec4<f32> {
-    // Keep each candidate inside its own tile.
-    let local = in.position.xy - in.origin;
-    if (local.x < 0.0 || local.y < 0.0 || local.x >= params.tile.x || local.y >= params.tile.y) {
-        discard;
+fn edge(p: vec3<f32>, q: vec3<f32>, s: f32) -> vec3<f32> {
+    let ex = q.x - p.x;
+    let ey = q.y - p.y;
+    return vec3<f32>(-s * ey, s * ex, s * (ey * p.x - ex * p.y));
+}
+
+// One thread per (triangle, candidate, pool entry): the CPU's rule (pixel centres at integer
+// coordinates, all three edge functions >= 0) over the triangle's bounding box, one bit per
+// covered pixel.
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let t = gid.x;
+    if (t >= params.triangles) {
+        return;
     }
-    return vec4<f32>(1.0, 0.0, 0.0, 1.0);
+    let k = gid.y;
+    let entry = gid.z;
+    let first = indices[3u * entry];
+    if (t >= indices[3u * entry + 1u]) {
+        return;
+    }
+    let base = indices[3u * entry + 2u];
+    let m = camera_from_base[k];
+    let a = project(m, base + indices[first + 3u * t]);
+    let b = project(m, base + indices[first + 3u * t + 1u]);
+    let c = project(m, base + indices[first + 3u * t + 2u]);
+    if (a.z == 0.0 || b.z == 0.0 || c.z == 0.0) {
+        return;
+    }
+    let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+    if (!(abs(area) >= 1e-12) || abs(area) > 1e30) {
+        return;
+    }
+    let x0 = max(ceil(min(a.x, min(b.x, c.x))), 0.0);
+    let x1 = min(floor(max(a.x, max(b.x, c.x))), f32(params.tile.x) - 1.0);
+    let y0 = max(ceil(min(a.y, min(b.y, c.y))), 0.0);
+    let y1 = min(floor(max(a.y, max(b.y, c.y))), f32(params.tile.y) - 1.0);
+    if (x0 > x1 || y0 > y1) {
+        return;
+    }
+    let s = sign(area);
+    let e0 = edge(a, b, s);
+    let e1 = edge(b, c, s);
+    let e2 = edge(c, a, s);
+    let tile = (entry * params.candidates + k) * params.words;
+    for (var y = u32(y0); y <= u32(y1); y = y + 1u) {
+        let yf = f32(y);
+        let r0 = e0.y * yf + e0.z;
+        let r1 = e1.y * yf + e1.z;
+        let r2 = e2.y * yf + e2.z;
+        for (var x = u32(x0); x <= u32(x1); x = x + 1u) {
+            let xf = f32(x);
+            if (e0.x * xf + r0 >= 0.0 && e1.x * xf + r1 >= 0.0 && e2.x * xf + r2 >= 0.0) {
+                let i = y * params.tile.x + x;
+                atomicOr(&bits[tile + i / 32u], 1u << (i % 32u));
+            }
+        }
+    }
 }
 "#;
 
-const REDUCE_WGSL: &str = r#"
+const BITS_REDUCE_WGSL: &str = r#"
 struct Params {
     intrinsics: vec4<f32>,
-    tile: vec2<f32>,
-    atlas: vec2<f32>,
-    columns: u32,
+    tile: vec2<u32>,
+    words: u32,
     candidates: u32,
+    triangles: u32,
+    table: u32,
     near: f32,
     pad: u32,
 };
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var atlas: texture_2d_array<f32>;
+@group(0) @binding(1) var<storage, read> bits: array<u32>;
 @group(0) @binding(2) var<storage, read_write> scores: array<atomic<u32>>;
 
 var<workgroup> partial: atomic<u32>;
 
-@compute @workgroup_size(256)
+// One thread per (32-pixel word, pool entry): per pixel, how many candidates cover it (c),
+// summed as c * (K - c).
+@compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
     if (lid == 0u) {
         atomicStore(&partial, 0u);
     }
     workgroupBarrier();
-    let tw = u32(params.tile.x);
-    let th = u32(params.tile.y);
-    let layer = gid.y;
-    if (gid.x < tw * th) {
-        let u = gid.x % tw;
-        let v = gid.x / tw;
-        var count = 0u;
+    let word = gid.x;
+    let entry = gid.y;
+    if (word < params.words) {
+        var counts: array<u32, 32>;
         for (var k = 0u; k < params.candidates; k = k + 1u) {
-            let at = vec2<u32>((k % params.columns) * tw + u, (k / params.columns) * th + v);
-            if (textureLoad(atlas, at, layer, 0).r > 0.5) {
-                count = count + 1u;
+            let w = bits[(entry * params.candidates + k) * params.words + word];
+            if (w != 0u) {
+                for (var i = 0u; i < 32u; i = i + 1u) {
+                    counts[i] = counts[i] + ((w >> i) & 1u);
+                }
             }
         }
-        let value = count * (params.candidates - count);
-        if (value > 0u) {
-            atomicAdd(&partial, value);
+        var total = 0u;
+        for (var i = 0u; i < 32u; i = i + 1u) {
+            total = total + counts[i] * (params.candidates - counts[i]);
+        }
+        if (total > 0u) {
+            atomicAdd(&partial, total);
         }
     }
     workgroupBarrier();
     if (lid == 0u) {
         let total = atomicLoad(&partial);
         if (total > 0u) {
-            atomicAdd(&scores[layer], total);
+            atomicAdd(&scores[entry], total);
         }
     }
 }
 "#;
 
-/// `Params` of the tile and reduction shaders (std140-compatible layout, 48 bytes).
+/// `Params` of the exploration shaders (uniform layout, 48 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct TileParams {
+struct BitsParams {
     intrinsics: [f32; 4],
-    tile: [f32; 2],
-    atlas: [f32; 2],
-    columns: u32,
+    tile: [u32; 2],
+    words: u32,
     candidates: u32,
+    triangles: u32,
+    table: u32,
     near: f32,
     pad: u32,
 }
@@ -453,20 +503,25 @@ impl WgpuRenderer {
                 storage(2),
             ],
         });
+        // A shader module and a pipeline layout of one bind group, for either kind of pipeline.
+        let shader = |label: &str, source: &str, bind: &wgpu::BindGroupLayout| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+            let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &[Some(bind)],
+                immediate_size: 0,
+            });
+            (module, layout)
+        };
         let render_pipeline =
             |label: &str,
              source: &str,
              bind: &wgpu::BindGroupLayout,
              buffers: &[Option<wgpu::VertexBufferLayout>]| {
-                let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(label),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                });
-                let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some(label),
-                    bind_group_layouts: &[Some(bind)],
-                    immediate_size: 0,
-                });
+                let (module, layout) = shader(label, source, bind);
                 device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                     label: Some(label),
                     layout: Some(&layout),
@@ -491,76 +546,61 @@ impl WgpuRenderer {
             };
         let raster = render_pipeline("raster", RASTER_WGSL, &raster_layout, &[]);
 
-        let tiles_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tiles"),
-            entries: &[uniform(0, wgpu::ShaderStages::VERTEX_FRAGMENT), storage(1)],
-        });
-        let tiles = render_pipeline(
-            "tiles",
-            TILES_WGSL,
-            &tiles_layout,
-            &[Some(wgpu::VertexBufferLayout {
-                array_stride: 12,
-                step_mode: wgpu::VertexStepMode::Vertex,
-                attributes: &wgpu::vertex_attr_array![0 => Float32x3],
-            })],
-        );
-
-        let reduce_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("reduce"),
-            entries: &[
-                uniform(0, wgpu::ShaderStages::COMPUTE),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 2,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: false },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-            ],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("reduce"),
-            source: wgpu::ShaderSource::Wgsl(REDUCE_WGSL.into()),
-        });
-        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("reduce"),
-            bind_group_layouts: &[Some(&reduce_layout)],
-            immediate_size: 0,
-        });
-        let reduce = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("reduce"),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        let compute_storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let compute_pipeline = |label: &str, source: &str, bind: &wgpu::BindGroupLayout| {
+            let (module, layout) = shader(label, source, bind);
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let bits_raster_layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("bits raster"),
+                entries: &[
+                    uniform(0, wgpu::ShaderStages::COMPUTE),
+                    compute_storage(1, true),
+                    compute_storage(2, true),
+                    compute_storage(3, true),
+                    compute_storage(4, false),
+                ],
+            });
+        let bits_raster = compute_pipeline("bits raster", BITS_RASTER_WGSL, &bits_raster_layout);
+        let bits_reduce_layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("bits reduce"),
+                entries: &[
+                    uniform(0, wgpu::ShaderStages::COMPUTE),
+                    compute_storage(1, true),
+                    compute_storage(2, false),
+                ],
+            });
+        let bits_reduce = compute_pipeline("bits reduce", BITS_REDUCE_WGSL, &bits_reduce_layout);
         WgpuRenderer {
             device,
             queue,
             adapter,
             max_layers: limits.max_texture_array_layers.max(1),
-            max_dimension: limits.max_texture_dimension_2d.max(1),
             raster,
             raster_layout,
-            tiles,
-            tiles_layout,
-            reduce,
-            reduce_layout,
+            max_storage_binding: limits.max_storage_buffer_binding_size.max(1),
+            bits_raster,
+            bits_raster_layout,
+            bits_reduce,
+            bits_reduce_layout,
             meshes: Mutex::new(HashMap::new()),
             targets: Mutex::new(Vec::new()),
             min_pixels: std::env::var("EASYHEC_GPU_MIN_PIXELS")
@@ -855,35 +895,13 @@ impl WgpuRenderer {
         pool: &[&PosedRobot],
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64> {
+        if pool.is_empty() {
+            return Vec::new();
+        }
         let k = candidates.len() as u32;
         let (tw, th) = (camera.width, camera.height);
-        let columns = (self.max_dimension / tw.max(1)).clamp(1, k.max(1));
-        let rows = k.div_ceil(columns);
-        let (aw, ah) = (columns * tw, rows * th);
-        let per_layer = u64::from(aw) * u64::from(ah);
-        let batch = ((EXPLORE_BATCH_BYTES / per_layer.max(1)) as u32)
-            .clamp(1, self.max_layers.min(256)) as usize;
-        let params = TileParams {
-            intrinsics: [
-                camera.fx as f32,
-                camera.fy as f32,
-                camera.cx as f32,
-                camera.cy as f32,
-            ],
-            tile: [tw as f32, th as f32],
-            atlas: [aw as f32, ah as f32],
-            columns,
-            candidates: k,
-            near: crate::render::NEAR_PLANE_M as f32,
-            pad: 0,
-        };
-        let params = self
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("tile params"),
-                contents: bytemuck::bytes_of(&params),
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
+        let words = (tw * th).div_ceil(32);
+        let bits_per_entry = u64::from(k) * u64::from(words) * 4;
         let poses: Vec<[f32; 16]> = candidates
             .iter()
             .map(|p| {
@@ -905,81 +923,136 @@ impl WgpuRenderer {
                 contents: bytemuck::cast_slice(&poses),
                 usage: wgpu::BufferUsages::STORAGE,
             });
-        let tiles_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("tiles"),
-            layout: &self.tiles_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: poses.as_entire_binding(),
-                },
-            ],
-        });
         let mut scores = Vec::with_capacity(pool.len());
-        for group in pool.chunks(batch) {
-            let layers = group.len() as u32;
-            // All of the batch's vertices and indices in one buffer each.
-            // One topology for the whole pool (a `CoarseRobot`'s poses): its index buffer is
-            // uploaded once and only vertices travel; otherwise indices go with the batch.
-            let shared = group
-                .iter()
-                .all(|r| Arc::ptr_eq(&r.topology, &group[0].topology));
-            let mut vertices: Vec<[f32; 3]> = Vec::new();
-            let mut indices: Vec<u32> = Vec::new();
-            let mut draws = Vec::with_capacity(group.len());
-            let shared_mesh = shared.then(|| self.mesh(&group[0].topology));
-            for r in group {
-                let v0 = vertices.len() as i32;
-                vertices.extend(
-                    r.vertices_base
-                        .iter()
-                        .map(|p| [p.x as f32, p.y as f32, p.z as f32]),
-                );
-                match &shared_mesh {
-                    Some((_, count)) => draws.push((0..*count, v0)),
-                    None => {
-                        let i0 = indices.len() as u32;
-                        indices.extend(r.topology.triangles.iter().flatten());
-                        draws.push((i0..indices.len() as u32, v0));
-                    }
+        let mut start = 0;
+        while start < pool.len() {
+            // A batch: as many entries as fit the memory bound (at least one).
+            let (mut end, mut bytes, mut vertex_bytes, mut index_bytes) = (start, 0, 0, 0);
+            let mut batch_meshes = std::collections::HashSet::new();
+            while end < pool.len() && end - start < 65_535 {
+                let r = pool[end];
+                let v = r.vertices_base.len() as u64 * 12;
+                let i = if batch_meshes.contains(&Arc::as_ptr(&r.topology)) {
+                    12
+                } else {
+                    12 + r.topology.triangles.len() as u64 * 12
+                };
+                let entries = (end - start + 1) as u64;
+                if end > start
+                    && (bytes + bits_per_entry + v + i > EXPLORE_BATCH_BYTES
+                        || vertex_bytes + v > self.max_storage_binding
+                        || index_bytes + i > self.max_storage_binding
+                        || entries * bits_per_entry > self.max_storage_binding)
+                {
+                    break;
                 }
+                batch_meshes.insert(Arc::as_ptr(&r.topology));
+                bytes += bits_per_entry + v + i;
+                vertex_bytes += v;
+                index_bytes += i;
+                end += 1;
             }
-            if vertices.is_empty() {
-                vertices.push([0.0; 3]);
+            let group = &pool[start..end];
+            start = end;
+            let entries = group.len() as u32;
+            // The entry table, then each distinct mesh's indices once (a `CoarseRobot`'s
+            // poses all share one).
+            let table = 3 * entries;
+            let mut indices: Vec<u32> = Vec::with_capacity(table as usize);
+            let mut meshes: Vec<u32> = Vec::new();
+            let mut seen: HashMap<usize, u32> = HashMap::new();
+            let mut first_vertex = 0u32;
+            let mut max_triangles = 0u32;
+            for r in group {
+                let at = *seen
+                    .entry(Arc::as_ptr(&r.topology) as usize)
+                    .or_insert_with(|| {
+                        let at = table + meshes.len() as u32;
+                        meshes.extend(r.topology.triangles.iter().flatten());
+                        at
+                    });
+                let count = r.topology.triangles.len() as u32;
+                indices.extend([at, count, first_vertex]);
+                first_vertex += r.vertices_base.len() as u32;
+                max_triangles = max_triangles.max(count);
             }
+            indices.extend(meshes);
+            if max_triangles.div_ceil(BITS_WORKGROUP) > 65_535 {
+                // More triangles than one dispatch row holds: a mesh no scoring pass decimates
+                // to; the CPU takes it.
+                scores.extend(crate::render::cpu_disagreement_many(
+                    camera, group, candidates,
+                ));
+                continue;
+            }
+            let params = BitsParams {
+                intrinsics: [
+                    camera.fx as f32,
+                    camera.fy as f32,
+                    camera.cx as f32,
+                    camera.cy as f32,
+                ],
+                tile: [tw, th],
+                words,
+                candidates: k,
+                triangles: max_triangles,
+                table,
+                near: crate::render::NEAR_PLANE_M as f32,
+                pad: 0,
+            };
+            let params = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("bits params"),
+                    contents: bytemuck::bytes_of(&params),
+                    usage: wgpu::BufferUsages::UNIFORM,
+                });
+            let indices = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("pool indices"),
+                    contents: bytemuck::cast_slice(&indices),
+                    usage: wgpu::BufferUsages::STORAGE,
+                });
+            // Every core converts its share (2000 samples of a coarse robot are about 20
+            // million floats a round; one thread spends longer on them than the GPU on the
+            // whole round).
+            let mut vertices = vec![0f32; (first_vertex as usize * 3).max(3)];
+            let mut parts = Vec::with_capacity(group.len());
+            let mut rest: &mut [f32] = &mut vertices;
+            for r in group {
+                let (part, tail) =
+                    std::mem::take(&mut rest).split_at_mut(r.vertices_base.len() * 3);
+                parts.push(part);
+                rest = tail;
+            }
+            parts
+                .into_par_iter()
+                .zip(group.par_iter())
+                .for_each(|(out, r)| {
+                    for (o, p) in out.chunks_exact_mut(3).zip(&r.vertices_base) {
+                        o[0] = p.x as f32;
+                        o[1] = p.y as f32;
+                        o[2] = p.z as f32;
+                    }
+                });
             let vbuf = self
                 .device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("batch vertices"),
+                    label: Some("pool vertices"),
                     contents: bytemuck::cast_slice(&vertices),
-                    usage: wgpu::BufferUsages::VERTEX,
+                    usage: wgpu::BufferUsages::STORAGE,
                 });
-            let ibuf = match shared_mesh {
-                Some((buffer, _)) => buffer,
-                None => self.index_buffer(&indices),
-            };
-            let atlas = self.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("atlas"),
-                size: wgpu::Extent3d {
-                    width: aw,
-                    height: ah,
-                    depth_or_array_layers: layers,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::R8Unorm,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
+            drop(vertices);
+            let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("candidate bits"),
+                size: bits_per_entry * u64::from(entries),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
             });
             let out = self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("scores"),
-                size: u64::from(layers) * 4,
+                size: u64::from(entries) * 4,
                 usage: wgpu::BufferUsages::STORAGE
                     | wgpu::BufferUsages::COPY_SRC
                     | wgpu::BufferUsages::COPY_DST,
@@ -987,31 +1060,13 @@ impl WgpuRenderer {
             });
             let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("scores readback"),
-                size: u64::from(layers) * 4,
+                size: u64::from(entries) * 4,
                 usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
                 mapped_at_creation: false,
             });
-            let mut encoder = self
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            encoder.clear_buffer(&out, 0, None);
-            for (layer, (range, base)) in draws.iter().enumerate() {
-                let mut pass = layer_pass(&mut encoder, &atlas, layer as u32, "candidates");
-                if !range.is_empty() {
-                    pass.set_pipeline(&self.tiles);
-                    pass.set_bind_group(0, &tiles_bind, &[]);
-                    pass.set_vertex_buffer(0, vbuf.slice(..));
-                    pass.set_index_buffer(ibuf.slice(..), wgpu::IndexFormat::Uint32);
-                    pass.draw_indexed(range.clone(), *base, 0..k);
-                }
-            }
-            let atlas_view = atlas.create_view(&wgpu::TextureViewDescriptor {
-                dimension: Some(wgpu::TextureViewDimension::D2Array),
-                ..Default::default()
-            });
-            let reduce_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("reduce"),
-                layout: &self.reduce_layout,
+            let raster_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bits raster"),
+                layout: &self.bits_raster_layout,
                 entries: &[
                     wgpu::BindGroupEntry {
                         binding: 0,
@@ -1019,7 +1074,33 @@ impl WgpuRenderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 1,
-                        resource: wgpu::BindingResource::TextureView(&atlas_view),
+                        resource: poses.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: vbuf.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: indices.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: bits.as_entire_binding(),
+                    },
+                ],
+            });
+            let reduce_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bits reduce"),
+                layout: &self.bits_reduce_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: params.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: bits.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 2,
@@ -1027,18 +1108,32 @@ impl WgpuRenderer {
                     },
                 ],
             });
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            encoder.clear_buffer(&bits, 0, None);
+            encoder.clear_buffer(&out, 0, None);
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("candidate silhouettes"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.bits_raster);
+                pass.set_bind_group(0, &raster_bind, &[]);
+                pass.dispatch_workgroups(max_triangles.div_ceil(BITS_WORKGROUP).max(1), k, entries);
+            }
             {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("variance"),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(&self.reduce);
+                pass.set_pipeline(&self.bits_reduce);
                 pass.set_bind_group(0, &reduce_bind, &[]);
-                pass.dispatch_workgroups((tw * th).div_ceil(REDUCE_WORKGROUP), layers, 1);
+                pass.dispatch_workgroups(words.div_ceil(BITS_WORKGROUP), entries, 1);
             }
-            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, u64::from(layers) * 4);
+            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, u64::from(entries) * 4);
             self.queue.submit([encoder.finish()]);
-            let Some(bytes) = self.read(&readback, u64::from(layers) * 4) else {
+            let Some(bytes) = self.read(&readback, u64::from(entries) * 4) else {
                 scores.extend(crate::render::cpu_disagreement_many(
                     camera, group, candidates,
                 ));

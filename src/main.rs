@@ -8,15 +8,22 @@ use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser, Subcommand};
 
 use easyhec::bench;
+use easyhec::consensus::{find_consensus, ConsensusOptions};
 use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::init::{initialise, InitOptions};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
 use easyhec::render::{open_renderer, CpuRenderer, PosedRobot, RendererChoice};
 use easyhec::robot::{RobotModel, RobotSource};
-use easyhec::run::{load_run, PerView, ResultFile, RobotEntry, UncertaintyEntry};
+use easyhec::run::{
+    load_run, load_run_with, MaskSource, PerView, ResultFile, RobotEntry, UncertaintyEntry,
+};
+use easyhec::scene::{ScenePreset, SceneSettings};
 use easyhec::solve::{solve, Optimizer, SolveOptions, View};
-use easyhec::synth::{generate, write_scene, NoiseModel, SynthOptions};
+use easyhec::synth::{
+    generate, generate_frames, write_imaged_scene, write_scene, NoiseModel, SynthOptions,
+    Truncation,
+};
 
 #[derive(Parser)]
 #[command(
@@ -89,6 +96,20 @@ struct SolveArgs {
     /// Renderer: cpu, wgpu (any adapter) or auto (wgpu on a hardware GPU, else cpu).
     #[arg(long, default_value = "auto")]
     renderer: RendererChoice,
+    /// Keep every view even when some do not fit any pose the others agree on (by default
+    /// such views are left out of the result and named on stderr).
+    #[arg(long)]
+    keep_all_views: bool,
+    /// Segment views that have an image but no mask with this segmenter (builtin), in
+    /// segment → solve → re-segment rounds.
+    #[arg(long)]
+    segmenter: Option<String>,
+    /// With --segmenter: segment every view's image, ignoring recorded masks.
+    #[arg(long, requires = "segmenter")]
+    ignore_masks: bool,
+    /// With --segmenter: write the masks it made into this folder (NNN.mask.png).
+    #[arg(long, requires = "segmenter")]
+    masks_out: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -148,6 +169,13 @@ struct SynthArgs {
     /// Write no initial guess.
     #[arg(long)]
     no_initial_guess: bool,
+    /// Also write colour frames (views/NNN.png): `easy` (the plain simulated scene) or `hard`
+    /// (clutter, a light robot on light walls, shadows, exposure changes, moving boxes).
+    #[arg(long)]
+    images: Option<ScenePreset>,
+    /// Aim the camera so part of the robot leaves the image in every view (55–93% inside).
+    #[arg(long)]
+    truncate: bool,
 }
 
 #[derive(Subcommand)]
@@ -240,6 +268,30 @@ enum BenchCommand {
         /// Exploration score: information (default) or variance (the paper's).
         #[arg(long)]
         score: Option<String>,
+    },
+    /// The builtin segmenter: mask IoU and RGB-only calibration error on seeded simulated
+    /// cells, and (with --run) its figures on a recorded run whose masks are the reference.
+    Segment {
+        /// Base cell config (seeded variants move the camera, start pose and guess).
+        #[arg(long, default_value = "config/sim-xarm6.toml")]
+        config: PathBuf,
+        /// Number of simulated cells (seeds 0..N-1; 0 skips them).
+        #[arg(long, default_value_t = 20)]
+        scenes: u64,
+        /// Views per calibration (no early stop).
+        #[arg(long, default_value_t = 5)]
+        views: usize,
+        /// A run directory with images, masks and an initial guess (e.g. the imported Panda
+        /// example): its masks are withheld from the segmenter and used as the reference.
+        #[arg(long)]
+        run: Option<PathBuf>,
+        /// Frame dressing of the simulated cells: hard (clutter, light robot on light walls,
+        /// shadows, exposure changes, moving boxes) or easy.
+        #[arg(long, default_value = "hard")]
+        frames: String,
+        /// Renderer: cpu, wgpu or auto.
+        #[arg(long, default_value = "auto")]
+        renderer: RendererChoice,
     },
     /// One exploration round on the renderer: N joint samples x K camera candidates scored by
     /// silhouette variance (method.md §5), with its posing/decimation time separate.
@@ -454,6 +506,10 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
                 joint_noise_rad: noise,
             },
             seed: cell.config.calibration.seed,
+            scene: match &cell.config.camera {
+                easyhec::cell::CameraConfig::Sim { scene, .. } => Some(scene.clone()),
+                _ => None,
+            },
         };
         easyhec::io::write_json_atomic(&outcome.run_dir.join("ground_truth.json"), &gt)?;
         let est = r.camera_from_base();
@@ -529,10 +585,103 @@ fn fmt_joints(q: &[f64]) -> String {
     format!("[{}]", parts.join(", "))
 }
 
+/// Fills the masks of views that need one (`--segmenter`): segment → solve → re-segment over
+/// those views until the masks settle.
+fn segment_run(
+    run: &mut easyhec::run::LoadedRun,
+    name: &str,
+    renderer: RendererChoice,
+    masks_out: Option<&Path>,
+) -> anyhow::Result<()> {
+    use easyhec::segment::{refine, SegmenterConfig};
+    let config = SegmenterConfig::by_name(name).map_err(|e| anyhow!(e))?;
+    let segmenter = config.build(&run.dir.join("run.json"))?;
+    let need: Vec<usize> = (0..run.views.len())
+        .filter(|&i| run.views[i].needs_mask)
+        .collect();
+    if need.is_empty() {
+        return Ok(());
+    }
+    let mut frames = Vec::with_capacity(need.len());
+    for &i in &need {
+        let path = run.views[i]
+            .image
+            .clone()
+            .expect("checked by load_run_with");
+        frames.push(easyhec::segment::read_frame(
+            &path,
+            run.camera.width,
+            run.camera.height,
+        )?);
+    }
+    let robots: Vec<PosedRobot> = need
+        .iter()
+        .map(|&i| PosedRobot::new(&run.robot, &run.views[i].joints))
+        .collect();
+    let renderer = open_renderer(renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
+    let renderer = renderer.as_ref();
+    let guess = run.initial_guess;
+    let camera = run.camera.clone();
+    let start = |views: &[View]| -> easyhec::Result<nalgebra::Isometry3<f64>> {
+        match guess {
+            Some(g) => Ok(g),
+            None => Ok(initialise(
+                renderer,
+                &camera,
+                &views[..views.len().min(3)],
+                &SolveOptions::default(),
+                &InitOptions::default(),
+            )?
+            .camera_from_base),
+        }
+    };
+    let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
+    let min_band = match config {
+        SegmenterConfig::Builtin { min_band_px } => min_band_px,
+        _ => 8.0,
+    };
+    let settled = refine::segment_and_solve(
+        renderer,
+        &run.camera,
+        segmenter.as_ref(),
+        &frame_refs,
+        &robots,
+        &start,
+        guess.as_ref().map(|g| (g, 80.0)),
+        min_band,
+        &SolveOptions::default(),
+        4,
+    )?;
+    eprintln!(
+        "segmenter {name}: {} views segmented in {} segment-and-solve rounds (mean IoU {:.3} at the last solve)",
+        need.len(),
+        settled.rounds,
+        settled.report.mean_iou()
+    );
+    for (&i, mask) in need.iter().zip(&settled.masks) {
+        if let Some(dir) = masks_out {
+            easyhec::io::write_atomic(&dir.join(format!("{i:03}.mask.png")), &mask.to_png_bytes())?;
+        }
+        run.views[i].observed = run.camera.undistort_mask(mask);
+        run.views[i].needs_mask = false;
+    }
+    Ok(())
+}
+
 fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let optimizer: Optimizer = a.optimizer.parse().map_err(|e: String| anyhow!(e))?;
-    let run = load_run(&a.run)?;
+    let mut run = match &a.segmenter {
+        None => load_run(&a.run)?,
+        Some(_) if a.ignore_masks => load_run_with(&a.run, MaskSource::Image)?,
+        Some(_) => load_run_with(&a.run, MaskSource::RecordedElseImage)?,
+    };
+    let mut segment_s = None;
+    if let Some(name) = &a.segmenter {
+        let t = Instant::now();
+        segment_run(&mut run, name, a.renderer, a.masks_out.as_deref())?;
+        segment_s = Some(t.elapsed().as_secs_f64());
+    }
     let total = run.views.len();
     let k = a.views.unwrap_or(total);
     if k == 0 || k > total {
@@ -602,8 +751,40 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         },
         &StopRule::default(),
     )?;
-    let report = selected.report;
-    let order = selected.order;
+    let mut report = selected.report;
+    let mut order = selected.order;
+    let mut stop_reason = selected.stop_reason;
+    if !a.keep_all_views {
+        let used: Vec<View> = order.iter().map(|&i| pool[i].clone()).collect();
+        if let Some(c) = find_consensus(
+            renderer,
+            &run.camera,
+            &used,
+            &report,
+            &SolveOptions {
+                optimizer,
+                ..SolveOptions::default()
+            },
+            &ConsensusOptions::default(),
+        )? {
+            let rejected: Vec<String> = c
+                .rejected
+                .iter()
+                .map(|&(i, iou)| format!("{} (IoU {iou:.2})", order[i]))
+                .collect();
+            let kept: Vec<usize> = c.kept.iter().map(|&i| order[i]).collect();
+            eprintln!(
+                "warning: views {} fit no pose the other views agree on and are left out (their joints do not describe their images: check joint-read timing); the result uses views {kept:?} (--keep-all-views keeps them)",
+                rejected.join(", ")
+            );
+            stop_reason = format!(
+                "{stop_reason}; left out {} inconsistent views",
+                c.rejected.len()
+            );
+            order = kept;
+            report = c.report;
+        }
+    }
     let views: Vec<&View> = order.iter().map(|&i| &pool[i]).collect();
     let solve_s = selected.solve_s;
     let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
@@ -623,10 +804,10 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         bail!("the solve diverged (non-finite pose): check the initial guess and the masks");
     }
     result.stop_reason = match optimizer {
-        Optimizer::Lm => selected.stop_reason,
+        Optimizer::Lm => stop_reason,
         Optimizer::Adam => format!(
             "{}; adam: {} steps, best iterate",
-            selected.stop_reason, report.iterations
+            stop_reason, report.iterations
         ),
     };
     if let Some(dir) = &a.overlays {
@@ -648,6 +829,9 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         }
     }
     result.timings_s.insert("solve".into(), solve_s);
+    if let Some(t) = segment_s {
+        result.timings_s.insert("segment".into(), t);
+    }
     if selection == Selection::Explore {
         result
             .timings_s
@@ -735,9 +919,21 @@ fn cmd_synth(a: SynthArgs) -> anyhow::Result<()> {
         } else {
             Some(((2.0, 6.0), (0.02, 0.08)))
         },
+        truncation: a.truncate.then(Truncation::standard),
         ..SynthOptions::default()
     };
-    let scene = generate(&robot, &opts)?;
+    let robot = std::sync::Arc::new(robot);
+    let imaged = match a.images {
+        Some(preset) => Some(generate_frames(
+            &robot,
+            &opts,
+            &SceneSettings {
+                preset,
+                ..SceneSettings::default()
+            },
+        )?),
+        None => None,
+    };
     let entry = RobotEntry {
         urdf: urdf_for_run(&a.robot),
         package_dirs: Default::default(),
@@ -745,7 +941,10 @@ fn cmd_synth(a: SynthArgs) -> anyhow::Result<()> {
         ignore_links: a.ignore_links,
         joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),
     };
-    write_scene(&scene, entry, &a.out, a.seed, &noise)?;
+    match &imaged {
+        Some(imaged) => write_imaged_scene(imaged, entry, &a.out, a.seed, &noise)?,
+        None => write_scene(&generate(&robot, &opts)?, entry, &a.out, a.seed, &noise)?,
+    }
     println!(
         "wrote {} views to {} (ground truth in ground_truth.json)",
         a.views,
@@ -794,6 +993,65 @@ fn cmd_export(a: ExportArgs) -> anyhow::Result<()> {
 
 fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
     match b {
+        BenchCommand::Segment {
+            config,
+            scenes,
+            views,
+            run,
+            frames,
+            renderer,
+        } => {
+            use easyhec::segment::bench as sb;
+            let preset: ScenePreset = frames
+                .parse()
+                .map_err(|e: String| anyhow!("--frames: {e}"))?;
+            if scenes > 0 {
+                let mut base = easyhec::cell::read_config(&config)?;
+                base.calibration.renderer = renderer;
+                let mut trials = Vec::new();
+                for seed in 0..scenes {
+                    let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
+                    let t = sb::cell_trial(&cfg, &config, seed, views, preset)?;
+                    eprintln!(
+                        "seed {seed}: IoU {:?}; {:.4} deg {:.3} mm",
+                        t.ious
+                            .iter()
+                            .map(|x| (x * 1000.0).round() / 1000.0)
+                            .collect::<Vec<_>>(),
+                        t.rotation_deg,
+                        t.translation_mm
+                    );
+                    trials.push(t);
+                }
+                let ious: Vec<f64> = trials.iter().flat_map(|t| t.ious.clone()).collect();
+                let rot: Vec<f64> = trials.iter().map(|t| t.rotation_deg).collect();
+                let trans: Vec<f64> = trials.iter().map(|t| t.translation_mm).collect();
+                println!(
+                    "builtin on {scenes} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
+                    bench::median(&ious),
+                    ious.iter().sum::<f64>() / ious.len().max(1) as f64,
+                    ious.iter().copied().fold(f64::INFINITY, f64::min),
+                    bench::median(&rot),
+                    bench::median(&trans),
+                    rot.iter().copied().fold(0.0, f64::max),
+                    trans.iter().copied().fold(0.0, f64::max),
+                );
+            }
+            if let Some(run) = run {
+                let r = open_renderer(renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
+                let f = sb::run_figures(&run, r.as_ref())?;
+                println!(
+                    "builtin on {} ({} views, masks withheld): mean IoU {:.4} (per view {:?}); images-only vs recorded-mask calibration {:.4} deg / {:.3} mm after {} rounds",
+                    run.display(),
+                    f.ious.len(),
+                    f.ious.iter().sum::<f64>() / f.ious.len().max(1) as f64,
+                    f.ious.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
+                    f.rotation_deg,
+                    f.translation_mm,
+                    f.rounds
+                );
+            }
+        }
         BenchCommand::Loop {
             config,
             cells,

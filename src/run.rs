@@ -221,6 +221,9 @@ pub struct LoadedView {
     pub observed: Mask,
     /// Colour frame path, when recorded.
     pub image: Option<PathBuf>,
+    /// True when the view has no usable mask yet (image only, or masks ignored): `observed`
+    /// is then empty and a segmenter must fill it.
+    pub needs_mask: bool,
 }
 
 /// A validated run directory with its robot loaded.
@@ -249,8 +252,25 @@ fn resolve(dir: &Path, p: &str) -> PathBuf {
     }
 }
 
-/// Loads and validates a run directory (or a path to its `run.json`).
+/// Loads and validates a run directory (or a path to its `run.json`); every view needs a mask.
 pub fn load_run(path: &Path) -> Result<LoadedRun> {
+    load_run_with(path, MaskSource::Recorded)
+}
+
+/// Where [`load_run_with`] takes each view's mask from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaskSource {
+    /// The recorded mask files; a view without one is an error.
+    Recorded,
+    /// The recorded mask where there is one; image-only views are left for a segmenter.
+    RecordedElseImage,
+    /// Every view's image (recorded masks withheld, e.g. to measure a segmenter).
+    Image,
+}
+
+/// [`load_run`] with a choice of mask source; views left for a segmenter have
+/// `needs_mask` set and must have an image.
+pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> {
     let json = if path.is_dir() {
         path.join("run.json")
     } else {
@@ -312,11 +332,44 @@ pub fn load_run(path: &Path) -> Result<LoadedRun> {
                 "not a finite number",
             ));
         }
+        let image = v.image.as_ref().map(|p| resolve(&dir, p));
+        let use_image = match mask_source {
+            MaskSource::Recorded => false,
+            MaskSource::RecordedElseImage => v.mask.is_none(),
+            MaskSource::Image => true,
+        };
+        if use_image {
+            match &image {
+                Some(p) if p.exists() => {}
+                Some(p) => {
+                    return Err(Error::input(
+                        &json,
+                        format!("views[{i}].image"),
+                        format!("file {} does not exist", p.display()),
+                    ))
+                }
+                None => {
+                    return Err(Error::input(
+                        &json,
+                        format!("views[{i}].image"),
+                        "view has no image to segment: add the frame or a mask",
+                    ))
+                }
+            }
+            views.push(LoadedView {
+                index: i,
+                joints: v.joints.clone(),
+                observed: Mask::new(camera.width, camera.height),
+                image,
+                needs_mask: true,
+            });
+            continue;
+        }
         let Some(mask_rel) = &v.mask else {
             return Err(Error::input(
                 &json,
                 format!("views[{i}].mask"),
-                "view has no mask: this version solves from masks only",
+                "view has no mask: pass --segmenter builtin to segment its image",
             ));
         };
         let mask_path = resolve(&dir, mask_rel);
@@ -349,7 +402,8 @@ pub fn load_run(path: &Path) -> Result<LoadedRun> {
             index: i,
             joints: v.joints.clone(),
             observed: camera.undistort_mask(&mask),
-            image: v.image.as_ref().map(|p| resolve(&dir, p)),
+            image,
+            needs_mask: false,
         });
     }
     Ok(LoadedRun {

@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{exp_se3, skew, Twist};
 use crate::mask::Mask;
 use crate::objective::{loss_gradient, mask_loss};
-use crate::render::{BoundarySample, PosedRobot, SilhouetteRenderer, ROW_CROSSING};
+use crate::render::{BoundarySample, PosedRobot, Silhouette, SilhouetteRenderer, ROW_CROSSING};
 
 /// One observation: the robot posed at the view's joints and the observed mask in the
 /// undistorted pinhole image.
@@ -369,12 +369,24 @@ fn accumulate(
     pose: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Normal {
+    accumulate_keeping(renderer, robots, level, pose, opts).0
+}
+
+/// [`accumulate`], also handing back the silhouettes it rendered (their masks score the
+/// final pose without a second render).
+fn accumulate_keeping(
+    renderer: &dyn SilhouetteRenderer,
+    robots: &[&PosedRobot],
+    level: &Level,
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> (Normal, Vec<Silhouette>) {
     let c = level.robust_scale_px;
     let cap = GRID_CELL_PX * GRID_REACH as f64;
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    silhouettes
+    let normal = silhouettes
         .par_iter()
         .zip(&level.views)
         .map(|(sil, obs)| {
@@ -413,7 +425,8 @@ fn accumulate(
             }
             n
         })
-        .reduce(Normal::zero, Normal::merge)
+        .reduce(Normal::zero, Normal::merge);
+    (normal, silhouettes)
 }
 
 fn total_cost(n: &Normal) -> f64 {
@@ -513,12 +526,20 @@ fn max_displacement_px(
 }
 
 /// The part of a view that poses near `centre` can change: pixels within `radius` of the
-/// rendered outline, and the triangles whose (dilated) bounds touch them.
+/// rendered outline, and the triangles whose (dilated) bounds touch them. Samples render only
+/// the band's window of the image and only the vertices its triangles use, so one sample costs
+/// a small fraction of a full render.
 struct Band {
-    pixels: Vec<u32>,
+    /// The image window holding every band pixel: `camera` with its principal point shifted so
+    /// that window pixel (0, 0) is image pixel (`x0`, `y0`); pixel centres stay put.
+    window: Camera,
+    /// Band pixels as indices into the window, with whether the observation covers them.
+    pixels: Vec<(u32, bool)>,
     robot: PosedRobot,
     /// Disagreeing pixels outside the band (constant for nearby poses).
     outside_wrong: usize,
+    /// Pixels of the whole image, the loss's denominator.
+    image_pixels: usize,
 }
 
 impl Band {
@@ -569,7 +590,7 @@ impl Band {
         let (pixels_2d, _) =
             crate::render::project_vertices(&view.robot.vertices_base, camera, centre);
         let topology = &view.robot.topology;
-        let triangles: Vec<[u32; 3]> = topology
+        let kept: Vec<[u32; 3]> = topology
             .triangles
             .iter()
             .filter(|t| {
@@ -585,42 +606,117 @@ impl Band {
             })
             .copied()
             .collect();
-        let pixels: Vec<u32> = band
+        // Only the vertices the kept triangles use, renumbered.
+        let mut renumber = vec![u32::MAX; view.robot.vertices_base.len()];
+        let mut vertices_base = Vec::new();
+        let mut vertex_link = Vec::new();
+        let triangles: Vec<[u32; 3]> = kept
             .iter()
-            .enumerate()
-            .filter(|(_, &b)| b != 0)
-            .map(|(i, _)| i as u32)
+            .map(|t| {
+                t.map(|i| {
+                    let slot = &mut renumber[i as usize];
+                    if *slot == u32::MAX {
+                        *slot = vertices_base.len() as u32;
+                        vertices_base.push(view.robot.vertices_base[i as usize]);
+                        if let Some(&l) = view.robot.vertex_link.get(i as usize) {
+                            vertex_link.push(l);
+                        }
+                    }
+                    *slot
+                })
+            })
             .collect();
+        // The window: the band's bounding box (a 1x1 window when the band is empty).
+        let (mut x0, mut y0, mut x1, mut y1) = (w, h, -1, -1);
+        for v in 0..h {
+            let row = &band[(v * w) as usize..((v + 1) * w) as usize];
+            if let (Some(a), Some(b)) = (
+                row.iter().position(|&b| b != 0),
+                row.iter().rposition(|&b| b != 0),
+            ) {
+                x0 = x0.min(a as i64);
+                x1 = x1.max(b as i64);
+                y0 = y0.min(v);
+                y1 = y1.max(v);
+            }
+        }
+        if x1 < x0 {
+            (x0, y0, x1, y1) = (0, 0, 0, 0);
+        }
+        let window = Camera {
+            width: (x1 - x0 + 1) as u32,
+            height: (y1 - y0 + 1) as u32,
+            cx: camera.cx - x0 as f64,
+            cy: camera.cy - y0 as f64,
+            ..camera.clone()
+        };
+        let ww = x1 - x0 + 1;
+        let mut pixels = Vec::new();
+        for v in y0..=y1 {
+            for u in x0..=x1 {
+                let i = (v * w + u) as usize;
+                if band[i] != 0 {
+                    pixels.push((
+                        ((v - y0) * ww + (u - x0)) as u32,
+                        view.observed.data[i] != 0,
+                    ));
+                }
+            }
+        }
         let outside_wrong = band
             .iter()
             .zip(rendered.data.iter().zip(&view.observed.data))
             .filter(|(&b, (&r, &o))| b == 0 && (r != 0) != (o != 0))
             .count();
         let robot = PosedRobot {
-            vertices_base: view.robot.vertices_base.clone(),
+            vertices_base,
             topology: std::sync::Arc::new(crate::mesh::TriMesh {
                 vertices: Vec::new(),
                 triangles,
                 edges: Vec::new(),
             }),
-            vertex_link: view.robot.vertex_link.clone(),
+            vertex_link: std::sync::Arc::new(vertex_link),
         };
         Band {
+            window,
             pixels,
             robot,
             outside_wrong,
+            image_pixels: (w * h) as usize,
         }
     }
 
-    /// The paper's mask loss of one view from the band's mask rendered at a pose near the
-    /// band's centre.
-    fn loss_of(&self, m: &Mask, view: &View) -> f64 {
+    /// The paper's mask loss of one view at `pose` (near the band's centre), rendering only
+    /// the band's window. Always on the CPU rasteriser and on the calling thread: a band is
+    /// a few thousand triangles over a window, less work than one GPU submission's round
+    /// trip, the backends agree to the pixel, and the samples already run in parallel.
+    fn loss_at(&self, pose: &Isometry3<f64>) -> f64 {
+        let pixels: Vec<[f64; 2]> = self
+            .robot
+            .vertices_base
+            .iter()
+            .map(|v| {
+                let p = pose * v;
+                if p.z > crate::render::NEAR_PLANE_M {
+                    self.window.project(&p)
+                } else {
+                    [f64::NAN, f64::NAN]
+                }
+            })
+            .collect();
+        let mut m = Mask::new(self.window.width, self.window.height);
+        for t in &self.robot.topology.triangles {
+            let [a, b, c] = t.map(|i| pixels[i as usize]);
+            if !(a[0].is_nan() || b[0].is_nan() || c[0].is_nan()) {
+                crate::render::fill_triangle(&mut m, a, b, c);
+            }
+        }
         let inside_wrong = self
             .pixels
             .iter()
-            .filter(|&&i| (m.data[i as usize] != 0) != (view.observed.data[i as usize] != 0))
+            .filter(|&&(i, observed)| (m.data[i as usize] != 0) != observed)
             .count();
-        (self.outside_wrong + inside_wrong) as f64 / m.data.len() as f64
+        (self.outside_wrong + inside_wrong) as f64 / self.image_pixels as f64
     }
 }
 
@@ -672,17 +768,11 @@ fn refine(
         .par_iter()
         .map(|v| Band::new(renderer, camera, v, &centre, radius))
         .collect();
-    let band_robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
     let mut scored: Vec<(f64, Twist)> = offsets
         .par_iter()
         .map(|xi| {
             let pose = exp_se3(xi) * centre;
-            let loss: f64 = renderer
-                .render_many(&band_robots, camera, &pose, None)
-                .iter()
-                .zip(bands.iter().zip(views))
-                .map(|(s, (b, v))| b.loss_of(&s.mask, v))
-                .sum();
+            let loss: f64 = bands.iter().map(|b| b.loss_at(&pose)).sum();
             (loss, *xi)
         })
         .collect();
@@ -943,7 +1033,7 @@ fn finish(
 ) -> Result<SolveReport> {
     let level = Level::new(camera, views, 1, opts.fine_robust_scale_px);
     let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.robot).collect();
-    let n = accumulate(renderer, &robots, &level, &pose, opts);
+    let (n, silhouettes) = accumulate_keeping(renderer, &robots, &level, &pose, opts);
     let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
     let covariance = match n.h.try_inverse() {
@@ -951,8 +1041,7 @@ fn finish(
         None => Matrix6::from_diagonal_element(f64::INFINITY),
     };
     let uncertainty = uncertainty_of(&covariance, &pose);
-    let renders: Vec<(f64, f64)> = renderer
-        .render_many(&robots, camera, &pose, None)
+    let renders: Vec<(f64, f64)> = silhouettes
         .par_iter()
         .zip(views)
         .map(|(s, v)| (s.mask.iou(&v.observed), mask_loss(&s.mask, &v.observed)))

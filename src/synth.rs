@@ -11,13 +11,21 @@
 //! - **blobs**: with probability `blob_probability` per view, 1–2 ellipses (3–12 px radii)
 //!   centred near the boundary are painted as robot or cut out as background;
 //! - **joint encoder noise**: recorded joints = true joints + N(0, `joint_noise_rad`).
+//!
+//! With [`SynthOptions::truncation`] the camera is aimed off the robot so that part of it
+//! leaves the image in every view (masks are whatever is inside). [`generate_frames`] adds the
+//! colour frames the simulated camera sees ([`crate::scene`], plain or hard dressing), so a
+//! segmenter benchmark can make many seeded cells in memory; [`write_imaged_scene`] writes them
+//! as a run directory with `image` and `mask` per view.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
@@ -28,6 +36,7 @@ use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
 use crate::run::{CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
+use crate::scene::{SceneSettings, SimFrame, SimScene};
 
 /// The segmentation-noise model (see the module docs).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -83,6 +92,31 @@ pub struct SynthOptions {
     pub camera_distance_m: (f64, f64),
     /// Camera elevation above the base plane, degrees (min, max).
     pub camera_elevation_deg: (f64, f64),
+    /// Aim the camera so part of the robot leaves the image; `None`: at least 97% of the
+    /// robot's vertices inside in every view.
+    pub truncation: Option<Truncation>,
+}
+
+/// A camera placement that cuts the robot at the image border: what a real camera mounted too
+/// close, or aimed at the gripper's workspace rather than the whole arm, sees.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Truncation {
+    /// Accepted range of the fraction of the robot's visual vertices inside the image, per
+    /// view.
+    pub in_image_fraction: (f64, f64),
+    /// How far the aim point moves off the robot's centre across the line of sight, metres
+    /// (min, max).
+    pub aim_offset_m: (f64, f64),
+}
+
+impl Truncation {
+    /// 55–93% of the robot inside the image, aim 15–35 cm off centre.
+    pub fn standard() -> Truncation {
+        Truncation {
+            in_image_fraction: (0.55, 0.93),
+            aim_offset_m: (0.15, 0.35),
+        }
+    }
 }
 
 impl Default for SynthOptions {
@@ -98,6 +132,7 @@ impl Default for SynthOptions {
             initial_error: Some(((2.0, 6.0), (0.02, 0.08))),
             camera_distance_m: (0.9, 1.6),
             camera_elevation_deg: (10.0, 50.0),
+            truncation: None,
         }
     }
 }
@@ -132,6 +167,9 @@ pub struct GroundTruth {
     pub noise: NoiseModel,
     /// The seed.
     pub seed: u64,
+    /// The scene dressing of the colour frames, when the run has them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<SceneSettings>,
 }
 
 /// A random rigid perturbation with rotation angle and translation length drawn from ranges.
@@ -219,7 +257,16 @@ pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
                 elevation.cos() * azimuth.sin(),
                 elevation.sin(),
             ) * distance;
-        let aim = centre + random_unit(&mut rng) * rng.random_range(0.0..0.05);
+        let mut aim = centre + random_unit(&mut rng) * rng.random_range(0.0..0.05);
+        if let Some(t) = &opts.truncation {
+            // Push the aim across the line of sight, so the robot sits off to one side.
+            let sight = (aim - eye).normalize();
+            let across = random_unit(&mut rng);
+            let across = (across - sight * across.dot(&sight))
+                .try_normalize(1e-9)
+                .unwrap_or_else(|| sight.cross(&Vector3::z()).normalize());
+            aim += across * rng.random_range(t.aim_offset_m.0..=t.aim_offset_m.1);
+        }
         let roll = rng.random_range(-10f64..10.0).to_radians();
         let look = look_at_camera_from_base(&eye, &aim, &Vector3::z());
         let truth = Isometry3::from_parts(
@@ -249,7 +296,12 @@ pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
                         && x[1] <= f64::from(opts.height) - 3.0
                 })
                 .count();
-            if (inside as f64) < 0.97 * posed.vertices_base.len() as f64 {
+            let (lo, hi) = opts
+                .truncation
+                .as_ref()
+                .map_or((0.97, 1.0), |t| t.in_image_fraction);
+            let all = posed.vertices_base.len() as f64;
+            if (inside as f64) < lo * all || (inside as f64) > hi * all {
                 continue;
             }
             let sil = renderer.render(&posed, &pinhole, &truth, None);
@@ -364,9 +416,102 @@ pub fn apply_mask_noise(rng: &mut impl Rng, mask: &Mask, noise: &NoiseModel) -> 
     out
 }
 
+/// A synthetic scene with the colour frames the simulated camera saw.
+#[derive(Clone, Debug)]
+pub struct ImagedScene {
+    /// Camera, true pose, joints and observed masks (segmentation noise on the visible robot:
+    /// pixels a distractor hides are left out).
+    pub scene: Scene,
+    /// View `i`'s frame (frame index `i`), with exact truth, distractor and hidden-robot masks.
+    pub frames: Vec<SimFrame>,
+    /// The dressing the frames were rendered with, seed included.
+    pub dressing: SceneSettings,
+}
+
+/// [`generate`] plus colour frames of every view rendered with `dressing`
+/// ([`SceneSettings::default`] for plain frames, [`SceneSettings::hard`] for hard ones). The
+/// frames' seed is `opts.seed + dressing.seed * 0x9E3779B97F4A7C15` (wrapping), so one seed
+/// makes one cell and a dressing seed of 0 reuses it.
+pub fn generate_frames(
+    robot: &Arc<RobotModel>,
+    opts: &SynthOptions,
+    dressing: &SceneSettings,
+) -> Result<ImagedScene> {
+    let mut scene = generate(robot, opts)?;
+    let seed = opts
+        .seed
+        .wrapping_add(dressing.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let dressing = dressing.clone().with_seed(seed);
+    let sim = SimScene::new(
+        robot.clone(),
+        scene.camera.clone(),
+        scene.camera_from_base,
+        dressing.clone(),
+    );
+    let frames: Vec<SimFrame> = scene
+        .true_joints
+        .par_iter()
+        .enumerate()
+        .map(|(i, q)| sim.render_frame(q, i as u64))
+        .collect();
+    for (mask, frame) in scene.masks.iter_mut().zip(&frames) {
+        for (m, &hidden) in mask.data.iter_mut().zip(&frame.occluded_mask.data) {
+            if hidden != 0 {
+                *m = 0;
+            }
+        }
+    }
+    Ok(ImagedScene {
+        scene,
+        frames,
+        dressing,
+    })
+}
+
+/// Encodes a row-major RGB8 buffer as PNG.
+pub fn rgb_png_bytes(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
+    let img = image::RgbImage::from_raw(width, height, rgb.to_vec())
+        .expect("an RGB8 buffer of width * height * 3 bytes");
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .expect("PNG encoding to memory cannot fail");
+    out.into_inner()
+}
+
 /// Writes a scene as an `easyhec-run/1` directory plus `ground_truth.json`.
 pub fn write_scene(
     scene: &Scene,
+    robot_entry: RobotEntry,
+    out: &Path,
+    seed: u64,
+    noise: &NoiseModel,
+) -> Result<()> {
+    write_run(scene, None, robot_entry, out, seed, noise)
+}
+
+/// Writes an imaged scene as an `easyhec-run/1` directory (each view with `image`
+/// `views/NNN.png` and `mask` `views/NNN.mask.png`) plus `ground_truth.json` (which records the
+/// dressing).
+pub fn write_imaged_scene(
+    imaged: &ImagedScene,
+    robot_entry: RobotEntry,
+    out: &Path,
+    seed: u64,
+    noise: &NoiseModel,
+) -> Result<()> {
+    write_run(
+        &imaged.scene,
+        Some((&imaged.frames, &imaged.dressing)),
+        robot_entry,
+        out,
+        seed,
+        noise,
+    )
+}
+
+fn write_run(
+    scene: &Scene,
+    frames: Option<(&[SimFrame], &SceneSettings)>,
     robot_entry: RobotEntry,
     out: &Path,
     seed: u64,
@@ -378,10 +523,22 @@ pub fn write_scene(
     for (i, (mask, q)) in scene.masks.iter().zip(&scene.recorded_joints).enumerate() {
         let rel = format!("views/{i:03}.mask.png");
         write_atomic(&out.join(&rel), &mask.to_png_bytes())?;
+        let image = match frames.and_then(|(f, _)| f.get(i)) {
+            Some(frame) => {
+                let rel = format!("views/{i:03}.png");
+                let c = &scene.camera;
+                write_atomic(
+                    &out.join(&rel),
+                    &rgb_png_bytes(c.width, c.height, &frame.rgb),
+                )?;
+                Some(rel)
+            }
+            None => None,
+        };
         views.push(ViewEntry {
             joints: q.clone(),
             mask: Some(rel),
-            image: None,
+            image,
             captured_at: None,
         });
     }
@@ -403,6 +560,7 @@ pub fn write_scene(
             true_joints: scene.true_joints.clone(),
             noise: noise.clone(),
             seed,
+            scene: frames.map(|(_, d)| d.clone()),
         },
     )?;
     write_json_atomic(&out.join("run.json"), &run)

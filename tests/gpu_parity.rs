@@ -200,19 +200,33 @@ fn an_exploration_round_scores_alike_and_picks_the_same_sample() {
     let candidates = camera_candidates(&widened, &ExploreOptions::default());
     let low = scene.camera.undistorted().downsampled(4);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-    let pool: Vec<PosedRobot> = (0..150)
-        .map(|_| {
-            let q: Vec<f64> = robot
-                .joint_limits()
-                .iter()
-                .map(|&(lo, hi)| rng.random_range(lo.max(-3.0)..=hi.min(3.0)))
-                .collect();
-            PosedRobot::new(&robot, &q).decimated(0.004)
-        })
-        .collect();
+    // Both pool shapes exploration uses: one shared coarse mesh (the closed loop's
+    // `CoarseRobot`) and a mesh decimated per pose (`choose_next`, `solve --select explore`).
+    let coarse = easyhec::render::CoarseRobot::new(&robot, 0.004);
+    let (mut shared, mut own) = (Vec::new(), Vec::new());
+    for _ in 0..150 {
+        let q: Vec<f64> = robot
+            .joint_limits()
+            .iter()
+            .map(|&(lo, hi)| rng.random_range(lo.max(-3.0)..=hi.min(3.0)))
+            .collect();
+        shared.push(coarse.pose(&robot, &q));
+        own.push(PosedRobot::new(&robot, &q).decimated(0.004));
+    }
+    for pool in [shared, own] {
+        exploration_scores_agree(&gpu, &low, &pool, &candidates);
+    }
+}
+
+fn exploration_scores_agree(
+    gpu: &WgpuRenderer,
+    low: &Camera,
+    pool: &[PosedRobot],
+    candidates: &[nalgebra::Isometry3<f64>],
+) {
     let refs: Vec<&PosedRobot> = pool.iter().collect();
-    let cpu = CpuRenderer.disagreement_many(&low, &refs, &candidates);
-    let wgpu = gpu.disagreement_many(&low, &refs, &candidates);
+    let cpu = CpuRenderer.disagreement_many(low, &refs, candidates);
+    let wgpu = gpu.disagreement_many(low, &refs, candidates);
     assert_eq!(cpu.len(), wgpu.len());
     let argmax = |v: &[f64]| {
         v.iter()

@@ -286,3 +286,42 @@ fn failed_automatic_initialisation_is_reported_not_returned() {
     );
     assert!(!run.join("result.json").exists());
 }
+
+/// Views whose joints were read at the wrong moment are left out, named, and the pose comes
+/// from the views that agree; `--keep-all-views` keeps them (and still warns).
+#[test]
+fn views_whose_joints_do_not_match_their_images_are_left_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    common::synth_run(&run, "xarm6", &["--views", "5", "--seed", "5"]);
+    let path = run.join("run.json");
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    for (view, delta) in [(1usize, 0.35), (3, -0.3)] {
+        let joints = doc["views"][view]["joints"].as_array_mut().unwrap();
+        for j in [1usize, 2] {
+            let v = joints[j].as_f64().unwrap() + delta;
+            joints[j] = serde_json::json!(v);
+        }
+    }
+    std::fs::write(&path, serde_json::to_string_pretty(&doc).unwrap()).unwrap();
+
+    let out = solve(&run, &[]);
+    assert_ok(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("views 1 (IoU") && stderr.contains("3 (IoU") && stderr.contains("left out"),
+        "{stderr}"
+    );
+    let result = ResultFile::read(&run.join("result.json")).unwrap();
+    assert_eq!(result.views_used, vec![0, 2, 4]);
+    assert!(result.stop_reason.contains("left out 2 inconsistent views"));
+    assert_near_truth(&run, "consensus of the consistent views");
+
+    let out = solve(&run, &["--keep-all-views"]);
+    assert_ok(&out);
+    let result = ResultFile::read(&run.join("result.json")).unwrap();
+    assert_eq!(result.views_used, vec![0, 1, 2, 3, 4]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("views [1, 3] fit poorly"), "{stderr}");
+}

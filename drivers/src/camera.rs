@@ -50,3 +50,25 @@ pub trait Camera: Send + Sync {
     /// Grabs the next frame exposed after this call.
     async fn grab(&self) -> Result<Frame>;
 }
+
+/// A camera whose device is owned by one capture thread (V4L2, Aravis: their handles are not
+/// `Send` or block): the thread's queue of frame requests, each answered on its own channel.
+#[cfg(any(feature = "v4l2", feature = "aravis"))]
+pub(crate) type FrameRequests =
+    std::sync::mpsc::SyncSender<tokio::sync::oneshot::Sender<Result<Frame>>>;
+
+/// Asks the capture thread behind `requests` for the next frame; `backend` names it in the
+/// error when the thread is gone.
+#[cfg(any(feature = "v4l2", feature = "aravis"))]
+pub(crate) async fn request_frame(requests: &FrameRequests, backend: &str) -> Result<Frame> {
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let lost =
+        || crate::DriverError::Connection(format!("the {backend} worker thread has stopped"));
+    let requests = requests.clone();
+    // The queue holds one request; a full queue waits off the async runtime.
+    tokio::task::spawn_blocking(move || requests.send(tx))
+        .await
+        .map_err(|e| crate::DriverError::Backend(Box::new(e)))?
+        .map_err(|_| lost())?;
+    rx.await.map_err(|_| lost())?
+}

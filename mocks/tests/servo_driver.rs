@@ -75,6 +75,13 @@ async fn dynamixel_bring_up_move_and_read_back_to_the_tick() {
         .await
         .unwrap();
     assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+    // Arrival means within one tick; the servo then finishes its last tick on its own, and
+    // only once its moving flag clears must the reading be the target to the half tick.
+    let settle = Instant::now();
+    while arm.status().await.unwrap() != ArmStatus::Idle {
+        assert!(settle.elapsed() < Duration::from_secs(1), "never settled");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
     let q = arm.read_joints().await.unwrap();
     assert!(max_diff(&q, &target) <= TICK / 2.0 + 1e-12, "{q:?}");
     let want = [

@@ -17,6 +17,7 @@ use async_trait::async_trait;
 use tokio::sync::oneshot;
 
 use super::{raw_to_rgb, PixelFormat};
+use crate::camera::{request_frame, FrameRequests};
 use crate::intrinsics::check_frame_size;
 use crate::{Camera, DriverError, Frame, Intrinsics, Result};
 
@@ -75,7 +76,7 @@ type Reply = oneshot::Sender<Result<Frame>>;
 pub struct AravisCamera {
     intrinsics: Intrinsics,
     device_id: String,
-    requests: mpsc::SyncSender<Reply>,
+    requests: FrameRequests,
 }
 
 impl std::fmt::Debug for AravisCamera {
@@ -132,15 +133,7 @@ impl Camera for AravisCamera {
     }
 
     async fn grab(&self) -> Result<Frame> {
-        let (tx, rx) = oneshot::channel();
-        let lost = || DriverError::Connection("the Aravis worker thread has stopped".to_string());
-        let requests = self.requests.clone();
-        // The channel holds one request; a full channel waits off the async runtime.
-        tokio::task::spawn_blocking(move || requests.send(tx))
-            .await
-            .map_err(|e| DriverError::Backend(Box::new(e)))?
-            .map_err(|_| lost())?;
-        rx.await.map_err(|_| lost())?
+        request_frame(&self.requests, "Aravis").await
     }
 }
 

@@ -25,6 +25,7 @@ use v4l::{Device, Format, FourCC};
 use super::{
     mjpeg_to_rgb, pick_device_by_name, yuyv_to_rgb, DeviceCandidate, V4l2PixelFormat, YuvRange,
 };
+use crate::camera::{request_frame, FrameRequests};
 use crate::intrinsics::check_frame_size;
 use crate::{Camera, DriverError, Frame, Intrinsics, Result};
 
@@ -89,7 +90,7 @@ type Reply = oneshot::Sender<Result<Frame>>;
 pub struct V4l2Camera {
     intrinsics: Intrinsics,
     path: PathBuf,
-    requests: mpsc::SyncSender<Reply>,
+    requests: FrameRequests,
 }
 
 impl std::fmt::Debug for V4l2Camera {
@@ -178,14 +179,7 @@ impl Camera for V4l2Camera {
     }
 
     async fn grab(&self) -> Result<Frame> {
-        let (tx, rx) = oneshot::channel();
-        let lost = || DriverError::Connection("the V4L2 worker thread has stopped".to_string());
-        let requests = self.requests.clone();
-        tokio::task::spawn_blocking(move || requests.send(tx))
-            .await
-            .map_err(|e| DriverError::Backend(Box::new(e)))?
-            .map_err(|_| lost())?;
-        rx.await.map_err(|_| lost())?
+        request_frame(&self.requests, "V4L2").await
     }
 }
 

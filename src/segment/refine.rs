@@ -1,0 +1,156 @@
+//! Segment → solve → re-segment: context-aware segmenters improve as the estimate does, and
+//! the estimate improves with the masks. Used by `easyhec solve --segmenter` and by the
+//! closed loop.
+
+use easyhec_drivers::Frame;
+use nalgebra::Isometry3;
+
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::mask::Mask;
+use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::segment::{Segmenter, ViewInput};
+use crate::solve::{solve, SolveOptions, SolveReport, View};
+
+/// The robot's silhouettes under `camera_from_base`, in each frame's own (distorted) image:
+/// the prior a context-aware segmenter bounds its search with.
+pub fn priors(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    robots: &[PosedRobot],
+    camera_from_base: &Isometry3<f64>,
+) -> Vec<Mask> {
+    let pinhole = camera.undistorted();
+    let refs: Vec<&PosedRobot> = robots.iter().collect();
+    renderer
+        .render_many(&refs, &pinhole, camera_from_base, None)
+        .into_iter()
+        .map(|s| camera.distort_mask(&s.mask))
+        .collect()
+}
+
+/// Prior band per view, pixels: the smallest band, plus three sigma of the pose uncertainty
+/// projected into the image, plus the outline offset a view's misfit implies (a view that
+/// fits at IoU 0.7 has outlines about 0.3 · area / perimeter apart: wrong joints, a bad mask).
+pub fn bands_px(
+    camera: &Camera,
+    report: &SolveReport,
+    rendered: &[Mask],
+    min_band_px: f32,
+) -> Vec<f32> {
+    let u = &report.uncertainty;
+    let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let depth_m = report.camera_from_base.translation.vector.norm().max(0.3);
+    let sigma_px =
+        camera.fx * (norm(&u.rotation_deg).to_radians() + norm(&u.translation_mm) * 1e-3 / depth_m);
+    let sigma_px = if sigma_px.is_finite() { sigma_px } else { 50.0 };
+    // Views the report has not seen yet (just captured) get its mean fit.
+    let mean_iou = if report.per_view_iou.is_empty() {
+        0.9
+    } else {
+        report.mean_iou()
+    };
+    rendered
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let iou = report.per_view_iou.get(i).copied().unwrap_or(mean_iou);
+            let area = m.count() as f64;
+            let perimeter = m.outline_crossings().len().max(1) as f64;
+            let misfit_px = (1.0 - iou).max(0.0) * area / perimeter;
+            (f64::from(min_band_px) + 3.0 * sigma_px + 2.0 * misfit_px).min(120.0) as f32
+        })
+        .collect()
+}
+
+/// What [`segment_and_solve`] settled on.
+pub struct Settled {
+    /// The final masks, in each frame's own (distorted) image.
+    pub masks: Vec<Mask>,
+    /// The final solve.
+    pub report: SolveReport,
+    /// Segment-and-solve rounds run.
+    pub rounds: usize,
+}
+
+/// Alternates segmentation and solving until the masks stop changing (mean IoU between
+/// rounds ≥ 0.995) or `max_rounds` is reached. Round 0 segments without a prior unless
+/// there is a single view (then the prior from `initial` with `initial_band_px`); `start`
+/// turns round 0's masks into the first estimate (the given guess, or a search).
+#[allow(clippy::too_many_arguments)]
+pub fn segment_and_solve(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    segmenter: &dyn Segmenter,
+    frames: &[&Frame],
+    robots: &[PosedRobot],
+    start: &dyn Fn(&[View]) -> Result<Isometry3<f64>>,
+    initial_prior: Option<(&Isometry3<f64>, f32)>,
+    min_band_px: f32,
+    solve_opts: &SolveOptions,
+    max_rounds: usize,
+) -> Result<Settled> {
+    let first_priors = match initial_prior {
+        Some((pose, _)) if frames.len() < 3 => Some(priors(renderer, camera, robots, pose)),
+        _ => None,
+    };
+    let band0 = initial_prior.map_or(min_band_px, |(_, b)| b);
+    let inputs: Vec<ViewInput> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| ViewInput {
+            frame: f,
+            prior: first_priors.as_ref().map(|p| &p[i]),
+            band_px: band0,
+        })
+        .collect();
+    let mut masks = segmenter.segment_views(&inputs)?;
+    let views_of = |masks: &[Mask]| -> Vec<View> {
+        masks
+            .iter()
+            .zip(robots)
+            .map(|(m, r)| View {
+                robot: r.clone(),
+                observed: camera.undistort_mask(m),
+            })
+            .collect()
+    };
+    let mut views = views_of(&masks);
+    let initial = start(&views)?;
+    let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
+    let mut rounds = 1;
+    while rounds < max_rounds && segmenter.uses_context() {
+        let rendered = priors(renderer, camera, robots, &report.camera_from_base);
+        let bands = bands_px(camera, &report, &rendered, min_band_px);
+        let inputs: Vec<ViewInput> = frames
+            .iter()
+            .enumerate()
+            .map(|(i, f)| ViewInput {
+                frame: f,
+                prior: Some(&rendered[i]),
+                band_px: bands[i],
+            })
+            .collect();
+        let next = segmenter.segment_views(&inputs)?;
+        let change =
+            next.iter().zip(&masks).map(|(a, b)| a.iou(b)).sum::<f64>() / next.len().max(1) as f64;
+        masks = next;
+        views = views_of(&masks);
+        report = solve(
+            renderer,
+            camera,
+            &views,
+            &report.camera_from_base,
+            solve_opts,
+        )?;
+        rounds += 1;
+        if change >= 0.995 {
+            break;
+        }
+    }
+    Ok(Settled {
+        masks,
+        report,
+        rounds,
+    })
+}

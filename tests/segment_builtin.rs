@@ -1,0 +1,143 @@
+//! The `builtin` segmenter (issue 6 item 1) on hard simulated frames: mask IoU against the
+//! simulator's truth, and a calibration from the colour frames alone (no side-channel masks)
+//! through segment → solve → re-segment.
+
+mod common;
+
+use std::sync::Arc;
+
+use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::mask::Mask;
+use easyhec::render::{CpuRenderer, PosedRobot};
+use easyhec::scene::SceneSettings;
+use easyhec::segment::refine::segment_and_solve;
+use easyhec::segment::{SegmenterConfig, ViewInput};
+use easyhec::solve::SolveOptions;
+use easyhec::synth::{generate_frames, SynthOptions};
+use easyhec_drivers::Frame;
+
+fn frame_of(width: u32, height: u32, rgb: &[u8]) -> Frame {
+    Frame {
+        width,
+        height,
+        rgb: rgb.to_vec(),
+        captured_at: std::time::SystemTime::now(),
+        truth_mask: None,
+    }
+}
+
+/// Two seeded hard cells, 5 views each: every mask's IoU and the 5-view pose error.
+#[test]
+fn builtin_segments_hard_frames_and_calibrates_from_rgb_alone() {
+    let robot = Arc::new(common::load_robot("xarm6"));
+    let segmenter = SegmenterConfig::by_name("builtin")
+        .unwrap()
+        .build(std::path::Path::new("run.json"))
+        .unwrap();
+    let mut ious = Vec::new();
+    for seed in [1u64, 2] {
+        let cell = generate_frames(
+            &robot,
+            &SynthOptions {
+                seed,
+                views: 5,
+                ..SynthOptions::default()
+            },
+            &SceneSettings::hard(),
+        )
+        .unwrap();
+        let scene = &cell.scene;
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        let frames: Vec<Frame> = cell.frames.iter().map(|f| frame_of(w, h, &f.rgb)).collect();
+        let refs: Vec<&Frame> = frames.iter().collect();
+        let robots: Vec<PosedRobot> = scene
+            .recorded_joints
+            .iter()
+            .map(|q| PosedRobot::new(&robot, q))
+            .collect();
+        let guess = scene.initial_guess.unwrap();
+        let settled = segment_and_solve(
+            &CpuRenderer,
+            &scene.camera,
+            segmenter.as_ref(),
+            &refs,
+            &robots,
+            &|_| Ok(guess),
+            Some((&guess, 80.0)),
+            8.0,
+            &SolveOptions::default(),
+            4,
+        )
+        .unwrap();
+        for (m, f) in settled.masks.iter().zip(&cell.frames) {
+            ious.push(m.iou(&f.truth_mask));
+        }
+        let rot = rotation_error_deg(&settled.report.camera_from_base, &scene.camera_from_base);
+        let trans = translation_error_mm(&settled.report.camera_from_base, &scene.camera_from_base);
+        eprintln!(
+            "seed {seed}: {rot:.4} deg {trans:.3} mm, {} rounds",
+            settled.rounds
+        );
+        assert!(
+            rot <= 0.08 && trans <= 1.5,
+            "seed {seed}: RGB-only calibration off by {rot:.4} deg / {trans:.3} mm (bound 0.08 deg / 1.5 mm)"
+        );
+    }
+    ious.sort_by(f64::total_cmp);
+    let median = ious[ious.len() / 2];
+    eprintln!("IoU {ious:?}");
+    // The issue asks for a median of 0.95 over 20 cells; with the full hard preset (person-like
+    // arms reaching in included) the 20-cell median is 0.946 and these two cells give 0.94.
+    // This guards the present level, it does not claim the target.
+    assert!(median >= 0.93, "median IoU {median:.4} < 0.93: {ious:?}");
+}
+
+/// Without any prior, a robot that moves between views is found from the background plate
+/// alone, and a single frame without a prior is refused with a reason, never guessed.
+#[test]
+fn builtin_needs_context_and_uses_the_plate() {
+    let robot = Arc::new(common::load_robot("xarm6"));
+    let cell = generate_frames(
+        &robot,
+        &SynthOptions {
+            seed: 3,
+            views: 5,
+            ..SynthOptions::default()
+        },
+        &SceneSettings::default(),
+    )
+    .unwrap();
+    let (w, h) = (cell.scene.camera.width, cell.scene.camera.height);
+    let frames: Vec<Frame> = cell.frames.iter().map(|f| frame_of(w, h, &f.rgb)).collect();
+    let segmenter = SegmenterConfig::by_name("builtin")
+        .unwrap()
+        .build(std::path::Path::new("run.json"))
+        .unwrap();
+    let err = segmenter.segment(&frames[0]).unwrap_err().to_string();
+    assert!(err.contains("initial_guess"), "{err}");
+    let inputs: Vec<ViewInput> = frames
+        .iter()
+        .map(|frame| ViewInput {
+            frame,
+            prior: None,
+            band_px: 8.0,
+        })
+        .collect();
+    let masks: Vec<Mask> = segmenter.segment_views(&inputs).unwrap();
+    // The moving links are found; only the links that never move (the base) can be missed.
+    for (m, f) in masks.iter().zip(&cell.frames) {
+        let inside = m
+            .data
+            .iter()
+            .zip(&f.truth_mask.data)
+            .filter(|(&a, &t)| a != 0 && t != 0)
+            .count();
+        let precision = inside as f64 / m.count().max(1) as f64;
+        assert!(precision > 0.85, "plate-only precision {precision:.3}");
+        assert!(
+            m.iou(&f.truth_mask) > 0.4,
+            "plate-only IoU {:.3}",
+            m.iou(&f.truth_mask)
+        );
+    }
+}
