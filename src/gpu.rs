@@ -110,6 +110,8 @@ pub struct WgpuRenderer {
     bits_raster_layout: wgpu::BindGroupLayout,
     bits_reduce: wgpu::ComputePipeline,
     bits_reduce_layout: wgpu::BindGroupLayout,
+    band_reduce: wgpu::ComputePipeline,
+    band_reduce_layout: wgpu::BindGroupLayout,
     meshes: Mutex<HashMap<usize, CachedMesh>>,
     targets: Mutex<Vec<Targets>>,
     /// Renders of fewer pixels than this (all views together) run on the CPU.
@@ -345,6 +347,65 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>,
     }
 }
 "#;
+
+const BAND_REDUCE_WGSL: &str = r#"
+struct Params {
+    intrinsics: vec4<f32>,
+    tile: vec2<u32>,
+    words: u32,
+    candidates: u32,
+    triangles: u32,
+    table: u32,
+    near: f32,
+    pad: u32,
+};
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> bits: array<u32>;
+// Per view: its band's words, then its observation's.
+@group(0) @binding(2) var<storage, read> reference: array<u32>;
+@group(0) @binding(3) var<storage, read_write> counts: array<atomic<u32>>;
+
+var<workgroup> partial: atomic<u32>;
+
+// One thread per (32-pixel word, pose, view): band pixels whose coverage differs from the
+// observation, summed per (view, pose).
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>,
+        @builtin(local_invocation_index) lid: u32) {
+    if (lid == 0u) {
+        atomicStore(&partial, 0u);
+    }
+    workgroupBarrier();
+    let word = gid.x;
+    let k = gid.y;
+    let view = gid.z;
+    if (word < params.words) {
+        let rendered = bits[(view * params.candidates + k) * params.words + word];
+        let band = reference[2u * view * params.words + word];
+        let observed = reference[(2u * view + 1u) * params.words + word];
+        let c = countOneBits((rendered ^ observed) & band);
+        if (c > 0u) {
+            atomicAdd(&partial, c);
+        }
+    }
+    workgroupBarrier();
+    if (lid == 0u) {
+        let total = atomicLoad(&partial);
+        if (total > 0u) {
+            atomicAdd(&counts[view * params.candidates + k], total);
+        }
+    }
+}
+"#;
+
+/// A batch of meshes uploaded for the bit rasteriser.
+struct PoolUpload {
+    params: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    vertices: wgpu::Buffer,
+    entries: u32,
+    max_triangles: u32,
+}
 
 /// `Params` of the exploration shaders (uniform layout, 48 bytes).
 #[repr(C)]
@@ -589,6 +650,17 @@ impl WgpuRenderer {
                 ],
             });
         let bits_reduce = compute_pipeline("bits reduce", BITS_REDUCE_WGSL, &bits_reduce_layout);
+        let band_reduce_layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("band reduce"),
+                entries: &[
+                    uniform(0, wgpu::ShaderStages::COMPUTE),
+                    compute_storage(1, true),
+                    compute_storage(2, true),
+                    compute_storage(3, false),
+                ],
+            });
+        let band_reduce = compute_pipeline("band reduce", BAND_REDUCE_WGSL, &band_reduce_layout);
         WgpuRenderer {
             device,
             queue,
@@ -601,6 +673,8 @@ impl WgpuRenderer {
             bits_raster_layout,
             bits_reduce,
             bits_reduce_layout,
+            band_reduce,
+            band_reduce_layout,
             meshes: Mutex::new(HashMap::new()),
             targets: Mutex::new(Vec::new()),
             min_pixels: std::env::var("EASYHEC_GPU_MIN_PIXELS")
@@ -887,6 +961,288 @@ impl WgpuRenderer {
         out
     }
 
+    /// `poses` as column-major f32 matrices, as WGSL's `mat4x4` expects.
+    fn pose_buffer(&self, poses: &[Isometry3<f64>]) -> wgpu::Buffer {
+        let poses: Vec<[f32; 16]> = poses
+            .iter()
+            .map(|p| {
+                let m = p.to_homogeneous();
+                let mut a = [0f32; 16];
+                for c in 0..4 {
+                    for r in 0..4 {
+                        a[c * 4 + r] = m[(r, c)] as f32;
+                    }
+                }
+                a
+            })
+            .collect();
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("poses"),
+                contents: bytemuck::cast_slice(&poses),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+    }
+
+    /// Uploads `group`'s meshes for the bit rasteriser: the entry table and each distinct
+    /// mesh's indices once (a `CoarseRobot`'s poses all share one), the vertices as f32.
+    /// `None` when a mesh has more triangles than one dispatch row holds.
+    fn upload_pool(
+        &self,
+        camera: &Camera,
+        group: &[&PosedRobot],
+        candidates: u32,
+        words: u32,
+    ) -> Option<PoolUpload> {
+        let entries = group.len() as u32;
+        let table = 3 * entries;
+        let mut indices: Vec<u32> = Vec::with_capacity(table as usize);
+        let mut meshes: Vec<u32> = Vec::new();
+        let mut seen: HashMap<usize, u32> = HashMap::new();
+        let mut first_vertex = 0u32;
+        let mut max_triangles = 0u32;
+        for r in group {
+            let at = *seen
+                .entry(Arc::as_ptr(&r.topology) as usize)
+                .or_insert_with(|| {
+                    let at = table + meshes.len() as u32;
+                    meshes.extend(r.topology.triangles.iter().flatten());
+                    at
+                });
+            let count = r.topology.triangles.len() as u32;
+            indices.extend([at, count, first_vertex]);
+            first_vertex += r.vertices_base.len() as u32;
+            max_triangles = max_triangles.max(count);
+        }
+        indices.extend(meshes);
+        if max_triangles.div_ceil(BITS_WORKGROUP) > 65_535 {
+            return None;
+        }
+        let params = BitsParams {
+            intrinsics: [
+                camera.fx as f32,
+                camera.fy as f32,
+                camera.cx as f32,
+                camera.cy as f32,
+            ],
+            tile: [camera.width, camera.height],
+            words,
+            candidates,
+            triangles: max_triangles,
+            table,
+            near: crate::render::NEAR_PLANE_M as f32,
+            pad: 0,
+        };
+        let params = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("bits params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+        let indices = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("pool indices"),
+                contents: bytemuck::cast_slice(&indices),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        // Every core converts its share (2000 samples of a coarse robot are about 20 million
+        // floats a round; one thread spends longer on them than the GPU on the whole round).
+        let mut vertices = vec![0f32; (first_vertex as usize * 3).max(3)];
+        let mut parts = Vec::with_capacity(group.len());
+        let mut rest: &mut [f32] = &mut vertices;
+        for r in group {
+            let (part, tail) = std::mem::take(&mut rest).split_at_mut(r.vertices_base.len() * 3);
+            parts.push(part);
+            rest = tail;
+        }
+        parts
+            .into_par_iter()
+            .zip(group.par_iter())
+            .for_each(|(out, r)| {
+                for (o, p) in out.chunks_exact_mut(3).zip(&r.vertices_base) {
+                    o[0] = p.x as f32;
+                    o[1] = p.y as f32;
+                    o[2] = p.z as f32;
+                }
+            });
+        let vertices = self
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("pool vertices"),
+                contents: bytemuck::cast_slice(&vertices),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        Some(PoolUpload {
+            params,
+            indices,
+            vertices,
+            entries,
+            max_triangles,
+        })
+    }
+
+    /// Records the clear of `bits` and the bit rasteriser over every (entry, pose) of
+    /// `upload` into `encoder`.
+    fn raster_bits(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        upload: &PoolUpload,
+        poses: &wgpu::Buffer,
+        bits: &wgpu::Buffer,
+        candidates: u32,
+    ) {
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("bits raster"),
+            layout: &self.bits_raster_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: upload.params.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: poses.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: upload.vertices.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: upload.indices.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: bits.as_entire_binding(),
+                },
+            ],
+        });
+        encoder.clear_buffer(bits, 0, None);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("silhouette bits"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&self.bits_raster);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(
+            upload.max_triangles.div_ceil(BITS_WORKGROUP).max(1),
+            candidates,
+            upload.entries,
+        );
+    }
+
+    /// [`SilhouetteRenderer::band_mismatches`] on the GPU: every (view, pose) silhouette as
+    /// bits in one submission per batch of views, compared with the band and observation
+    /// bits on the GPU, only the counts read back.
+    fn band_mismatches_gpu(
+        &self,
+        camera: &Camera,
+        robots: &[&PosedRobot],
+        band: &[&[u32]],
+        observed: &[&[u32]],
+        poses: &[Isometry3<f64>],
+    ) -> Option<Vec<u32>> {
+        let k = poses.len() as u32;
+        let words = (camera.width * camera.height).div_ceil(32);
+        let bits_per_view = u64::from(k) * u64::from(words) * 4;
+        if k == 0 || bits_per_view > self.max_storage_binding.min(EXPLORE_BATCH_BYTES) {
+            return None;
+        }
+        let per_batch = (self.max_storage_binding.min(EXPLORE_BATCH_BYTES) / bits_per_view)
+            .clamp(1, 65_535) as usize;
+        let pose_buffer = self.pose_buffer(poses);
+        let mut counts = vec![0u32; poses.len() * robots.len()];
+        for (batch, first) in robots.chunks(per_batch).zip((0..).step_by(per_batch)) {
+            let upload = self.upload_pool(camera, batch, k, words)?;
+            let entries = upload.entries;
+            // Per view: its band's bits, then its observation's.
+            let mut reference = Vec::with_capacity(batch.len() * 2 * words as usize);
+            for v in first..first + batch.len() {
+                if band[v].len() != words as usize || observed[v].len() != words as usize {
+                    return None;
+                }
+                reference.extend_from_slice(band[v]);
+                reference.extend_from_slice(observed[v]);
+            }
+            let reference = self
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("band and observation"),
+                    contents: bytemuck::cast_slice(&reference),
+                    usage: wgpu::BufferUsages::STORAGE,
+                });
+            let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("sample bits"),
+                size: bits_per_view * u64::from(entries),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let size = u64::from(entries) * u64::from(k) * 4;
+            let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("mismatches"),
+                size,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("mismatches readback"),
+                size,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("band reduce"),
+                layout: &self.band_reduce_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: upload.params.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: bits.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: reference.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: out.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            encoder.clear_buffer(&out, 0, None);
+            self.raster_bits(&mut encoder, &upload, &pose_buffer, &bits, k);
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("band mismatches"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.band_reduce);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(words.div_ceil(BITS_WORKGROUP), k, entries);
+            }
+            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, size);
+            self.queue.submit([encoder.finish()]);
+            let bytes = self.read(&readback, size)?;
+            // GPU layout [view][pose]; the trait's is [pose][view].
+            let views = robots.len();
+            for (i, b) in bytes.chunks_exact(4).enumerate() {
+                let (v, s) = (first + i / k as usize, i % k as usize);
+                counts[s * views + v] = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+        }
+        Some(counts)
+    }
+
     /// Per-sample disagreement of `candidates` over `pool` (see
     /// [`crate::explore::disagreement_cpu`]), on the GPU, in batches.
     fn disagreement_gpu(
@@ -902,27 +1258,7 @@ impl WgpuRenderer {
         let (tw, th) = (camera.width, camera.height);
         let words = (tw * th).div_ceil(32);
         let bits_per_entry = u64::from(k) * u64::from(words) * 4;
-        let poses: Vec<[f32; 16]> = candidates
-            .iter()
-            .map(|p| {
-                let m = p.to_homogeneous();
-                let mut a = [0f32; 16];
-                // Column-major, as WGSL's mat4x4 expects.
-                for c in 0..4 {
-                    for r in 0..4 {
-                        a[c * 4 + r] = m[(r, c)] as f32;
-                    }
-                }
-                a
-            })
-            .collect();
-        let poses = self
-            .device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("candidates"),
-                contents: bytemuck::cast_slice(&poses),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
+        let poses = self.pose_buffer(candidates);
         let mut scores = Vec::with_capacity(pool.len());
         let mut start = 0;
         while start < pool.len() {
@@ -955,95 +1291,14 @@ impl WgpuRenderer {
             let group = &pool[start..end];
             start = end;
             let entries = group.len() as u32;
-            // The entry table, then each distinct mesh's indices once (a `CoarseRobot`'s
-            // poses all share one).
-            let table = 3 * entries;
-            let mut indices: Vec<u32> = Vec::with_capacity(table as usize);
-            let mut meshes: Vec<u32> = Vec::new();
-            let mut seen: HashMap<usize, u32> = HashMap::new();
-            let mut first_vertex = 0u32;
-            let mut max_triangles = 0u32;
-            for r in group {
-                let at = *seen
-                    .entry(Arc::as_ptr(&r.topology) as usize)
-                    .or_insert_with(|| {
-                        let at = table + meshes.len() as u32;
-                        meshes.extend(r.topology.triangles.iter().flatten());
-                        at
-                    });
-                let count = r.topology.triangles.len() as u32;
-                indices.extend([at, count, first_vertex]);
-                first_vertex += r.vertices_base.len() as u32;
-                max_triangles = max_triangles.max(count);
-            }
-            indices.extend(meshes);
-            if max_triangles.div_ceil(BITS_WORKGROUP) > 65_535 {
+            let Some(upload) = self.upload_pool(camera, group, k, words) else {
                 // More triangles than one dispatch row holds: a mesh no scoring pass decimates
                 // to; the CPU takes it.
                 scores.extend(crate::render::cpu_disagreement_many(
                     camera, group, candidates,
                 ));
                 continue;
-            }
-            let params = BitsParams {
-                intrinsics: [
-                    camera.fx as f32,
-                    camera.fy as f32,
-                    camera.cx as f32,
-                    camera.cy as f32,
-                ],
-                tile: [tw, th],
-                words,
-                candidates: k,
-                triangles: max_triangles,
-                table,
-                near: crate::render::NEAR_PLANE_M as f32,
-                pad: 0,
             };
-            let params = self
-                .device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("bits params"),
-                    contents: bytemuck::bytes_of(&params),
-                    usage: wgpu::BufferUsages::UNIFORM,
-                });
-            let indices = self
-                .device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("pool indices"),
-                    contents: bytemuck::cast_slice(&indices),
-                    usage: wgpu::BufferUsages::STORAGE,
-                });
-            // Every core converts its share (2000 samples of a coarse robot are about 20
-            // million floats a round; one thread spends longer on them than the GPU on the
-            // whole round).
-            let mut vertices = vec![0f32; (first_vertex as usize * 3).max(3)];
-            let mut parts = Vec::with_capacity(group.len());
-            let mut rest: &mut [f32] = &mut vertices;
-            for r in group {
-                let (part, tail) =
-                    std::mem::take(&mut rest).split_at_mut(r.vertices_base.len() * 3);
-                parts.push(part);
-                rest = tail;
-            }
-            parts
-                .into_par_iter()
-                .zip(group.par_iter())
-                .for_each(|(out, r)| {
-                    for (o, p) in out.chunks_exact_mut(3).zip(&r.vertices_base) {
-                        o[0] = p.x as f32;
-                        o[1] = p.y as f32;
-                        o[2] = p.z as f32;
-                    }
-                });
-            let vbuf = self
-                .device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("pool vertices"),
-                    contents: bytemuck::cast_slice(&vertices),
-                    usage: wgpu::BufferUsages::STORAGE,
-                });
-            drop(vertices);
             let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("candidate bits"),
                 size: bits_per_entry * u64::from(entries),
@@ -1064,39 +1319,13 @@ impl WgpuRenderer {
                 usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
                 mapped_at_creation: false,
             });
-            let raster_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("bits raster"),
-                layout: &self.bits_raster_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: params.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: poses.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: vbuf.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: indices.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: bits.as_entire_binding(),
-                    },
-                ],
-            });
             let reduce_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("bits reduce"),
                 layout: &self.bits_reduce_layout,
                 entries: &[
                     wgpu::BindGroupEntry {
                         binding: 0,
-                        resource: params.as_entire_binding(),
+                        resource: upload.params.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 1,
@@ -1111,17 +1340,8 @@ impl WgpuRenderer {
             let mut encoder = self
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            encoder.clear_buffer(&bits, 0, None);
             encoder.clear_buffer(&out, 0, None);
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("candidate silhouettes"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.bits_raster);
-                pass.set_bind_group(0, &raster_bind, &[]);
-                pass.dispatch_workgroups(max_triangles.div_ceil(BITS_WORKGROUP).max(1), k, entries);
-            }
+            self.raster_bits(&mut encoder, &upload, &poses, &bits, k);
             {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                     label: Some("variance"),
@@ -1248,5 +1468,24 @@ impl SilhouetteRenderer for WgpuRenderer {
             return crate::render::cpu_disagreement_many(camera, pool, candidates);
         }
         self.disagreement_gpu(camera, pool, candidates)
+    }
+
+    fn band_mismatches(
+        &self,
+        camera: &Camera,
+        robots: &[&PosedRobot],
+        band: &[&[u32]],
+        observed: &[&[u32]],
+        poses: &[Isometry3<f64>],
+    ) -> Option<Vec<u32>> {
+        let pixels = u64::from(camera.width) * u64::from(camera.height) * robots.len() as u64;
+        if camera.is_distorted()
+            || pixels < self.min_pixels
+            || band.len() != robots.len()
+            || observed.len() != robots.len()
+        {
+            return None;
+        }
+        self.band_mismatches_gpu(camera, robots, band, observed, poses)
     }
 }

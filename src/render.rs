@@ -253,6 +253,23 @@ pub trait SilhouetteRenderer: Send + Sync {
     ) -> Vec<f64> {
         cpu_disagreement_many(camera, pool, candidates)
     }
+
+    /// The solver's posterior refinement in one batch: for every pose in `poses` and every
+    /// view `robots[v]`, how many pixels inside `band[v]` the silhouette at that pose covers
+    /// differently from `observed[v]`, as `counts[pose * views + v]`. Masks are bit sets
+    /// over the image, pixel `i = y * width + x` in bit `i % 32` of word `i / 32`. `None`
+    /// (the default) leaves the refinement to score on the CPU rasteriser.
+    fn band_mismatches(
+        &self,
+        camera: &Camera,
+        robots: &[&PosedRobot],
+        band: &[&[u32]],
+        observed: &[&[u32]],
+        poses: &[Isometry3<f64>],
+    ) -> Option<Vec<u32>> {
+        let _ = (camera, robots, band, observed, poses);
+        None
+    }
 }
 
 /// [`SilhouetteRenderer::disagreement_many`] on the CPU: one single-threaded scorer per pool

@@ -540,6 +540,21 @@ struct Band {
     outside_wrong: usize,
     /// Pixels of the whole image, the loss's denominator.
     image_pixels: usize,
+    /// The band and the observation as bit sets over the whole image (for
+    /// [`SilhouetteRenderer::band_mismatches`]).
+    band_bits: Vec<u32>,
+    observed_bits: Vec<u32>,
+}
+
+/// `mask` as a bit set: pixel `i` in bit `i % 32` of word `i / 32`.
+fn bits_of(mask: &[u8]) -> Vec<u32> {
+    mask.chunks(32)
+        .map(|c| {
+            c.iter()
+                .enumerate()
+                .fold(0u32, |w, (i, &v)| w | (u32::from(v != 0) << i))
+        })
+        .collect()
 }
 
 impl Band {
@@ -683,6 +698,8 @@ impl Band {
             robot,
             outside_wrong,
             image_pixels: (w * h) as usize,
+            band_bits: bits_of(&band),
+            observed_bits: bits_of(&view.observed.data),
         }
     }
 
@@ -768,14 +785,34 @@ fn refine(
         .par_iter()
         .map(|v| Band::new(renderer, camera, v, &centre, radius))
         .collect();
-    let mut scored: Vec<(f64, Twist)> = offsets
-        .par_iter()
-        .map(|xi| {
-            let pose = exp_se3(xi) * centre;
-            let loss: f64 = bands.iter().map(|b| b.loss_at(&pose)).sum();
-            (loss, *xi)
-        })
-        .collect();
+    // All samples in one batch where the renderer has one (a GPU), else on the CPU threads.
+    let poses: Vec<Isometry3<f64>> = offsets.iter().map(|xi| exp_se3(xi) * centre).collect();
+    let robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
+    let band_bits: Vec<&[u32]> = bands.iter().map(|b| b.band_bits.as_slice()).collect();
+    let observed_bits: Vec<&[u32]> = bands.iter().map(|b| b.observed_bits.as_slice()).collect();
+    let batched = renderer.band_mismatches(camera, &robots, &band_bits, &observed_bits, &poses);
+    let mut scored: Vec<(f64, Twist)> = match batched {
+        Some(counts) => offsets
+            .iter()
+            .enumerate()
+            .map(|(s, xi)| {
+                let loss: f64 = bands
+                    .iter()
+                    .enumerate()
+                    .map(|(v, b)| {
+                        (b.outside_wrong + counts[s * bands.len() + v] as usize) as f64
+                            / b.image_pixels as f64
+                    })
+                    .sum();
+                (loss, *xi)
+            })
+            .collect(),
+        None => offsets
+            .par_iter()
+            .zip(&poses)
+            .map(|(xi, pose)| (bands.iter().map(|b| b.loss_at(pose)).sum(), *xi))
+            .collect(),
+    };
     if std::env::var_os("EASYHEC_DEBUG").is_some() {
         let tris: usize = bands.iter().map(|b| b.robot.topology.triangles.len()).sum();
         let px: usize = bands.iter().map(|b| b.pixels.len()).sum();

@@ -250,3 +250,85 @@ fn exploration_scores_agree(
     assert_eq!(argmax(&cpu), argmax(&wgpu), "same chosen joint sample");
     assert!(worst <= 0.02, "scores differ by {worst:.4}");
 }
+
+/// The refinement's batched scores: every (pose, view) count of band pixels whose coverage
+/// differs from the observation, GPU against the CPU rasteriser, on views whose observation
+/// is the silhouette at a nearby pose and whose band is half the image.
+#[test]
+fn band_mismatch_counts_agree_with_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let cam = Camera::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
+    let robot = common::load_robot("xarm6");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let views: Vec<_> = (0..3).map(|_| random_view(&robot, &mut rng)).collect();
+    // One camera pose for all views, as in a solve: the first view's.
+    let centre = views[0].2;
+    let bits = |m: &[u8]| -> Vec<u32> {
+        m.chunks(32)
+            .map(|c| {
+                c.iter()
+                    .enumerate()
+                    .fold(0u32, |w, (i, &v)| w | (u32::from(v != 0) << i))
+            })
+            .collect()
+    };
+    let near = exp_se3(&Twist::new(0.004, -0.003, 0.01, 0.004, -0.003, 0.002)) * centre;
+    let observed: Vec<Vec<u32>> = views
+        .iter()
+        .map(|(_, posed, _)| bits(&CpuRenderer.render(posed, &cam, &near, None).mask.data))
+        .collect();
+    // The band: the left half of every row.
+    let band_mask: Vec<u8> = (0..cam.width * cam.height)
+        .map(|i| u8::from(i % cam.width < cam.width / 2))
+        .collect();
+    let band = bits(&band_mask);
+    let poses: Vec<_> = (0..16)
+        .map(|k| {
+            let s = f64::from(k) / 16.0;
+            exp_se3(&Twist::new(
+                0.01 * s,
+                0.0,
+                -0.02 * s,
+                0.0,
+                0.006 * s,
+                -0.004 * s,
+            )) * centre
+        })
+        .collect();
+    let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.1).collect();
+    let bands: Vec<&[u32]> = views.iter().map(|_| band.as_slice()).collect();
+    let observed_refs: Vec<&[u32]> = observed.iter().map(|o| o.as_slice()).collect();
+    let counts = gpu
+        .band_mismatches(&cam, &robots, &bands, &observed_refs, &poses)
+        .expect("the wgpu backend batches band scores");
+    assert_eq!(counts.len(), poses.len() * views.len());
+    assert_eq!(
+        CpuRenderer.band_mismatches(&cam, &robots, &bands, &observed_refs, &poses),
+        None
+    );
+    let mut distinct = std::collections::BTreeSet::new();
+    for (s, pose) in poses.iter().enumerate() {
+        for (v, posed) in robots.iter().enumerate() {
+            let rendered = CpuRenderer.render(posed, &cam, pose, None).mask;
+            let covered = rendered.count();
+            let want = (0..rendered.data.len())
+                .filter(|&i| {
+                    band_mask[i] != 0
+                        && (rendered.data[i] != 0) != (observed[v][i / 32] >> (i % 32) & 1 != 0)
+                })
+                .count();
+            let got = counts[s * views.len() + v] as usize;
+            assert!(covered > 1000, "view {v}: robot barely visible");
+            // The GPU applies the CPU's rule in f32: ties on pixel centres may differ.
+            assert!(
+                got.abs_diff(want) <= 2 + covered / 1000,
+                "pose {s} view {v}: GPU {got} vs CPU {want} mismatching pixels"
+            );
+            distinct.insert(want);
+        }
+    }
+    assert!(
+        distinct.len() > 10,
+        "the poses barely change the counts: {distinct:?}"
+    );
+}
