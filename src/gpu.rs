@@ -202,7 +202,9 @@ fn fs(in: Out) -> @location(0) vec4<f32> {
 }
 "#;
 
-const BITS_RASTER_WGSL: &str = r#"
+/// `BitsParams` in WGSL, bound first by every shader of the bit rasteriser (prepended to
+/// each of their sources).
+const BITS_PARAMS_WGSL: &str = r#"
 struct Params {
     intrinsics: vec4<f32>,   // fx fy cx cy
     tile: vec2<u32>,         // tile width, height
@@ -214,6 +216,9 @@ struct Params {
     pad: u32,
 };
 @group(0) @binding(0) var<uniform> params: Params;
+"#;
+
+const BITS_RASTER_WGSL: &str = r#"
 @group(0) @binding(1) var<storage, read> camera_from_base: array<mat4x4<f32>>;
 @group(0) @binding(2) var<storage, read> vertices: array<f32>;
 // Per pool entry (first index position, triangle count, first vertex), then the indices of
@@ -293,17 +298,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
 "#;
 
 const BITS_REDUCE_WGSL: &str = r#"
-struct Params {
-    intrinsics: vec4<f32>,
-    tile: vec2<u32>,
-    words: u32,
-    candidates: u32,
-    triangles: u32,
-    table: u32,
-    near: f32,
-    pad: u32,
-};
-@group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> bits: array<u32>;
 @group(0) @binding(2) var<storage, read_write> scores: array<atomic<u32>>;
 
@@ -349,17 +343,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>,
 "#;
 
 const BAND_REDUCE_WGSL: &str = r#"
-struct Params {
-    intrinsics: vec4<f32>,
-    tile: vec2<u32>,
-    words: u32,
-    candidates: u32,
-    triangles: u32,
-    table: u32,
-    near: f32,
-    pad: u32,
-};
-@group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> bits: array<u32>;
 // Per view: its band's words, then its observation's.
 @group(0) @binding(2) var<storage, read> reference: array<u32>;
@@ -639,7 +622,11 @@ impl WgpuRenderer {
                     compute_storage(4, false),
                 ],
             });
-        let bits_raster = compute_pipeline("bits raster", BITS_RASTER_WGSL, &bits_raster_layout);
+        let bits_raster = compute_pipeline(
+            "bits raster",
+            &format!("{BITS_PARAMS_WGSL}{BITS_RASTER_WGSL}"),
+            &bits_raster_layout,
+        );
         let bits_reduce_layout =
             device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("bits reduce"),
@@ -649,7 +636,11 @@ impl WgpuRenderer {
                     compute_storage(2, false),
                 ],
             });
-        let bits_reduce = compute_pipeline("bits reduce", BITS_REDUCE_WGSL, &bits_reduce_layout);
+        let bits_reduce = compute_pipeline(
+            "bits reduce",
+            &format!("{BITS_PARAMS_WGSL}{BITS_REDUCE_WGSL}"),
+            &bits_reduce_layout,
+        );
         let band_reduce_layout =
             device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some("band reduce"),
@@ -660,7 +651,11 @@ impl WgpuRenderer {
                     compute_storage(3, false),
                 ],
             });
-        let band_reduce = compute_pipeline("band reduce", BAND_REDUCE_WGSL, &band_reduce_layout);
+        let band_reduce = compute_pipeline(
+            "band reduce",
+            &format!("{BITS_PARAMS_WGSL}{BAND_REDUCE_WGSL}"),
+            &band_reduce_layout,
+        );
         WgpuRenderer {
             device,
             queue,
@@ -1083,54 +1078,109 @@ impl WgpuRenderer {
         })
     }
 
-    /// Records the clear of `bits` and the bit rasteriser over every (entry, pose) of
-    /// `upload` into `encoder`.
-    fn raster_bits(
+    /// One submission: the bit rasteriser draws every (entry, pose) silhouette of `upload`
+    /// into cleared bits, then `reduce` runs over them with the bindings `params, bits,
+    /// inputs..., output` (a cleared `u32` array of `outputs` entries), dispatched as
+    /// `dispatch`; only the output is read back. `None` when the device fails.
+    #[allow(clippy::too_many_arguments)]
+    fn raster_and_reduce(
         &self,
-        encoder: &mut wgpu::CommandEncoder,
         upload: &PoolUpload,
         poses: &wgpu::Buffer,
-        bits: &wgpu::Buffer,
         candidates: u32,
-    ) {
-        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("bits raster"),
-            layout: &self.bits_raster_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: upload.params.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: poses.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: upload.vertices.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: upload.indices.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: bits.as_entire_binding(),
-                },
-            ],
-        });
-        encoder.clear_buffer(bits, 0, None);
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("silhouette bits"),
-            timestamp_writes: None,
-        });
-        pass.set_pipeline(&self.bits_raster);
-        pass.set_bind_group(0, &bind, &[]);
-        pass.dispatch_workgroups(
-            upload.max_triangles.div_ceil(BITS_WORKGROUP).max(1),
-            candidates,
-            upload.entries,
+        words: u32,
+        reduce: (&wgpu::ComputePipeline, &wgpu::BindGroupLayout),
+        inputs: &[&wgpu::Buffer],
+        outputs: u64,
+        dispatch: [u32; 3],
+    ) -> Option<Vec<u32>> {
+        let storage = |label, size, usage| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let copy_dst = wgpu::BufferUsages::COPY_DST;
+        let bits = storage(
+            "silhouette bits",
+            u64::from(upload.entries) * u64::from(candidates) * u64::from(words) * 4,
+            wgpu::BufferUsages::STORAGE | copy_dst,
         );
+        let size = outputs.max(1) * 4;
+        let out = storage(
+            "reduced",
+            size,
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | copy_dst,
+        );
+        let readback = storage("readback", size, wgpu::BufferUsages::MAP_READ | copy_dst);
+        let bind = |layout: &wgpu::BindGroupLayout, buffers: &[&wgpu::Buffer]| {
+            let entries: Vec<wgpu::BindGroupEntry> = buffers
+                .iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource: b.as_entire_binding(),
+                })
+                .collect();
+            self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: None,
+                layout,
+                entries: &entries,
+            })
+        };
+        let raster_bind = bind(
+            &self.bits_raster_layout,
+            &[
+                &upload.params,
+                poses,
+                &upload.vertices,
+                &upload.indices,
+                &bits,
+            ],
+        );
+        let mut reduce_buffers = vec![&upload.params, &bits];
+        reduce_buffers.extend_from_slice(inputs);
+        reduce_buffers.push(&out);
+        let reduce_bind = bind(reduce.1, &reduce_buffers);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        encoder.clear_buffer(&bits, 0, None);
+        encoder.clear_buffer(&out, 0, None);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("silhouette bits"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.bits_raster);
+            pass.set_bind_group(0, &raster_bind, &[]);
+            pass.dispatch_workgroups(
+                upload.max_triangles.div_ceil(BITS_WORKGROUP).max(1),
+                candidates,
+                upload.entries,
+            );
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("reduce"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(reduce.0);
+            pass.set_bind_group(0, &reduce_bind, &[]);
+            pass.dispatch_workgroups(dispatch[0], dispatch[1], dispatch[2]);
+        }
+        encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, size);
+        self.queue.submit([encoder.finish()]);
+        let bytes = self.read(&readback, size)?;
+        Some(
+            bytes
+                .chunks_exact(4)
+                .take(outputs as usize)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+        )
     }
 
     /// [`SilhouetteRenderer::band_mismatches`] on the GPU: every (view, pose) silhouette as
@@ -1173,71 +1223,21 @@ impl WgpuRenderer {
                     contents: bytemuck::cast_slice(&reference),
                     usage: wgpu::BufferUsages::STORAGE,
                 });
-            let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("sample bits"),
-                size: bits_per_view * u64::from(entries),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let size = u64::from(entries) * u64::from(k) * 4;
-            let out = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("mismatches"),
-                size,
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("mismatches readback"),
-                size,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("band reduce"),
-                layout: &self.band_reduce_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: upload.params.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: bits.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: reference.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: out.as_entire_binding(),
-                    },
-                ],
-            });
-            let mut encoder = self
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            encoder.clear_buffer(&out, 0, None);
-            self.raster_bits(&mut encoder, &upload, &pose_buffer, &bits, k);
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("band mismatches"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.band_reduce);
-                pass.set_bind_group(0, &bind, &[]);
-                pass.dispatch_workgroups(words.div_ceil(BITS_WORKGROUP), k, entries);
-            }
-            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, size);
-            self.queue.submit([encoder.finish()]);
-            let bytes = self.read(&readback, size)?;
+            let reduced = self.raster_and_reduce(
+                &upload,
+                &pose_buffer,
+                k,
+                words,
+                (&self.band_reduce, &self.band_reduce_layout),
+                &[&reference],
+                u64::from(entries) * u64::from(k),
+                [words.div_ceil(BITS_WORKGROUP), k, entries],
+            )?;
             // GPU layout [view][pose]; the trait's is [pose][view].
             let views = robots.len();
-            for (i, b) in bytes.chunks_exact(4).enumerate() {
+            for (i, c) in reduced.into_iter().enumerate() {
                 let (v, s) = (first + i / k as usize, i % k as usize);
-                counts[s * views + v] = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                counts[s * views + v] = c;
             }
         }
         Some(counts)
@@ -1299,72 +1299,23 @@ impl WgpuRenderer {
                 ));
                 continue;
             };
-            let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("candidate bits"),
-                size: bits_per_entry * u64::from(entries),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let out = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("scores"),
-                size: u64::from(entries) * 4,
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            let readback = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("scores readback"),
-                size: u64::from(entries) * 4,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let reduce_bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("bits reduce"),
-                layout: &self.bits_reduce_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: upload.params.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: bits.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: out.as_entire_binding(),
-                    },
-                ],
-            });
-            let mut encoder = self
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            encoder.clear_buffer(&out, 0, None);
-            self.raster_bits(&mut encoder, &upload, &poses, &bits, k);
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("variance"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.bits_reduce);
-                pass.set_bind_group(0, &reduce_bind, &[]);
-                pass.dispatch_workgroups(words.div_ceil(BITS_WORKGROUP), entries, 1);
-            }
-            encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, u64::from(entries) * 4);
-            self.queue.submit([encoder.finish()]);
-            let Some(bytes) = self.read(&readback, u64::from(entries) * 4) else {
+            let Some(totals) = self.raster_and_reduce(
+                &upload,
+                &poses,
+                k,
+                words,
+                (&self.bits_reduce, &self.bits_reduce_layout),
+                &[],
+                u64::from(entries),
+                [words.div_ceil(BITS_WORKGROUP), entries, 1],
+            ) else {
                 scores.extend(crate::render::cpu_disagreement_many(
                     camera, group, candidates,
                 ));
                 continue;
             };
             let kk = f64::from(k) * f64::from(k);
-            scores.extend(
-                bytes
-                    .chunks_exact(4)
-                    .map(|b| f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])) / kk),
-            );
+            scores.extend(totals.into_iter().map(|t| f64::from(t) / kk));
         }
         scores
     }
