@@ -810,30 +810,6 @@ pub fn choose_reachable(
     None
 }
 
-async fn capture(
-    cell: &Cell,
-    camera: &Camera,
-    rec: &mut Recorder,
-    taken: &mut Vec<Vec<f64>>,
-) -> Result<View> {
-    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
-    let joints = cell.arm.read_joints().await.map_err(hw)?;
-    let frame = cell.camera.grab().await.map_err(hw)?;
-    if frame.width != camera.width || frame.height != camera.height {
-        return Err(Error::Hardware(format!(
-            "camera returned a {}x{} frame; its intrinsics say {}x{}",
-            frame.width, frame.height, camera.width, camera.height
-        )));
-    }
-    let mask = cell.segmenter.segment(&frame)?;
-    rec.add_view(&joints, &frame, &mask)?;
-    taken.push(joints.clone());
-    Ok(View {
-        robot: PosedRobot::new(&cell.robot, &joints),
-        observed: camera.undistort_mask(&mask),
-    })
-}
-
 /// Prior band (pixels) around the silhouette under the initial guess: a guess several
 /// degrees and centimetres off moves the outline by tens of pixels.
 const GUESS_BAND_PX: f32 = 80.0;
@@ -898,16 +874,17 @@ impl Context<'_> {
     }
 }
 
-/// [`capture`] for a context-aware segmenter: the new frame is segmented together with every
-/// earlier one (background plate) under the current estimate, and earlier masks are
-/// re-segmented and rewritten when they change.
+/// Reads the joints and grabs a frame at the arm's present pose, segments it, records the
+/// view and adds it to `views`. With a context-aware segmenter (`ctx`) the new frame is
+/// segmented together with every earlier one (background plate) under `estimate`, and
+/// earlier masks are re-segmented and rewritten when they change.
 #[allow(clippy::too_many_arguments)]
-async fn capture_in_context(
+async fn capture(
     cell: &Cell,
     camera: &Camera,
     rec: &mut Recorder,
     taken: &mut Vec<Vec<f64>>,
-    ctx: &mut Context<'_>,
+    ctx: Option<&mut Context<'_>>,
     views: &mut Vec<View>,
     estimate: Option<&Isometry3<f64>>,
     report: Option<&SolveReport>,
@@ -921,6 +898,16 @@ async fn capture_in_context(
             frame.width, frame.height, camera.width, camera.height
         )));
     }
+    let Some(ctx) = ctx else {
+        let mask = cell.segmenter.segment(&frame)?;
+        rec.add_view(&joints, &frame, &mask)?;
+        taken.push(joints.clone());
+        views.push(View {
+            robot: PosedRobot::new(&cell.robot, &joints),
+            observed: camera.undistort_mask(&mask),
+        });
+        return Ok(());
+    };
     ctx.frames.push(frame);
     taken.push(joints.clone());
     let masks = match ctx.resegment(cell, camera, rec, taken, estimate, report, views) {
@@ -1020,22 +1007,17 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         },
     });
     let mut views = Vec::new();
-    match ctx.as_mut() {
-        Some(ctx) => {
-            capture_in_context(
-                cell,
-                &camera,
-                &mut rec,
-                &mut taken,
-                ctx,
-                &mut views,
-                guess.as_ref(),
-                None,
-            )
-            .await?;
-        }
-        None => views.push(capture(cell, &camera, &mut rec, &mut taken).await?),
-    }
+    capture(
+        cell,
+        &camera,
+        &mut rec,
+        &mut taken,
+        ctx.as_mut(),
+        &mut views,
+        guess.as_ref(),
+        None,
+    )
+    .await?;
     emit_view(opts, &taken);
     pb.set_position(1);
     let t = Instant::now();
@@ -1210,22 +1192,17 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             // Re-plan from wherever the arm stopped.
             continue;
         }
-        match ctx.as_mut() {
-            Some(ctx) => {
-                capture_in_context(
-                    cell,
-                    &camera,
-                    &mut rec,
-                    &mut taken,
-                    ctx,
-                    &mut views,
-                    Some(&report.camera_from_base),
-                    Some(&report),
-                )
-                .await?;
-            }
-            None => views.push(capture(cell, &camera, &mut rec, &mut taken).await?),
-        }
+        capture(
+            cell,
+            &camera,
+            &mut rec,
+            &mut taken,
+            ctx.as_mut(),
+            &mut views,
+            Some(&report.camera_from_base),
+            Some(&report),
+        )
+        .await?;
         emit_view(opts, &taken);
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;

@@ -297,61 +297,63 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 "#;
 
+/// The variance reduce's per-word part: per pixel, how many candidates cover it (c), summed
+/// as c * (K - c), per pool entry (`gid.y`).
 const BITS_REDUCE_WGSL: &str = r#"
 @group(0) @binding(1) var<storage, read> bits: array<u32>;
-@group(0) @binding(2) var<storage, read_write> scores: array<atomic<u32>>;
+@group(0) @binding(2) var<storage, read_write> out: array<atomic<u32>>;
 
-var<workgroup> partial: atomic<u32>;
-
-// One thread per (32-pixel word, pool entry): per pixel, how many candidates cover it (c),
-// summed as c * (K - c).
-@compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>,
-        @builtin(local_invocation_index) lid: u32) {
-    if (lid == 0u) {
-        atomicStore(&partial, 0u);
-    }
-    workgroupBarrier();
-    let word = gid.x;
+fn value(gid: vec3<u32>) -> u32 {
     let entry = gid.y;
-    if (word < params.words) {
-        var counts: array<u32, 32>;
-        for (var k = 0u; k < params.candidates; k = k + 1u) {
-            let w = bits[(entry * params.candidates + k) * params.words + word];
-            if (w != 0u) {
-                for (var i = 0u; i < 32u; i = i + 1u) {
-                    counts[i] = counts[i] + ((w >> i) & 1u);
-                }
+    var counts: array<u32, 32>;
+    for (var k = 0u; k < params.candidates; k = k + 1u) {
+        let w = bits[(entry * params.candidates + k) * params.words + gid.x];
+        if (w != 0u) {
+            for (var i = 0u; i < 32u; i = i + 1u) {
+                counts[i] = counts[i] + ((w >> i) & 1u);
             }
         }
-        var total = 0u;
-        for (var i = 0u; i < 32u; i = i + 1u) {
-            total = total + counts[i] * (params.candidates - counts[i]);
-        }
-        if (total > 0u) {
-            atomicAdd(&partial, total);
-        }
     }
-    workgroupBarrier();
-    if (lid == 0u) {
-        let total = atomicLoad(&partial);
-        if (total > 0u) {
-            atomicAdd(&scores[entry], total);
-        }
+    var total = 0u;
+    for (var i = 0u; i < 32u; i = i + 1u) {
+        total = total + counts[i] * (params.candidates - counts[i]);
     }
+    return total;
+}
+
+fn slot(gid: vec3<u32>) -> u32 {
+    return gid.y;
 }
 "#;
 
+/// The refinement's reduce, per-word part: band pixels whose coverage differs from the
+/// observation, per (view `gid.z`, pose `gid.y`).
 const BAND_REDUCE_WGSL: &str = r#"
 @group(0) @binding(1) var<storage, read> bits: array<u32>;
 // Per view: its band's words, then its observation's.
 @group(0) @binding(2) var<storage, read> reference: array<u32>;
-@group(0) @binding(3) var<storage, read_write> counts: array<atomic<u32>>;
+@group(0) @binding(3) var<storage, read_write> out: array<atomic<u32>>;
 
+fn value(gid: vec3<u32>) -> u32 {
+    let k = gid.y;
+    let view = gid.z;
+    let rendered = bits[(view * params.candidates + k) * params.words + gid.x];
+    let band = reference[2u * view * params.words + gid.x];
+    let observed = reference[(2u * view + 1u) * params.words + gid.x];
+    return countOneBits((rendered ^ observed) & band);
+}
+
+fn slot(gid: vec3<u32>) -> u32 {
+    return gid.z * params.candidates + gid.y;
+}
+"#;
+
+/// The entry point both reduces share (appended to each): one thread per 32-pixel word
+/// (`gid.x`), its `value` summed over the workgroup, one atomic add per workgroup into
+/// `out[slot]` (a workgroup spans words only, so its slot is one).
+const REDUCE_MAIN_WGSL: &str = r#"
 var<workgroup> partial: atomic<u32>;
 
-// One thread per (32-pixel word, pose, view): band pixels whose coverage differs from the
-// observation, summed per (view, pose).
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
@@ -359,23 +361,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>,
         atomicStore(&partial, 0u);
     }
     workgroupBarrier();
-    let word = gid.x;
-    let k = gid.y;
-    let view = gid.z;
-    if (word < params.words) {
-        let rendered = bits[(view * params.candidates + k) * params.words + word];
-        let band = reference[2u * view * params.words + word];
-        let observed = reference[(2u * view + 1u) * params.words + word];
-        let c = countOneBits((rendered ^ observed) & band);
-        if (c > 0u) {
-            atomicAdd(&partial, c);
+    if (gid.x < params.words) {
+        let v = value(gid);
+        if (v > 0u) {
+            atomicAdd(&partial, v);
         }
     }
     workgroupBarrier();
     if (lid == 0u) {
         let total = atomicLoad(&partial);
         if (total > 0u) {
-            atomicAdd(&counts[view * params.candidates + k], total);
+            atomicAdd(&out[slot(gid)], total);
         }
     }
 }
@@ -638,7 +634,7 @@ impl WgpuRenderer {
             });
         let bits_reduce = compute_pipeline(
             "bits reduce",
-            &format!("{BITS_PARAMS_WGSL}{BITS_REDUCE_WGSL}"),
+            &format!("{BITS_PARAMS_WGSL}{BITS_REDUCE_WGSL}{REDUCE_MAIN_WGSL}"),
             &bits_reduce_layout,
         );
         let band_reduce_layout =
@@ -653,7 +649,7 @@ impl WgpuRenderer {
             });
         let band_reduce = compute_pipeline(
             "band reduce",
-            &format!("{BITS_PARAMS_WGSL}{BAND_REDUCE_WGSL}"),
+            &format!("{BITS_PARAMS_WGSL}{BAND_REDUCE_WGSL}{REDUCE_MAIN_WGSL}"),
             &band_reduce_layout,
         );
         WgpuRenderer {
@@ -1190,8 +1186,8 @@ impl WgpuRenderer {
         &self,
         camera: &Camera,
         robots: &[&PosedRobot],
-        band: &[&[u32]],
-        observed: &[&[u32]],
+        band: &[&[u8]],
+        observed: &[&[u8]],
         poses: &[Isometry3<f64>],
     ) -> Option<Vec<u32>> {
         let k = poses.len() as u32;
@@ -1208,14 +1204,25 @@ impl WgpuRenderer {
             let upload = self.upload_pool(camera, batch, k, words)?;
             let entries = upload.entries;
             // Per view: its band's bits, then its observation's.
-            let mut reference = Vec::with_capacity(batch.len() * 2 * words as usize);
-            for v in first..first + batch.len() {
-                if band[v].len() != words as usize || observed[v].len() != words as usize {
-                    return None;
-                }
-                reference.extend_from_slice(band[v]);
-                reference.extend_from_slice(observed[v]);
+            let pixels = (camera.width * camera.height) as usize;
+            let masks: Vec<&[u8]> = (first..first + batch.len())
+                .flat_map(|v| [band[v], observed[v]])
+                .collect();
+            if masks.iter().any(|m| m.len() != pixels) {
+                return None;
             }
+            let mut reference = vec![0u32; masks.len() * words as usize];
+            reference
+                .par_chunks_mut(words as usize)
+                .zip(masks.par_iter())
+                .for_each(|(out, m)| {
+                    for (w, c) in out.iter_mut().zip(m.chunks(32)) {
+                        *w = c
+                            .iter()
+                            .enumerate()
+                            .fold(0, |w, (i, &v)| w | (u32::from(v != 0) << i));
+                    }
+                });
             let reference = self
                 .device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -1425,8 +1432,8 @@ impl SilhouetteRenderer for WgpuRenderer {
         &self,
         camera: &Camera,
         robots: &[&PosedRobot],
-        band: &[&[u32]],
-        observed: &[&[u32]],
+        band: &[&[u8]],
+        observed: &[&[u8]],
         poses: &[Isometry3<f64>],
     ) -> Option<Vec<u32>> {
         let pixels = u64::from(camera.width) * u64::from(camera.height) * robots.len() as u64;

@@ -256,15 +256,15 @@ pub trait SilhouetteRenderer: Send + Sync {
 
     /// The solver's posterior refinement in one batch: for every pose in `poses` and every
     /// view `robots[v]`, how many pixels inside `band[v]` the silhouette at that pose covers
-    /// differently from `observed[v]`, as `counts[pose * views + v]`. Masks are bit sets
-    /// over the image, pixel `i = y * width + x` in bit `i % 32` of word `i / 32`. `None`
-    /// (the default) leaves the refinement to score on the CPU rasteriser.
+    /// differently from `observed[v]`, as `counts[pose * views + v]`. Masks are one byte per
+    /// pixel over the image (`y * width + x`, nonzero = set), as in [`Mask`]. `None` (the
+    /// default) leaves the refinement to score on the CPU rasteriser.
     fn band_mismatches(
         &self,
         camera: &Camera,
         robots: &[&PosedRobot],
-        band: &[&[u32]],
-        observed: &[&[u32]],
+        band: &[&[u8]],
+        observed: &[&[u8]],
         poses: &[Isometry3<f64>],
     ) -> Option<Vec<u32>> {
         let _ = (camera, robots, band, observed, poses);

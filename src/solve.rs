@@ -540,21 +540,9 @@ struct Band {
     outside_wrong: usize,
     /// Pixels of the whole image, the loss's denominator.
     image_pixels: usize,
-    /// The band and the observation as bit sets over the whole image (for
+    /// The band over the whole image, one byte a pixel (for
     /// [`SilhouetteRenderer::band_mismatches`]).
-    band_bits: Vec<u32>,
-    observed_bits: Vec<u32>,
-}
-
-/// `mask` as a bit set: pixel `i` in bit `i % 32` of word `i / 32`.
-fn bits_of(mask: &[u8]) -> Vec<u32> {
-    mask.chunks(32)
-        .map(|c| {
-            c.iter()
-                .enumerate()
-                .fold(0u32, |w, (i, &v)| w | (u32::from(v != 0) << i))
-        })
-        .collect()
+    image_band: Vec<u8>,
 }
 
 impl Band {
@@ -698,8 +686,7 @@ impl Band {
             robot,
             outside_wrong,
             image_pixels: (w * h) as usize,
-            band_bits: bits_of(&band),
-            observed_bits: bits_of(&view.observed.data),
+            image_band: band,
         }
     }
 
@@ -788,9 +775,9 @@ fn refine(
     // All samples in one batch where the renderer has one (a GPU), else on the CPU threads.
     let poses: Vec<Isometry3<f64>> = offsets.iter().map(|xi| exp_se3(xi) * centre).collect();
     let robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
-    let band_bits: Vec<&[u32]> = bands.iter().map(|b| b.band_bits.as_slice()).collect();
-    let observed_bits: Vec<&[u32]> = bands.iter().map(|b| b.observed_bits.as_slice()).collect();
-    let batched = renderer.band_mismatches(camera, &robots, &band_bits, &observed_bits, &poses);
+    let band: Vec<&[u8]> = bands.iter().map(|b| b.image_band.as_slice()).collect();
+    let observed: Vec<&[u8]> = views.iter().map(|v| v.observed.data.as_slice()).collect();
+    let batched = renderer.band_mismatches(camera, &robots, &band, &observed, &poses);
     let mut scored: Vec<(f64, Twist)> = match batched {
         Some(counts) => offsets
             .iter()

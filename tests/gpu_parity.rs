@@ -263,25 +263,15 @@ fn band_mismatch_counts_agree_with_the_cpu() {
     let views: Vec<_> = (0..3).map(|_| random_view(&robot, &mut rng)).collect();
     // One camera pose for all views, as in a solve: the first view's.
     let centre = views[0].2;
-    let bits = |m: &[u8]| -> Vec<u32> {
-        m.chunks(32)
-            .map(|c| {
-                c.iter()
-                    .enumerate()
-                    .fold(0u32, |w, (i, &v)| w | (u32::from(v != 0) << i))
-            })
-            .collect()
-    };
     let near = exp_se3(&Twist::new(0.004, -0.003, 0.01, 0.004, -0.003, 0.002)) * centre;
-    let observed: Vec<Vec<u32>> = views
+    let observed: Vec<Vec<u8>> = views
         .iter()
-        .map(|(_, posed, _)| bits(&CpuRenderer.render(posed, &cam, &near, None).mask.data))
+        .map(|(_, posed, _)| CpuRenderer.render(posed, &cam, &near, None).mask.data)
         .collect();
     // The band: the left half of every row.
     let band_mask: Vec<u8> = (0..cam.width * cam.height)
         .map(|i| u8::from(i % cam.width < cam.width / 2))
         .collect();
-    let band = bits(&band_mask);
     let poses: Vec<_> = (0..16)
         .map(|k| {
             let s = f64::from(k) / 16.0;
@@ -296,8 +286,8 @@ fn band_mismatch_counts_agree_with_the_cpu() {
         })
         .collect();
     let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.1).collect();
-    let bands: Vec<&[u32]> = views.iter().map(|_| band.as_slice()).collect();
-    let observed_refs: Vec<&[u32]> = observed.iter().map(|o| o.as_slice()).collect();
+    let bands: Vec<&[u8]> = views.iter().map(|_| band_mask.as_slice()).collect();
+    let observed_refs: Vec<&[u8]> = observed.iter().map(|o| o.as_slice()).collect();
     let counts = gpu
         .band_mismatches(&cam, &robots, &bands, &observed_refs, &poses)
         .expect("the wgpu backend batches band scores");
@@ -312,10 +302,7 @@ fn band_mismatch_counts_agree_with_the_cpu() {
             let rendered = CpuRenderer.render(posed, &cam, pose, None).mask;
             let covered = rendered.count();
             let want = (0..rendered.data.len())
-                .filter(|&i| {
-                    band_mask[i] != 0
-                        && (rendered.data[i] != 0) != (observed[v][i / 32] >> (i % 32) & 1 != 0)
-                })
+                .filter(|&i| band_mask[i] != 0 && (rendered.data[i] != 0) != (observed[v][i] != 0))
                 .count();
             let got = counts[s * views.len() + v] as usize;
             assert!(covered > 1000, "view {v}: robot barely visible");
