@@ -153,6 +153,8 @@ pub struct LoopTrial {
     pub explore_round_s: Vec<f64>,
     /// Compute seconds of the whole calibration (total minus simulated motion).
     pub compute_s: f64,
+    /// Why the loop stopped (a trial short of its views says why here).
+    pub stop_reason: String,
 }
 
 /// A seeded variant of a simulated cell config: true camera anywhere on a band of the
@@ -297,6 +299,7 @@ pub fn run_loop_trial(
         errors,
         explore_round_s: vec![get("explore") / rounds_planned.max(1) as f64],
         compute_s: get("total") - get("motion"),
+        stop_reason: outcome.result.stop_reason.clone(),
     })
 }
 

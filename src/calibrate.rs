@@ -12,6 +12,7 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 use easyhec_drivers::{ArmStatus, Frame};
 use nalgebra::{Isometry3, Matrix6};
 use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -54,6 +55,10 @@ pub struct CalibrationSettings {
     /// Joint samples drawn per round (paper: 2000).
     #[serde(default = "default_joint_samples")]
     pub joint_samples: usize,
+    /// Hill-climbing steps from each of the best `information`-scored samples (8 starts);
+    /// 0 keeps the best sample as drawn.
+    #[serde(default = "default_climb_steps")]
+    pub climb_steps: usize,
     /// Camera candidates per round (paper: 50).
     #[serde(default = "default_candidates")]
     pub candidates: usize,
@@ -105,6 +110,9 @@ fn default_min_views() -> usize {
 }
 fn default_joint_samples() -> usize {
     2000
+}
+fn default_climb_steps() -> usize {
+    100
 }
 fn default_candidates() -> usize {
     50
@@ -700,18 +708,55 @@ pub fn rank_poses(
                 .map(|q| info(&pose_coarse(q), q))
                 .reduce(Matrix6::zeros, |a, b| a + b)
                 + Matrix6::identity() * 1e-6;
-            in_view
+            let score = |posed: &PosedRobot, q: &[f64]| information_gain(&current, &info(posed, q));
+            let mut scored: Vec<(Ranked, PosedRobot)> = in_view
                 .into_par_iter()
                 .map(|(in_image, q, posed)| {
                     let r = Ranked {
-                        score: information_gain(&current, &info(&posed, &q)),
+                        score: score(&posed, &q),
                         variance: None,
                         joints: q,
                         in_image,
                     };
                     (r, posed)
                 })
-                .collect()
+                .collect();
+            // 2000 random samples leave the best view's information well short of what a
+            // few steps of local search from the best of them reach (README: exploration).
+            if settings.climb_steps > 0 {
+                scored.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
+                let starts: Vec<Ranked> = scored
+                    .iter()
+                    .take(CLIMB_STARTS)
+                    .map(|r| r.0.clone())
+                    .collect();
+                let climbed: Vec<(Ranked, PosedRobot)> = starts
+                    .into_par_iter()
+                    .enumerate()
+                    .filter_map(|(i, start)| {
+                        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+                            settings.seed.wrapping_mul(31337) + (round * 64 + i) as u64,
+                        );
+                        climb(
+                            start,
+                            settings.climb_steps,
+                            checker.limits(),
+                            &mut rng,
+                            |q| {
+                                if checker.check_pose(q).is_err() {
+                                    return None;
+                                }
+                                let posed = pose_coarse(q);
+                                let in_image = in_image_fraction(&posed, &pinhole, &estimate);
+                                (in_image >= checker.min_in_image)
+                                    .then(|| (score(&posed, q), in_image, posed))
+                            },
+                        )
+                    })
+                    .collect();
+                scored.extend(climbed);
+            }
+            scored
         }
         (SelectionSetting::Explore, ScoreSetting::Variance) => {
             // Two passes: every sample against the first fifth of the candidates, then the
@@ -773,6 +818,55 @@ pub fn rank_poses(
         scored: n_scored,
     };
     (ranked, stats)
+}
+
+/// Best-scored samples each hill climb starts from.
+const CLIMB_STARTS: usize = 8;
+
+/// How far inside its joint limits a climbed target stays, radians.
+const LIMIT_MARGIN_RAD: f64 = 0.02;
+
+/// Stochastic hill climb in joint space from `start`: Gaussian steps of every joint
+/// (0.3 rad, shrunk by 15% per failed step), a step kept when `evaluate` passes the pose
+/// (static safety checks, robot in view) and it scores higher. `None` when no step improved
+/// on `start`. The climbed pose still goes through the path check before any move.
+fn climb(
+    start: Ranked,
+    steps: usize,
+    limits: &[(f64, f64)],
+    rng: &mut rand_chacha::ChaCha8Rng,
+    evaluate: impl Fn(&[f64]) -> Option<(f64, f64, PosedRobot)>,
+) -> Option<(Ranked, PosedRobot)> {
+    let mut best = start;
+    let mut best_posed = None;
+    let mut sigma = 0.3;
+    for _ in 0..steps {
+        let q: Vec<f64> = best
+            .joints
+            .iter()
+            .zip(limits)
+            .map(|(&v, &(lo, hi))| {
+                let z: f64 = StandardNormal.sample(rng);
+                // A target on a limit would leave the next read, encoder noise and all,
+                // outside it, and no path could start there.
+                let m = LIMIT_MARGIN_RAD.min(0.25 * (hi - lo));
+                (v + sigma * z).clamp(lo + m, hi - m)
+            })
+            .collect();
+        match evaluate(&q) {
+            Some((score, in_image, posed)) if score > best.score => {
+                best = Ranked {
+                    joints: q,
+                    score,
+                    variance: None,
+                    in_image,
+                };
+                best_posed = Some(posed);
+            }
+            _ => sigma = (sigma * 0.85).max(0.02),
+        }
+    }
+    best_posed.map(|p| (best, p))
 }
 
 /// Picks the best-ranked pose whose path from `from` passes the full move check.
@@ -1317,5 +1411,74 @@ fn emit_round(opts: &RunOptions, rounds: &[RoundRecord], report: &SolveReport) {
             camera_from_base: r.camera_from_base,
             uncertainty: UncertaintyEntry::of(&report.uncertainty),
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The climb only carries the posed robot through; an empty one will do.
+    fn posed() -> PosedRobot {
+        PosedRobot {
+            vertices_base: Vec::new(),
+            topology: std::sync::Arc::new(crate::mesh::TriMesh::default()),
+            vertex_link: std::sync::Arc::new(Vec::new()),
+        }
+    }
+
+    #[test]
+    fn the_climb_improves_its_start_and_keeps_off_the_limits() {
+        // The score peaks outside the limits, at joint 0 = 2.5 (limit 2.0): the climb must
+        // walk towards it and stop a margin short of the limit.
+        let limits = [(-2.0, 2.0), (-1.0, 1.0)];
+        let score = |q: &[f64]| -(q[0] - 2.5).powi(2) - q[1].powi(2);
+        let start = Ranked {
+            joints: vec![-1.0, 0.8],
+            score: score(&[-1.0, 0.8]),
+            variance: None,
+            in_image: 1.0,
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (best, _) = climb(start.clone(), 300, &limits, &mut rng, |q| {
+            Some((score(q), 1.0, posed()))
+        })
+        .expect("a better pose");
+        assert!(best.score > start.score + 5.0, "{best:?}");
+        assert!(
+            best.joints[0] <= 2.0 - LIMIT_MARGIN_RAD + 1e-12 && best.joints[0] > 1.8,
+            "{best:?}"
+        );
+        assert!(best.joints[1].abs() < 0.2, "{best:?}");
+    }
+
+    #[test]
+    fn the_climb_never_keeps_a_pose_the_checks_refuse() {
+        // Everything with joint 0 above zero is "unsafe"; the best allowed pose is at 0.
+        let limits = [(-2.0, 2.0)];
+        let start = Ranked {
+            joints: vec![-1.5],
+            score: -1.5,
+            variance: None,
+            in_image: 1.0,
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (best, _) = climb(start, 200, &limits, &mut rng, |q| {
+            (q[0] <= 0.0).then(|| (q[0], 1.0, posed()))
+        })
+        .expect("a better pose");
+        assert!(best.joints[0] <= 0.0 && best.joints[0] > -0.2, "{best:?}");
+        // No step can improve on the optimum: nothing is returned.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let top = Ranked {
+            joints: vec![0.0],
+            score: 0.0,
+            variance: None,
+            in_image: 1.0,
+        };
+        assert!(climb(top, 50, &limits, &mut rng, |q| {
+            (q[0] <= 0.0).then(|| (q[0], 1.0, posed()))
+        })
+        .is_none());
     }
 }

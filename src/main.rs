@@ -253,12 +253,18 @@ enum BenchCommand {
         /// Base cell config (seeded variants move the camera, start pose and guess).
         #[arg(long, default_value = "config/sim-xarm6.toml")]
         config: PathBuf,
-        /// Number of cells (seeds 0..N-1).
+        /// Number of cells (seeds FIRST..FIRST+N-1).
         #[arg(long, default_value_t = 20)]
         cells: u64,
+        /// First cell seed (a seed set the settings were not chosen on).
+        #[arg(long, default_value_t = 0)]
+        first_seed: u64,
         /// Views per calibration (no early stop).
         #[arg(long, default_value_t = 5)]
         views: usize,
+        /// Hill-climbing steps per start (`[calibration] climb_steps`; default: the config's).
+        #[arg(long)]
+        climb_steps: Option<usize>,
         /// Selections to run.
         #[arg(long, value_delimiter = ',', default_value = "explore,random")]
         selections: Vec<String>,
@@ -1055,7 +1061,9 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Loop {
             config,
             cells,
+            first_seed,
             views,
+            climb_steps,
             selections,
             renderer,
             score,
@@ -1063,6 +1071,9 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             use easyhec::calibrate::{ScoreSetting, SelectionSetting};
             let mut base = easyhec::cell::read_config(&config)?;
             base.calibration.renderer = renderer;
+            if let Some(n) = climb_steps {
+                base.calibration.climb_steps = n;
+            }
             match score.as_deref() {
                 None => {}
                 Some("information") => base.calibration.score = ScoreSetting::Information,
@@ -1077,13 +1088,26 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                     other => bail!("--selections {other}: use explore or random"),
                 };
                 let mut trials = Vec::new();
-                for seed in 0..cells {
+                for seed in first_seed..first_seed + cells {
                     let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
                     let t = bench::run_loop_trial(&cfg, &config, seed, selection, views)?;
                     let last = t.errors.last().copied().unwrap_or((0, f64::NAN, f64::NAN));
+                    // Every view count's error, so medians over any subset of seeds can be
+                    // taken from one run.
+                    let per_view: Vec<String> = t
+                        .errors
+                        .iter()
+                        .map(|e| format!("{}:{:.5}:{:.4}", e.0, e.1, e.2))
+                        .collect();
                     eprintln!(
-                        "{name} seed {seed}: {} views {:.4} deg {:.3} mm; planning {:.2} s/round; compute {:.1} s",
-                        last.0, last.1, last.2, t.explore_round_s[0], t.compute_s
+                        "{name} seed {seed}: {} views {:.4} deg {:.3} mm; planning {:.2} s/round; compute {:.1} s; per view (views:deg:mm) {}; {}",
+                        last.0,
+                        last.1,
+                        last.2,
+                        t.explore_round_s[0],
+                        t.compute_s,
+                        per_view.join(" "),
+                        t.stop_reason
                     );
                     trials.push(t);
                 }
