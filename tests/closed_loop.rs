@@ -415,3 +415,50 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
     let iou = pinhole.iou(&observed);
     assert!(iou > 0.8 && iou < 0.995, "distorted vs pinhole IoU {iou}");
 }
+
+/// The loop on the hard cell (clutter, a light robot on light walls, shadows, exposure
+/// changes, moving distractors) with `[segmenter] kind = "builtin"`: no side-channel mask is
+/// used, each view's mask is written beside its frame (and rewritten as later rounds
+/// re-segment it), and the pose still lands within the RGB-only bound.
+#[test]
+fn hard_cell_calibrates_from_colour_frames_alone() {
+    use easyhec::mask::Mask;
+    use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+    use easyhec::segment::SegmenterConfig;
+    let path = config_path("sim-xarm6-hard.toml");
+    let mut cfg = quick(read_config(&path).unwrap(), 5);
+    cfg.calibration.min_views = 5;
+    cfg.segmenter = SegmenterConfig::by_name("builtin").unwrap();
+    let cell = Cell::build(cfg, &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let outcome = run(&cell, &out, &RunOptions::default()).unwrap();
+    let truth = cell.sim.camera_from_base.unwrap();
+    let est = outcome.result.camera_from_base();
+    let (r, t) = (
+        rotation_error_deg(&est, &truth),
+        translation_error_mm(&est, &truth),
+    );
+    eprintln!("builtin loop on the hard cell: {r:.4} deg {t:.3} mm");
+    assert!(r <= 0.08 && t <= 1.5, "error {r:.4} deg {t:.3} mm");
+    assert_eq!(outcome.result.views_used.len(), 5);
+    // Every recorded mask is the segmenter's, beside its frame: it matches the robot
+    // rendered at the true pose, not an empty or full image.
+    let loaded = load_run(&out).unwrap();
+    let camera = loaded.camera.undistorted();
+    let mut ious = Vec::new();
+    for v in &loaded.file.views {
+        assert!(out.join(v.image.as_ref().unwrap()).is_file());
+        let mask = Mask::load(&out.join(v.mask.as_ref().unwrap())).unwrap();
+        let posed = PosedRobot::new(&loaded.robot, &v.joints);
+        let rendered = CpuRenderer.render(&posed, &camera, &truth, None).mask;
+        ious.push(mask.iou(&rendered));
+    }
+    ious.sort_by(f64::total_cmp);
+    // Measured 0.85 / 0.90 (worst / median); the bench's 20-cell median is 0.946.
+    assert!(
+        ious[0] >= 0.8 && ious[2] >= 0.87,
+        "mask IoU at the truth {ious:?}"
+    );
+    assert_every_command_safe(&cell);
+}

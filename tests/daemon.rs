@@ -19,6 +19,12 @@ use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 
+/// Rotation bound for one seeded calibration. The 0.05° is a median over cells; over
+/// 80 seeded 5-view cells (README, closed loop; code of 2026-11-23) 8 lie above it, the 95th
+/// percentile is 0.060° and the worst 0.083°. A single draw held to the median would fail
+/// about one change in ten for no fault; a failed recalibration is off by the knock (~1°).
+const SINGLE_DRAW_MAX_DEG: f64 = 0.08;
+
 fn error_vs(status: &Value, truth: &Isometry3<f64>) -> (f64, f64) {
     let rows: [[f64; 4]; 4] =
         serde_json::from_value(status["camera_from_base"].clone()).expect("an estimate");
@@ -159,7 +165,10 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
         3
     );
     let (r, t) = error_vs(&s, &truth);
-    assert!(r <= 0.05 && t <= 1.0, "error {r:.4} deg {t:.3} mm");
+    assert!(
+        r <= SINGLE_DRAW_MAX_DEG && t <= 1.0,
+        "error {r:.4} deg {t:.3} mm"
+    );
     eprintln!("daemon calibration: {r:.4} deg, {t:.3} mm from the truth");
 
     // Overlays decode at the camera's size; a missing view is 404.
@@ -411,7 +420,10 @@ fn bump_check_marks_stale_and_a_warm_started_recalibration_recovers_the_new_pose
     assert_eq!(s["warm_start_from"].as_str(), Some(first.as_str()));
     let (r, t) = error_vs(&s, &bumped);
     eprintln!("recalibration after the bump: {r:.4} deg, {t:.3} mm from the new truth");
-    assert!(r <= 0.05 && t <= 1.0, "error {r:.4} deg {t:.3} mm");
+    assert!(
+        r <= SINGLE_DRAW_MAX_DEG && t <= 1.0,
+        "error {r:.4} deg {t:.3} mm"
+    );
     let (r_old, t_old) = (
         rotation_error_deg(&old, &bumped),
         translation_error_mm(&old, &bumped),
@@ -709,4 +721,65 @@ fn protect_reads_puts_the_read_only_routes_behind_the_token_too() {
     assert_eq!(code, 200);
     let (code, _) = call_as("GET", &format!("{}/healthz", d.base), None, None);
     assert_eq!(code, 200, "health stays open");
+}
+
+/// With `[segmenter] kind = "builtin"` (colour frames only, on the hard scene) a bump check
+/// has one new frame and no plate of its own: it segments it together with the active
+/// calibration's recorded frames. An untouched camera passes, a knocked one is caught. One
+/// builtin mask of the hard scene agrees with the render less well than the simulator's
+/// truth does (measured: IoU 0.83, 3.1 px untouched; 0.73, 4.5 px knocked), so the cell sets
+/// thresholds for its segmenter, as a real cell would (README, bump checks).
+#[test]
+fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
+    use easyhec::cell::CameraConfig;
+    use easyhec::scene::ScenePreset;
+    use easyhec::segment::SegmenterConfig;
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |c| {
+        full_resolution(c);
+        c.calibration.max_views = 5;
+        c.daemon.bump_min_iou = 0.78;
+        c.daemon.bump_max_boundary_px = 3.8;
+        c.segmenter = SegmenterConfig::by_name("builtin").unwrap();
+        if let CameraConfig::Sim { scene, .. } = &mut c.camera {
+            scene.preset = ScenePreset::Hard;
+        }
+    });
+    let d = start(&config, &dir.path().join("data"));
+    let base = d.base.clone();
+    let scene = d.daemon.cell().sim.scene.clone().unwrap();
+    let (_, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
+    let id = body["id"].as_str().unwrap().to_string();
+    let s = wait_final(&base, &id);
+    assert_eq!(s["state"], "succeeded", "{s}");
+    let (r, t) = error_vs(&s, &scene.camera_from_base());
+    eprintln!("builtin calibration: {r:.4} deg {t:.3} mm");
+    assert!(r <= 0.08 && t <= 1.5, "error {r:.4} deg {t:.3} mm");
+
+    let (code, ok) = call("POST", &format!("{base}/api/v1/checks"), None);
+    assert_eq!(code, 200, "{ok}");
+    let (iou, px) = (
+        ok["iou"].as_f64().unwrap(),
+        ok["boundary_px"].as_f64().unwrap(),
+    );
+    eprintln!("check before the bump: IoU {iou:.4}, boundary {px:.3} px");
+    assert_eq!(ok["stale"], false, "{ok}");
+
+    let knock = Isometry3::from_parts(
+        Translation3::new(0.010, -0.008, 0.008),
+        UnitQuaternion::from_euler_angles(0.010, -0.012, 0.006),
+    );
+    scene.set_camera_from_base(knock * scene.camera_from_base());
+    let (code, bad) = call("POST", &format!("{base}/api/v1/checks"), None);
+    assert_eq!(code, 200, "{bad}");
+    let (iou_b, px_b) = (
+        bad["iou"].as_f64().unwrap(),
+        bad["boundary_px"].as_f64().unwrap(),
+    );
+    eprintln!("check after the bump: IoU {iou_b:.4}, boundary {px_b:.3} px");
+    assert_eq!(bad["stale"], true, "{bad}");
+    assert!(
+        iou_b < iou - 0.05 && px_b > px + 0.5,
+        "the knock should cost agreement: IoU {iou} -> {iou_b}, {px} -> {px_b} px"
+    );
 }

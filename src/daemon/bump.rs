@@ -1,6 +1,7 @@
 //! Bump detection: is the active calibration still right? With the arm idle (or after a
 //! checked move to `[daemon] check_pose`), capture one frame, segment it with the cell's
-//! segmenter (the same path the loop uses), render the robot's silhouette under the active
+//! segmenter (the same path the loop uses; a context-aware one, `builtin`, also gets the
+//! active calibration's recorded frames for its background plate), render the robot's silhouette under the active
 //! `camera_from_base` at the reported joints, and compare: mask IoU and the mean distance
 //! between the two outlines, both ways, in pixels. Below `bump_min_iou` or above
 //! `bump_max_boundary_px` the calibration is marked stale; with `recalibrate_on_bump` a
@@ -11,7 +12,7 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
 
-use easyhec_drivers::ArmStatus;
+use easyhec_drivers::{ArmStatus, Frame};
 use nalgebra::Isometry3;
 
 use super::store::CheckRecord;
@@ -20,6 +21,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::run::RunFile;
 use crate::safety::SafeArm;
 
 /// Agreement of an observed mask with a rendered one.
@@ -67,7 +69,7 @@ pub async fn check(
         ));
     };
     daemon.lease(Busy::Check)?;
-    let measured = measure(daemon, &pose).await;
+    let measured = measure(daemon, &id, &pose).await;
     daemon.release(&Busy::Check);
     let m = &daemon.metrics;
     m.checks.fetch_add(1, Ordering::Relaxed);
@@ -120,12 +122,93 @@ pub async fn check(
     Ok(record)
 }
 
+/// Frames and joints of calibration `id`'s recorded views: a context-aware segmenter
+/// (`builtin`) needs views where the robot stood elsewhere to see the background behind it.
+fn recorded_views(daemon: &Daemon, id: &str, camera: &Camera) -> Result<Vec<(Frame, Vec<f64>)>> {
+    let store = daemon.store();
+    let record = store.record(id).ok_or_else(|| {
+        Error::Solve(format!(
+            "calibration {id} is active but has no record in the data folder"
+        ))
+    })?;
+    let dir = store.run_dir(&record);
+    let run = RunFile::read(&dir.join("run.json"))?;
+    run.views
+        .iter()
+        .filter_map(|v| v.image.as_ref().map(|img| (img, &v.joints)))
+        .map(|(img, q)| {
+            Ok((
+                crate::segment::read_frame(&dir.join(img), camera.width, camera.height)?,
+                q.clone(),
+            ))
+        })
+        .collect()
+}
+
+/// The cell segmenter's mask of `frame`. A context-aware one segments it together with the
+/// active calibration's recorded frames, each with the robot rendered under `pose` as its
+/// prior and `band_px` of slack: a moved camera shows up as a mask that no longer matches
+/// that render, exactly as with a per-frame segmenter.
+fn segment_for_check(
+    cell: &crate::cell::Cell,
+    camera: &Camera,
+    frame: Frame,
+    joints: &[f64],
+    recorded: Vec<(Frame, Vec<f64>)>,
+    pose: &Isometry3<f64>,
+    band_px: f32,
+) -> Result<Mask> {
+    if !cell.segmenter.uses_context() {
+        return cell.segmenter.segment(&frame);
+    }
+    let (mut frames, mut all_joints): (Vec<Frame>, Vec<Vec<f64>>) = recorded
+        .into_iter()
+        .filter(|(_, q)| {
+            q.iter()
+                .zip(joints)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+                > 0.05
+        })
+        .unzip();
+    frames.push(frame);
+    all_joints.push(joints.to_vec());
+    let robots: Vec<PosedRobot> = all_joints
+        .iter()
+        .map(|q| PosedRobot::new(&cell.robot, q))
+        .collect();
+    let priors = crate::segment::refine::priors(&CpuRenderer, camera, &robots, pose);
+    let inputs: Vec<crate::segment::ViewInput> = frames
+        .iter()
+        .zip(&priors)
+        .map(|(frame, prior)| crate::segment::ViewInput {
+            frame,
+            prior: Some(prior),
+            band_px,
+        })
+        .collect();
+    cell.segmenter
+        .segment_views(&inputs)?
+        .pop()
+        .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))
+}
+
 /// Moves to `check_pose` if configured, captures, segments and compares.
 async fn measure(
     daemon: &Arc<Daemon>,
+    id: &str,
     pose: &Isometry3<f64>,
 ) -> Result<(Vec<f64>, bool, Agreement)> {
     let cell = daemon.cell().clone();
+    let recorded = if cell.segmenter.uses_context() {
+        recorded_views(
+            daemon,
+            id,
+            &Camera::from_intrinsics(cell.camera.intrinsics()),
+        )?
+    } else {
+        Vec::new()
+    };
     let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
     match cell.arm.status().await.map_err(hw)? {
         ArmStatus::Fault(f) => {
@@ -170,7 +253,16 @@ async fn measure(
                 frame.width, frame.height, camera.width, camera.height
             )));
         }
-        let observed = camera.undistort_mask(&cell.segmenter.segment(&frame)?);
+        // The loop's tightest band: a wider one lets the hard cases (a light robot on a
+        // light wall, distractors touching it) spread the mask; a knocked camera still moves
+        // the robot off the render by more than this.
+        let band = match &cell.config.segmenter {
+            crate::segment::SegmenterConfig::Builtin { min_band_px } => *min_band_px,
+            _ => 8.0,
+        };
+        let observed = camera.undistort_mask(&segment_for_check(
+            &cell, &camera, frame, &q, recorded, &pose, band,
+        )?);
         let rendered = CpuRenderer
             .render(
                 &PosedRobot::new(&cell.robot, &q),
