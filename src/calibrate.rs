@@ -1095,10 +1095,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let mut ctx = cell.segmenter.uses_context().then(|| Context {
         renderer: renderer.as_ref(),
         frames: Vec::new(),
-        min_band_px: match &cell.config.segmenter {
-            crate::segment::SegmenterConfig::Builtin { min_band_px } => *min_band_px,
-            _ => 8.0,
-        },
+        min_band_px: cell.config.segmenter.min_band_px(),
     });
     let mut views = Vec::new();
     capture(

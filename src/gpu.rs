@@ -586,71 +586,53 @@ impl WgpuRenderer {
             };
         let raster = render_pipeline("raster", RASTER_WGSL, &raster_layout, &[]);
 
-        let compute_storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let compute_pipeline = |label: &str, source: &str, bind: &wgpu::BindGroupLayout| {
-            let (module, layout) = shader(label, source, bind);
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        // A compute stage: the bind group layout (binding 0 the uniform parameters, then one
+        // storage buffer per entry of `read_only`, in order) and its pipeline.
+        let compute_stage = |label: &str, source: &str, read_only: &[bool]| {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> =
+                std::iter::once(uniform(0, wgpu::ShaderStages::COMPUTE))
+                    .chain(read_only.iter().zip(1u32..).map(|(&read_only, binding)| {
+                        wgpu::BindGroupLayoutEntry {
+                            binding,
+                            visibility: wgpu::ShaderStages::COMPUTE,
+                            ty: wgpu::BindingType::Buffer {
+                                ty: wgpu::BufferBindingType::Storage { read_only },
+                                has_dynamic_offset: false,
+                                min_binding_size: None,
+                            },
+                            count: None,
+                        }
+                    }))
+                    .collect();
+            let bind = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &entries,
+            });
+            let (module, layout) = shader(label, source, &bind);
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(label),
                 layout: Some(&layout),
                 module: &module,
                 entry_point: Some("main"),
                 compilation_options: Default::default(),
                 cache: None,
-            })
-        };
-        let bits_raster_layout =
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("bits raster"),
-                entries: &[
-                    uniform(0, wgpu::ShaderStages::COMPUTE),
-                    compute_storage(1, true),
-                    compute_storage(2, true),
-                    compute_storage(3, true),
-                    compute_storage(4, false),
-                ],
             });
-        let bits_raster = compute_pipeline(
+            (pipeline, bind)
+        };
+        let (bits_raster, bits_raster_layout) = compute_stage(
             "bits raster",
             &format!("{BITS_PARAMS_WGSL}{BITS_RASTER_WGSL}"),
-            &bits_raster_layout,
+            &[true, true, true, false],
         );
-        let bits_reduce_layout =
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("bits reduce"),
-                entries: &[
-                    uniform(0, wgpu::ShaderStages::COMPUTE),
-                    compute_storage(1, true),
-                    compute_storage(2, false),
-                ],
-            });
-        let bits_reduce = compute_pipeline(
+        let (bits_reduce, bits_reduce_layout) = compute_stage(
             "bits reduce",
             &format!("{BITS_PARAMS_WGSL}{BITS_REDUCE_WGSL}{REDUCE_MAIN_WGSL}"),
-            &bits_reduce_layout,
+            &[true, false],
         );
-        let band_reduce_layout =
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some("band reduce"),
-                entries: &[
-                    uniform(0, wgpu::ShaderStages::COMPUTE),
-                    compute_storage(1, true),
-                    compute_storage(2, true),
-                    compute_storage(3, false),
-                ],
-            });
-        let band_reduce = compute_pipeline(
+        let (band_reduce, band_reduce_layout) = compute_stage(
             "band reduce",
             &format!("{BITS_PARAMS_WGSL}{BAND_REDUCE_WGSL}{REDUCE_MAIN_WGSL}"),
-            &band_reduce_layout,
+            &[true, true, false],
         );
         WgpuRenderer {
             device,

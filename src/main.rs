@@ -642,10 +642,7 @@ fn segment_run(
         }
     };
     let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
-    let min_band = match config {
-        SegmenterConfig::Builtin { min_band_px } => min_band_px,
-        _ => 8.0,
-    };
+    let min_band = config.min_band_px();
     let settled = refine::segment_and_solve(
         renderer,
         &run.camera,

@@ -49,6 +49,16 @@ fn assert_every_command_safe(cell: &Cell) -> usize {
     commands.len()
 }
 
+/// Rotation (degrees) and translation (mm) of the loop's result against the simulated truth.
+fn truth_error(cell: &Cell, outcome: &Outcome) -> (f64, f64) {
+    let truth = cell.sim.camera_from_base.unwrap();
+    let est = outcome.result.camera_from_base();
+    (
+        rotation_error_deg(&est, &truth),
+        translation_error_mm(&est, &truth),
+    )
+}
+
 fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
     cfg.calibration.max_views = views;
     cfg.calibration.joint_samples = 600;
@@ -85,12 +95,7 @@ fn simulated_xarm6_calibration_reaches_the_truth_and_records_a_solvable_run() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let outcome = run(&cell, &out, &RunOptions::default()).unwrap();
-    let truth = cell.sim.camera_from_base.unwrap();
-    let est = outcome.result.camera_from_base();
-    let (r, t) = (
-        rotation_error_deg(&est, &truth),
-        translation_error_mm(&est, &truth),
-    );
+    let (r, t) = truth_error(&cell, &outcome);
     assert!(r < 0.15 && t < 1.5, "error {r:.4} deg {t:.3} mm");
     let views = outcome.result.views_used.len();
     assert!(
@@ -117,12 +122,7 @@ fn ur5e_and_panda_cells_calibrate() {
         let cell = Cell::build(quick(read_config(&path).unwrap(), 3), &path).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
-        let truth = cell.sim.camera_from_base.unwrap();
-        let est = outcome.result.camera_from_base();
-        let (r, t) = (
-            rotation_error_deg(&est, &truth),
-            translation_error_mm(&est, &truth),
-        );
+        let (r, t) = truth_error(&cell, &outcome);
         assert!(r < 0.2 && t < 2.0, "{name}: error {r:.4} deg {t:.3} mm");
         assert_every_command_safe(&cell);
     }
@@ -433,12 +433,7 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let outcome = run(&cell, &out, &RunOptions::default()).unwrap();
-    let truth = cell.sim.camera_from_base.unwrap();
-    let est = outcome.result.camera_from_base();
-    let (r, t) = (
-        rotation_error_deg(&est, &truth),
-        translation_error_mm(&est, &truth),
-    );
+    let (r, t) = truth_error(&cell, &outcome);
     eprintln!("builtin loop on the hard cell: {r:.4} deg {t:.3} mm");
     assert!(r <= 0.08 && t <= 1.5, "error {r:.4} deg {t:.3} mm");
     assert_eq!(outcome.result.views_used.len(), 5);
@@ -446,6 +441,7 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
     // rendered at the true pose, not an empty or full image.
     let loaded = load_run(&out).unwrap();
     let camera = loaded.camera.undistorted();
+    let truth = cell.sim.camera_from_base.unwrap();
     let mut ious = Vec::new();
     for v in &loaded.file.views {
         assert!(out.join(v.image.as_ref().unwrap()).is_file());

@@ -145,22 +145,21 @@ fn recorded_views(daemon: &Daemon, id: &str, camera: &Camera) -> Result<Vec<(Fra
         .collect()
 }
 
-/// The cell segmenter's mask of `frame`. A context-aware one segments it together with the
-/// active calibration's recorded frames, each with the robot rendered under `pose` as its
-/// prior and `band_px` of slack: a moved camera shows up as a mask that no longer matches
-/// that render, exactly as with a per-frame segmenter.
-fn segment_for_check(
+/// A context-aware segmenter's (`builtin`) mask of `frame`, segmented together with the
+/// active calibration's `recorded` frames (less those taken at the check's own joints, which
+/// show the robot where the new frame does and so lend it no background), each with the
+/// robot rendered under `pose` as its prior and the loop's tightest band: a wider one lets the hard cases (a light robot on a
+/// light wall, distractors touching it) spread the mask, and a knocked camera still moves the
+/// robot off the render by more than this, so its mask no longer matches that render, exactly
+/// as with a per-frame segmenter.
+fn segment_with_recorded(
     cell: &crate::cell::Cell,
     camera: &Camera,
     frame: Frame,
     joints: &[f64],
     recorded: Vec<(Frame, Vec<f64>)>,
     pose: &Isometry3<f64>,
-    band_px: f32,
 ) -> Result<Mask> {
-    if !cell.segmenter.uses_context() {
-        return cell.segmenter.segment(&frame);
-    }
     let (mut frames, mut all_joints): (Vec<Frame>, Vec<Vec<f64>>) = recorded
         .into_iter()
         .filter(|(_, q)| {
@@ -178,6 +177,7 @@ fn segment_for_check(
         .map(|q| PosedRobot::new(&cell.robot, q))
         .collect();
     let priors = crate::segment::refine::priors(&CpuRenderer, camera, &robots, pose);
+    let band_px = cell.config.segmenter.min_band_px();
     let inputs: Vec<crate::segment::ViewInput> = frames
         .iter()
         .zip(&priors)
@@ -200,15 +200,6 @@ async fn measure(
     pose: &Isometry3<f64>,
 ) -> Result<(Vec<f64>, bool, Agreement)> {
     let cell = daemon.cell().clone();
-    let recorded = if cell.segmenter.uses_context() {
-        recorded_views(
-            daemon,
-            id,
-            &Camera::from_intrinsics(cell.camera.intrinsics()),
-        )?
-    } else {
-        Vec::new()
-    };
     let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
     match cell.arm.status().await.map_err(hw)? {
         ArmStatus::Fault(f) => {
@@ -245,6 +236,7 @@ async fn measure(
     let frame = cell.camera.grab().await.map_err(hw)?;
     let pose = *pose;
     let q = joints.clone();
+    let (daemon, id) = (daemon.clone(), id.to_string());
     let agreement = tokio::task::spawn_blocking(move || -> Result<Agreement> {
         let camera = Camera::from_intrinsics(cell.camera.intrinsics());
         if frame.width != camera.width || frame.height != camera.height {
@@ -253,16 +245,13 @@ async fn measure(
                 frame.width, frame.height, camera.width, camera.height
             )));
         }
-        // The loop's tightest band: a wider one lets the hard cases (a light robot on a
-        // light wall, distractors touching it) spread the mask; a knocked camera still moves
-        // the robot off the render by more than this.
-        let band = match &cell.config.segmenter {
-            crate::segment::SegmenterConfig::Builtin { min_band_px } => *min_band_px,
-            _ => 8.0,
+        let mask = if cell.segmenter.uses_context() {
+            let recorded = recorded_views(&daemon, &id, &camera)?;
+            segment_with_recorded(&cell, &camera, frame, &q, recorded, &pose)?
+        } else {
+            cell.segmenter.segment(&frame)?
         };
-        let observed = camera.undistort_mask(&segment_for_check(
-            &cell, &camera, frame, &q, recorded, &pose, band,
-        )?);
+        let observed = camera.undistort_mask(&mask);
         let rendered = CpuRenderer
             .render(
                 &PosedRobot::new(&cell.robot, &q),

@@ -213,6 +213,15 @@ pub fn read_frame(path: &Path, width: u32, height: u32) -> Result<Frame> {
 }
 
 impl SegmenterConfig {
+    /// The narrowest prior band a context-aware segmenter is given, pixels: `builtin`'s
+    /// `min_band_px`, the default for any other kind.
+    pub fn min_band_px(&self) -> f32 {
+        match self {
+            SegmenterConfig::Builtin { min_band_px } => *min_band_px,
+            _ => default_min_band_px(),
+        }
+    }
+
     /// Builds the segmenter; `config_path` is the cell config, which relative paths (the ONNX
     /// model) are resolved against and errors name.
     pub fn build(&self, config_path: &Path) -> Result<Box<dyn Segmenter>> {

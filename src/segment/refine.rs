@@ -99,106 +99,79 @@ pub fn segment_and_solve(
     solve_opts: &SolveOptions,
     max_rounds: usize,
 ) -> Result<Settled> {
-    let prior_first = initial_prior.is_some() && frames.len() < 3;
-    let run = |with_prior: bool| {
-        alternate(
-            renderer,
-            camera,
-            segmenter,
-            frames,
-            robots,
-            start,
-            initial_prior.filter(|_| with_prior),
-            min_band_px,
-            solve_opts,
-            max_rounds,
-        )
-    };
-    let first = run(prior_first)?;
-    if prior_first || initial_prior.is_none() || first.report.mean_iou() >= POOR_FIT_IOU {
-        return Ok(first);
-    }
-    let second = run(true)?;
-    Ok(if second.report.mean_iou() > first.report.mean_iou() {
-        second
-    } else {
-        first
-    })
-}
-
-/// One segment-and-solve alternation; round 0 under `round0_prior`'s render (pose, band)
-/// when given, else from the plate alone.
-#[allow(clippy::too_many_arguments)]
-fn alternate(
-    renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
-    segmenter: &dyn Segmenter,
-    frames: &[&Frame],
-    robots: &[PosedRobot],
-    start: &dyn Fn(&[View]) -> Result<Isometry3<f64>>,
-    round0_prior: Option<(&Isometry3<f64>, f32)>,
-    min_band_px: f32,
-    solve_opts: &SolveOptions,
-    max_rounds: usize,
-) -> Result<Settled> {
-    let first_priors = round0_prior.map(|(pose, _)| priors(renderer, camera, robots, pose));
-    let band0 = round0_prior.map_or(min_band_px, |(_, b)| b);
-    let inputs: Vec<ViewInput> = frames
-        .iter()
-        .enumerate()
-        .map(|(i, f)| ViewInput {
-            frame: f,
-            prior: first_priors.as_ref().map(|p| &p[i]),
-            band_px: band0,
-        })
-        .collect();
-    let mut masks = segmenter.segment_views(&inputs)?;
-    let views_of = |masks: &[Mask]| -> Vec<View> {
-        masks
-            .iter()
-            .zip(robots)
-            .map(|(m, r)| View {
-                robot: r.clone(),
-                observed: camera.undistort_mask(m),
-            })
-            .collect()
-    };
-    let mut views = views_of(&masks);
-    let initial = start(&views)?;
-    let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
-    let mut rounds = 1;
-    while rounds < max_rounds && segmenter.uses_context() {
-        let rendered = priors(renderer, camera, robots, &report.camera_from_base);
-        let bands = bands_px(camera, &report, &rendered, min_band_px);
+    // One alternation; round 0 under `round0_prior`'s render (pose, band) when given, else
+    // from the plate alone.
+    let run = |round0_prior: Option<(&Isometry3<f64>, f32)>| -> Result<Settled> {
+        let first_priors = round0_prior.map(|(pose, _)| priors(renderer, camera, robots, pose));
+        let band0 = round0_prior.map_or(min_band_px, |(_, b)| b);
         let inputs: Vec<ViewInput> = frames
             .iter()
             .enumerate()
             .map(|(i, f)| ViewInput {
                 frame: f,
-                prior: Some(&rendered[i]),
-                band_px: bands[i],
+                prior: first_priors.as_ref().map(|p| &p[i]),
+                band_px: band0,
             })
             .collect();
-        let next = segmenter.segment_views(&inputs)?;
-        let change =
-            next.iter().zip(&masks).map(|(a, b)| a.iou(b)).sum::<f64>() / next.len().max(1) as f64;
-        masks = next;
-        views = views_of(&masks);
-        report = solve(
-            renderer,
-            camera,
-            &views,
-            &report.camera_from_base,
-            solve_opts,
-        )?;
-        rounds += 1;
-        if change >= 0.995 {
-            break;
+        let mut masks = segmenter.segment_views(&inputs)?;
+        let views_of = |masks: &[Mask]| -> Vec<View> {
+            masks
+                .iter()
+                .zip(robots)
+                .map(|(m, r)| View {
+                    robot: r.clone(),
+                    observed: camera.undistort_mask(m),
+                })
+                .collect()
+        };
+        let mut views = views_of(&masks);
+        let initial = start(&views)?;
+        let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
+        let mut rounds = 1;
+        while rounds < max_rounds && segmenter.uses_context() {
+            let rendered = priors(renderer, camera, robots, &report.camera_from_base);
+            let bands = bands_px(camera, &report, &rendered, min_band_px);
+            let inputs: Vec<ViewInput> = frames
+                .iter()
+                .enumerate()
+                .map(|(i, f)| ViewInput {
+                    frame: f,
+                    prior: Some(&rendered[i]),
+                    band_px: bands[i],
+                })
+                .collect();
+            let next = segmenter.segment_views(&inputs)?;
+            let change = next.iter().zip(&masks).map(|(a, b)| a.iou(b)).sum::<f64>()
+                / next.len().max(1) as f64;
+            masks = next;
+            views = views_of(&masks);
+            report = solve(
+                renderer,
+                camera,
+                &views,
+                &report.camera_from_base,
+                solve_opts,
+            )?;
+            rounds += 1;
+            if change >= 0.995 {
+                break;
+            }
         }
+        Ok(Settled {
+            masks,
+            report,
+            rounds,
+        })
+    };
+    let prior_first = initial_prior.is_some() && frames.len() < 3;
+    let first = run(initial_prior.filter(|_| prior_first))?;
+    if prior_first || initial_prior.is_none() || first.report.mean_iou() >= POOR_FIT_IOU {
+        return Ok(first);
     }
-    Ok(Settled {
-        masks,
-        report,
-        rounds,
+    let second = run(initial_prior)?;
+    Ok(if second.report.mean_iou() > first.report.mean_iou() {
+        second
+    } else {
+        first
     })
 }
