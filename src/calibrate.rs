@@ -912,15 +912,20 @@ const GUESS_BAND_PX: f32 = 80.0;
 struct Context<'a> {
     renderer: &'a dyn SilhouetteRenderer,
     frames: Vec<Frame>,
+    /// The narrowest band while views are still being added (`[segmenter] min_band_px`).
     min_band_px: f32,
+    /// The narrowest band of the last re-segmentation (`[segmenter] final_band_px`).
+    final_band_px: f32,
 }
 
 impl Context<'_> {
     /// Segments every frame so far with priors under `estimate` (bands from `report` when
-    /// there is one), rewrites the earlier views' masks that changed, and rebuilds `views`.
+    /// there is one, at least `band_floor_px`), rewrites the earlier views' masks that
+    /// changed, and rebuilds `views`.
     #[allow(clippy::too_many_arguments)]
     fn resegment(
         &self,
+        band_floor_px: f32,
         cell: &Cell,
         camera: &Camera,
         rec: &Recorder,
@@ -936,7 +941,7 @@ impl Context<'_> {
         let priors = estimate
             .map(|pose| crate::segment::refine::priors(self.renderer, camera, &robots, pose));
         let bands = match (report, &priors) {
-            (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, self.min_band_px),
+            (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, band_floor_px),
             _ => vec![GUESS_BAND_PX; robots.len()],
         };
         let inputs: Vec<crate::segment::ViewInput> = self
@@ -1004,7 +1009,16 @@ async fn capture(
     };
     ctx.frames.push(frame);
     taken.push(joints.clone());
-    let masks = match ctx.resegment(cell, camera, rec, taken, estimate, report, views) {
+    let masks = match ctx.resegment(
+        ctx.min_band_px,
+        cell,
+        camera,
+        rec,
+        taken,
+        estimate,
+        report,
+        views,
+    ) {
         Ok(m) => m,
         Err(e) => {
             ctx.frames.pop();
@@ -1096,6 +1110,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         renderer: renderer.as_ref(),
         frames: Vec::new(),
         min_band_px: cell.config.segmenter.min_band_px(),
+        final_band_px: cell.config.segmenter.final_band_px(),
     });
     let mut views = Vec::new();
     capture(
@@ -1332,9 +1347,16 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     if let Some(ctx) = &ctx {
         if !opts.dry_run && !cancelled {
             // The last views were segmented under the previous estimate: re-segment all of
-            // them under the final one and solve once more.
+            // them under the final one and solve once more; when that estimate fits, with the
+            // final (narrowest) band: a narrow band is only safe around a right render.
             let t = Instant::now();
+            let floor = if report.mean_iou() >= crate::segment::refine::POOR_FIT_IOU {
+                ctx.final_band_px.min(ctx.min_band_px)
+            } else {
+                ctx.min_band_px
+            };
             ctx.resegment(
+                floor,
                 cell,
                 &camera,
                 &rec,

@@ -592,13 +592,16 @@ fn fmt_joints(q: &[f64]) -> String {
 }
 
 /// Fills the masks of views that need one (`--segmenter`): segment → solve → re-segment over
-/// those views until the masks settle.
+/// those views until the masks settle. Returns the settled pose when it fits (mean IoU ≥
+/// 0.8): the solve that follows starts there, since masks drawn near that pose's render are
+/// what it must fit, and a start back at the guess can stop in another basin (hard synthetic
+/// seed 3: 5.9° off from the guess, 0.006° from the settled pose).
 fn segment_run(
     run: &mut easyhec::run::LoadedRun,
     name: &str,
     renderer: RendererChoice,
     masks_out: Option<&Path>,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Option<nalgebra::Isometry3<f64>>> {
     use easyhec::segment::{refine, SegmenterConfig};
     let config = SegmenterConfig::by_name(name).map_err(|e| anyhow!(e))?;
     let segmenter = config.build(&run.dir.join("run.json"))?;
@@ -606,7 +609,7 @@ fn segment_run(
         .filter(|&i| run.views[i].needs_mask)
         .collect();
     if need.is_empty() {
-        return Ok(());
+        return Ok(None);
     }
     let mut frames = Vec::with_capacity(need.len());
     for &i in &need {
@@ -652,6 +655,7 @@ fn segment_run(
         &start,
         guess.as_ref().map(|g| (g, 80.0)),
         min_band,
+        config.final_band_px(),
         &SolveOptions::default(),
         4,
     )?;
@@ -668,7 +672,8 @@ fn segment_run(
         run.views[i].observed = run.camera.undistort_mask(mask);
         run.views[i].needs_mask = false;
     }
-    Ok(())
+    Ok((settled.report.mean_iou() >= refine::POOR_FIT_IOU)
+        .then_some(settled.report.camera_from_base))
 }
 
 fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
@@ -680,9 +685,10 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         Some(_) => load_run_with(&a.run, MaskSource::RecordedElseImage)?,
     };
     let mut segment_s = None;
+    let mut settled = None;
     if let Some(name) = &a.segmenter {
         let t = Instant::now();
-        segment_run(&mut run, name, a.renderer, a.masks_out.as_deref())?;
+        settled = segment_run(&mut run, name, a.renderer, a.masks_out.as_deref())?;
         segment_s = Some(t.elapsed().as_secs_f64());
     }
     let total = run.views.len();
@@ -711,8 +717,8 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
         .collect();
     let renderer = open_renderer(a.renderer, false).map_err(|e| anyhow!("--renderer: {e}"))?;
     let renderer = renderer.as_ref();
-    let initial = match run.initial_guess {
-        Some(guess) => guess,
+    let initial = match settled.or(run.initial_guess) {
+        Some(start) => start,
         None => {
             // No guess: search for one (method.md §6) over the first views.
             let first = &pool[..pool.len().min(3)];

@@ -451,7 +451,10 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
         ious.push(mask.iou(&rendered));
     }
     ious.sort_by(f64::total_cmp);
-    // Measured 0.85 / 0.90 (worst / median); the bench's 20-cell median is 0.946.
+    eprintln!("mask IoU at the truth, worst to best: {ious:.3?}");
+    // Measured 0.867 / 0.918 (worst / median; 0.85 / 0.90 before the final 4 px band), against
+    // the robot rendered at the recorded joints with nothing occluding it; the bench's median
+    // over 200 masks is 0.966.
     assert!(
         ious[0] >= 0.8 && ious[2] >= 0.87,
         "mask IoU at the truth {ious:?}"

@@ -177,9 +177,8 @@ pub fn run_figures(run_dir: &Path, renderer: &dyn SilhouetteRenderer) -> Result<
         .iter()
         .map(|v| PosedRobot::new(&images.robot, &v.joints))
         .collect();
-    let segmenter = SegmenterConfig::by_name("builtin")
-        .map_err(Error::Solve)?
-        .build(&run_dir.join("run.json"))?;
+    let config = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
+    let segmenter = config.build(&run_dir.join("run.json"))?;
     let settled = crate::segment::refine::segment_and_solve(
         renderer,
         &images.camera,
@@ -188,7 +187,8 @@ pub fn run_figures(run_dir: &Path, renderer: &dyn SilhouetteRenderer) -> Result<
         &robots,
         &|_| Ok(guess),
         Some((&guess, 80.0)),
-        8.0,
+        config.min_band_px(),
+        config.final_band_px(),
         &opts,
         4,
     )?;

@@ -74,11 +74,12 @@ pub struct Settled {
 }
 
 /// Mean IoU below which a settled segment-and-solve counts as a poor fit (the solve's own
-/// "fit poorly" warning level) and round 0 is tried the other way.
-const POOR_FIT_IOU: f64 = 0.8;
+/// "fit poorly" warning level): round 0 is tried the other way, and no final narrow band.
+pub const POOR_FIT_IOU: f64 = 0.8;
 
 /// Alternates segmentation and solving until the masks stop changing (mean IoU between
-/// rounds ≥ 0.995) or `max_rounds` is reached. Round 0 segments without a prior unless
+/// rounds ≥ 0.995) or `max_rounds` is reached, with bands of at least `min_band_px`; a
+/// settled pose that fits (mean IoU ≥ 0.8) gets one more round with `final_band_px`. Round 0 segments without a prior unless
 /// there is a single view (then the prior from `initial` with `initial_band_px`); `start`
 /// turns round 0's masks into the first estimate (the given guess, or a search). When that
 /// settles at a poor fit and there is an initial pose, round 0 is redone under its prior and
@@ -96,9 +97,20 @@ pub fn segment_and_solve(
     start: &dyn Fn(&[View]) -> Result<Isometry3<f64>>,
     initial_prior: Option<(&Isometry3<f64>, f32)>,
     min_band_px: f32,
+    final_band_px: f32,
     solve_opts: &SolveOptions,
     max_rounds: usize,
 ) -> Result<Settled> {
+    let views_of = |masks: &[Mask]| -> Vec<View> {
+        masks
+            .iter()
+            .zip(robots)
+            .map(|(m, r)| View {
+                robot: r.clone(),
+                observed: camera.undistort_mask(m),
+            })
+            .collect()
+    };
     // One alternation; round 0 under `round0_prior`'s render (pose, band) when given, else
     // from the plate alone.
     let run = |round0_prior: Option<(&Isometry3<f64>, f32)>| -> Result<Settled> {
@@ -114,16 +126,6 @@ pub fn segment_and_solve(
             })
             .collect();
         let mut masks = segmenter.segment_views(&inputs)?;
-        let views_of = |masks: &[Mask]| -> Vec<View> {
-            masks
-                .iter()
-                .zip(robots)
-                .map(|(m, r)| View {
-                    robot: r.clone(),
-                    observed: camera.undistort_mask(m),
-                })
-                .collect()
-        };
         let mut views = views_of(&masks);
         let initial = start(&views)?;
         let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
@@ -165,13 +167,48 @@ pub fn segment_and_solve(
     };
     let prior_first = initial_prior.is_some() && frames.len() < 3;
     let first = run(initial_prior.filter(|_| prior_first))?;
-    if prior_first || initial_prior.is_none() || first.report.mean_iou() >= POOR_FIT_IOU {
-        return Ok(first);
-    }
-    let second = run(initial_prior)?;
-    Ok(if second.report.mean_iou() > first.report.mean_iou() {
-        second
-    } else {
+    let best = if prior_first || initial_prior.is_none() || first.report.mean_iou() >= POOR_FIT_IOU
+    {
         first
+    } else {
+        let second = run(initial_prior)?;
+        if second.report.mean_iou() > first.report.mean_iou() {
+            second
+        } else {
+            first
+        }
+    };
+    // Settled and fitting: one last round with the final band. A narrow band is only safe
+    // around a right render, so not while the pose can still move, nor after a poor fit.
+    if !segmenter.uses_context()
+        || final_band_px >= min_band_px
+        || best.report.mean_iou() < POOR_FIT_IOU
+    {
+        return Ok(best);
+    }
+    let rendered = priors(renderer, camera, robots, &best.report.camera_from_base);
+    let bands = bands_px(camera, &best.report, &rendered, final_band_px);
+    let inputs: Vec<ViewInput> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| ViewInput {
+            frame: f,
+            prior: Some(&rendered[i]),
+            band_px: bands[i],
+        })
+        .collect();
+    let masks = segmenter.segment_views(&inputs)?;
+    let views = views_of(&masks);
+    let report = solve(
+        renderer,
+        camera,
+        &views,
+        &best.report.camera_from_base,
+        solve_opts,
+    )?;
+    Ok(Settled {
+        masks,
+        report,
+        rounds: best.rounds + 1,
     })
 }
