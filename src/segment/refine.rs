@@ -111,6 +111,21 @@ pub fn segment_and_solve(
             })
             .collect()
     };
+    // Every view under `report`'s render, bands of at least `floor_px`.
+    let resegment = |report: &SolveReport, floor_px: f32| -> Result<Vec<Mask>> {
+        let rendered = priors(renderer, camera, robots, &report.camera_from_base);
+        let bands = bands_px(camera, report, &rendered, floor_px);
+        let inputs: Vec<ViewInput> = frames
+            .iter()
+            .enumerate()
+            .map(|(i, f)| ViewInput {
+                frame: f,
+                prior: Some(&rendered[i]),
+                band_px: bands[i],
+            })
+            .collect();
+        segmenter.segment_views(&inputs)
+    };
     // One alternation; round 0 under `round0_prior`'s render (pose, band) when given, else
     // from the plate alone.
     let run = |round0_prior: Option<(&Isometry3<f64>, f32)>| -> Result<Settled> {
@@ -131,18 +146,7 @@ pub fn segment_and_solve(
         let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
         let mut rounds = 1;
         while rounds < max_rounds && segmenter.uses_context() {
-            let rendered = priors(renderer, camera, robots, &report.camera_from_base);
-            let bands = bands_px(camera, &report, &rendered, min_band_px);
-            let inputs: Vec<ViewInput> = frames
-                .iter()
-                .enumerate()
-                .map(|(i, f)| ViewInput {
-                    frame: f,
-                    prior: Some(&rendered[i]),
-                    band_px: bands[i],
-                })
-                .collect();
-            let next = segmenter.segment_views(&inputs)?;
+            let next = resegment(&report, min_band_px)?;
             let change = next.iter().zip(&masks).map(|(a, b)| a.iou(b)).sum::<f64>()
                 / next.len().max(1) as f64;
             masks = next;
@@ -186,18 +190,7 @@ pub fn segment_and_solve(
     {
         return Ok(best);
     }
-    let rendered = priors(renderer, camera, robots, &best.report.camera_from_base);
-    let bands = bands_px(camera, &best.report, &rendered, final_band_px);
-    let inputs: Vec<ViewInput> = frames
-        .iter()
-        .enumerate()
-        .map(|(i, f)| ViewInput {
-            frame: f,
-            prior: Some(&rendered[i]),
-            band_px: bands[i],
-        })
-        .collect();
-    let masks = segmenter.segment_views(&inputs)?;
+    let masks = resegment(&best.report, final_band_px)?;
     let views = views_of(&masks);
     let report = solve(
         renderer,
