@@ -316,6 +316,13 @@ fn bad_cell_configs_get_one_line_errors_naming_the_key() {
             ),
             "arm.start",
         ),
+        (
+            base.replace(
+                "kind = \"sim-truth\"\nnoise = { boundary_jitter_px = 0.5, blob_probability = 0.3, joint_noise_rad = 0.0 }",
+                "kind = \"builtin\"\nfinal_band_px = -4.0",
+            ),
+            "segmenter.final_band_px",
+        ),
     ];
     for (i, (text, needle)) in cases.iter().enumerate() {
         let p = dir.path().join(format!("bad{i}.toml"));
