@@ -67,8 +67,17 @@ type Rgb = [f32; 3];
 
 /// Segments all views of one static camera together (see the module docs).
 pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<Vec<Mask>> {
+    Ok(segment_views_with_evidence(views, params)?.0)
+}
+
+/// [`segment_views`], also returning each view's per-pixel log-odds for robot before
+/// smoothing, without the prior's term (change and colour evidence only).
+pub fn segment_views_with_evidence(
+    views: &[ViewInput<'_>],
+    params: &BuiltinParams,
+) -> Result<(Vec<Mask>, Vec<Vec<f32>>)> {
     let Some(first) = views.first() else {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), Vec::new()));
     };
     let (w, h) = (first.frame.width as usize, first.frame.height as usize);
     for (i, v) in views.iter().enumerate() {
@@ -125,6 +134,7 @@ pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<
         .collect();
     let mut gains = vec![[1f32; 3]; views.len()];
     let mut masks = Vec::new();
+    let mut evidence = Vec::new();
     for pass in 0..2 {
         let plate = background_plate(&images, &gains, &excluded, w * h);
         gains = images
@@ -161,6 +171,20 @@ pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<
             })
             .collect();
         let colour = ColourModel::learn(&images, &gains, &unary);
+        evidence = (0..views.len())
+            .into_par_iter()
+            .map(|v| {
+                (0..w * h)
+                    .map(|i| {
+                        let prior = priors[v]
+                            .as_ref()
+                            .map_or(0.0, |sd| prior_llr(sd[i], bands[v]));
+                        unary[v][i] - prior
+                            + params.colour_weight * colour.llr(&scaled(&images[v][i], &gains[v]))
+                    })
+                    .collect()
+            })
+            .collect();
         masks = (0..views.len())
             .into_par_iter()
             .map(|v| {
@@ -186,7 +210,7 @@ pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<
             }
         }
     }
-    Ok(masks)
+    Ok((masks, evidence))
 }
 
 /// Positive inside the mask, negative outside, pixels.
