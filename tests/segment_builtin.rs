@@ -93,15 +93,13 @@ fn builtin_segments_hard_frames_and_calibrates_from_rgb_alone() {
     assert!(median >= 0.93, "median IoU {median:.4} < 0.93: {ious:?}");
 }
 
-/// Without any prior, a robot that moves between views is found from the background plate
-/// alone, and a single frame without a prior is refused with a reason, never guessed.
-#[test]
-fn builtin_needs_context_and_uses_the_plate() {
+/// A seeded default-dressing cell of 5 views and its frames without the truth side channel.
+fn plate_cell(seed: u64) -> (easyhec::synth::ImagedScene, Vec<Frame>) {
     let robot = Arc::new(common::load_robot("xarm6"));
     let cell = generate_frames(
         &robot,
         &SynthOptions {
-            seed: 3,
+            seed,
             views: 5,
             ..SynthOptions::default()
         },
@@ -109,21 +107,34 @@ fn builtin_needs_context_and_uses_the_plate() {
     )
     .unwrap();
     let (w, h) = (cell.scene.camera.width, cell.scene.camera.height);
-    let frames: Vec<Frame> = cell.frames.iter().map(|f| frame_of(w, h, &f.rgb)).collect();
-    let segmenter = SegmenterConfig::by_name("builtin")
-        .unwrap()
-        .build(std::path::Path::new("run.json"))
-        .unwrap();
-    let err = segmenter.segment(&frames[0]).unwrap_err().to_string();
-    assert!(err.contains("initial_guess"), "{err}");
-    let inputs: Vec<ViewInput> = frames
+    let frames = cell.frames.iter().map(|f| frame_of(w, h, &f.rgb)).collect();
+    (cell, frames)
+}
+
+/// Every frame without a prior.
+fn without_prior(frames: &[Frame]) -> Vec<ViewInput<'_>> {
+    frames
         .iter()
         .map(|frame| ViewInput {
             frame,
             prior: None,
             band_px: 8.0,
         })
-        .collect();
+        .collect()
+}
+
+/// Without any prior, a robot that moves between views is found from the background plate
+/// alone, and a single frame without a prior is refused with a reason, never guessed.
+#[test]
+fn builtin_needs_context_and_uses_the_plate() {
+    let (cell, frames) = plate_cell(3);
+    let segmenter = SegmenterConfig::by_name("builtin")
+        .unwrap()
+        .build(std::path::Path::new("run.json"))
+        .unwrap();
+    let err = segmenter.segment(&frames[0]).unwrap_err().to_string();
+    assert!(err.contains("initial_guess"), "{err}");
+    let inputs = without_prior(&frames);
     let masks: Vec<Mask> = segmenter.segment_views(&inputs).unwrap();
     // The moving links are found; only the links that never move (the base) can be missed.
     for (m, f) in masks.iter().zip(&cell.frames) {
@@ -150,27 +161,9 @@ fn builtin_needs_context_and_uses_the_plate() {
 /// the truth, so evidence without a prior is a selector among candidates, not a segmentation.
 #[test]
 fn builtin_evidence_scores_the_true_silhouette_highest() {
-    let robot = Arc::new(common::load_robot("xarm6"));
-    let cell = generate_frames(
-        &robot,
-        &SynthOptions {
-            seed: 4,
-            views: 5,
-            ..SynthOptions::default()
-        },
-        &SceneSettings::default(),
-    )
-    .unwrap();
+    let (cell, frames) = plate_cell(4);
     let (w, h) = (cell.scene.camera.width, cell.scene.camera.height);
-    let frames: Vec<Frame> = cell.frames.iter().map(|f| frame_of(w, h, &f.rgb)).collect();
-    let inputs: Vec<ViewInput> = frames
-        .iter()
-        .map(|frame| ViewInput {
-            frame,
-            prior: None,
-            band_px: 8.0,
-        })
-        .collect();
+    let inputs = without_prior(&frames);
     let params = easyhec::segment::BuiltinParams::default();
     let (masks, evidence) =
         easyhec::segment::builtin::segment_views_with_evidence(&inputs, &params).unwrap();
