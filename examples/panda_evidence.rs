@@ -20,22 +20,12 @@ use easyhec::geometry::{exp_se3, rotation_error_deg, translation_error_mm, Twist
 use easyhec::nalgebra::{Isometry3, Vector3};
 use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use easyhec::run::{load_run, load_run_with, MaskSource};
-use easyhec::segment::builtin::segment_views_with_evidence;
+use easyhec::segment::builtin::{evidence_over as region_score, segment_views_with_evidence};
 use easyhec::segment::{BuiltinParams, ViewInput};
 use easyhec::solve::{solve, SolveOptions, View};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use std::path::Path;
-
-/// Summed evidence over the robot pixels of `mask`.
-fn region_score(mask: &easyhec::mask::Mask, evidence: &[f32]) -> f64 {
-    mask.data
-        .iter()
-        .zip(evidence)
-        .filter(|(m, _)| **m != 0)
-        .map(|(_, e)| f64::from(*e))
-        .sum()
-}
 
 /// Evidence summed over `factor` x `factor` blocks.
 fn downsample(e: &[f32], w: usize, h: usize, factor: usize) -> Vec<f32> {

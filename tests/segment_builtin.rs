@@ -171,14 +171,7 @@ fn builtin_evidence_scores_the_true_silhouette_highest() {
         masks,
         easyhec::segment::builtin::segment_views(&inputs, &params).unwrap()
     );
-    let score = |m: &Mask, e: &[f32]| -> f64 {
-        m.data
-            .iter()
-            .zip(e)
-            .filter(|(a, _)| **a != 0)
-            .map(|(_, x)| f64::from(*x))
-            .sum()
-    };
+    let score = easyhec::segment::builtin::evidence_over;
     for (k, (f, e)) in cell.frames.iter().zip(&evidence).enumerate() {
         assert_eq!(e.len(), (w * h) as usize);
         let truth = score(&f.truth_mask, e);

@@ -67,7 +67,7 @@ type Rgb = [f32; 3];
 
 /// Segments all views of one static camera together (see the module docs).
 pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<Vec<Mask>> {
-    Ok(segment_views_with_evidence(views, params)?.0)
+    Ok(segment(views, params, false)?.0)
 }
 
 /// [`segment_views`], also returning each view's per-pixel log-odds for robot before
@@ -75,6 +75,26 @@ pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<
 pub fn segment_views_with_evidence(
     views: &[ViewInput<'_>],
     params: &BuiltinParams,
+) -> Result<(Vec<Mask>, Vec<Vec<f32>>)> {
+    segment(views, params, true)
+}
+
+/// A silhouette's region score: `evidence` (from [`segment_views_with_evidence`]) summed over
+/// the robot pixels of `mask`, the same size. Higher where the silhouette covers what changed.
+pub fn evidence_over(mask: &Mask, evidence: &[f32]) -> f64 {
+    mask.data
+        .iter()
+        .zip(evidence)
+        .filter(|(m, _)| **m != 0)
+        .map(|(_, e)| f64::from(*e))
+        .sum()
+}
+
+/// Both entry points; the last pass's evidence is kept only `with_evidence` (empty otherwise).
+fn segment(
+    views: &[ViewInput<'_>],
+    params: &BuiltinParams,
+    with_evidence: bool,
 ) -> Result<(Vec<Mask>, Vec<Vec<f32>>)> {
     let Some(first) = views.first() else {
         return Ok((Vec::new(), Vec::new()));
@@ -133,8 +153,8 @@ pub fn segment_views_with_evidence(
         })
         .collect();
     let mut gains = vec![[1f32; 3]; views.len()];
-    let mut masks = Vec::new();
-    let mut evidence = Vec::new();
+    let mut masks: Vec<Mask> = Vec::new();
+    let mut evidence: Vec<Vec<f32>> = Vec::new();
     for pass in 0..2 {
         let plate = background_plate(&images, &gains, &excluded, w * h);
         gains = images
@@ -171,21 +191,8 @@ pub fn segment_views_with_evidence(
             })
             .collect();
         let colour = ColourModel::learn(&images, &gains, &unary);
-        evidence = (0..views.len())
-            .into_par_iter()
-            .map(|v| {
-                (0..w * h)
-                    .map(|i| {
-                        let prior = priors[v]
-                            .as_ref()
-                            .map_or(0.0, |sd| prior_llr(sd[i], bands[v]));
-                        unary[v][i] - prior
-                            + params.colour_weight * colour.llr(&scaled(&images[v][i], &gains[v]))
-                    })
-                    .collect()
-            })
-            .collect();
-        masks = (0..views.len())
+        let keep_evidence = with_evidence && pass == 1;
+        (masks, evidence) = (0..views.len())
             .into_par_iter()
             .map(|v| {
                 let img = &images[v];
@@ -196,9 +203,19 @@ pub fn segment_views_with_evidence(
                     .map(|(&u, px)| u + params.colour_weight * colour.llr(&scaled(px, &g)))
                     .collect();
                 let labels = mean_field(&total, img, w, h, params);
-                cleanup(labels, priors[v].as_deref(), bands[v], w, h, params)
+                let mask = cleanup(labels, priors[v].as_deref(), bands[v], w, h, params);
+                let evidence = match (&priors[v], keep_evidence) {
+                    (_, false) => Vec::new(),
+                    (None, true) => total,
+                    (Some(sd), true) => total
+                        .iter()
+                        .zip(sd)
+                        .map(|(&t, &d)| t - prior_llr(d, bands[v]))
+                        .collect(),
+                };
+                (mask, evidence)
             })
-            .collect::<Vec<Mask>>();
+            .unzip();
         if pass == 0 {
             // Second pass: each view lends exactly the pixels its own mask leaves free (with
             // a margin), which is tighter than a wide prior band and exists without a prior.
