@@ -13,6 +13,16 @@
 //! - `search`: looks for the camera pose itself by the region score (views scored by their
 //!   positive part, so views with wrong joints cannot pull), from random poses around the run's
 //!   guess and from the automatic initialisation's hemisphere grid, refined coarse to fine.
+//! - `probe`: refines from the twelve grid poses nearest the reference and prints where each
+//!   ends and its score (the score's peak lies 7.7° from the reference).
+//! - `rank`: where the 40 grid poses nearest the reference rank among all of them at 1/16
+//!   resolution, under four ways of summing the views' region scores.
+//! - `chain POSE BANDS [VIEWS]`: from `POSE` (16 comma-separated row-major numbers), segments
+//!   every frame under the render with each band in `BANDS` (pixels, comma-separated) in turn
+//!   and solves; with `VIEWS` (comma-separated indices) only those views, else every view and
+//!   the consistency check. Prints the error against the reference after each band.
+//! - `pairs POSE BAND`: segments under `POSE`'s render with one band and solves every pair of
+//!   views, best mean IoU first.
 
 use easyhec::camera::Camera;
 use easyhec::consensus::{find_consensus, ConsensusOptions};
@@ -37,6 +47,15 @@ fn downsample(e: &[f32], w: usize, h: usize, factor: usize) -> Vec<f32> {
         }
     }
     out
+}
+
+/// One way of summing the views' region scores into a pose's score.
+type ViewSum = fn(&[f64]) -> f64;
+
+/// A pose from 16 comma-separated numbers, the 4x4 matrix row by row.
+fn parse_pose(text: &str) -> Isometry3<f64> {
+    let m: Vec<f64> = text.split(',').map(|x| x.trim().parse().unwrap()).collect();
+    easyhec::nalgebra::try_convert(easyhec::nalgebra::Matrix4::from_row_slice(&m)).unwrap()
 }
 
 fn main() {
@@ -183,6 +202,117 @@ fn main() {
         }
         return;
     }
+    // Builtin masks of every frame under `p`'s render with one band, and the views they make.
+    let segment_under =
+        |p: &Isometry3<f64>, band_px: f32| -> (Vec<easyhec::mask::Mask>, Vec<View>) {
+            let priors = easyhec::segment::refine::priors(&r, &run.camera, &robots, p);
+            let inputs: Vec<ViewInput> = frames
+                .iter()
+                .zip(&priors)
+                .map(|(frame, pr)| ViewInput {
+                    frame,
+                    prior: Some(pr),
+                    band_px,
+                })
+                .collect();
+            let (masks, _) = segment_views_with_evidence(&inputs, &params).unwrap();
+            let views = masks
+                .iter()
+                .zip(&robots)
+                .map(|(m, robot)| View {
+                    robot: robot.clone(),
+                    observed: run.camera.undistort_mask(m),
+                })
+                .collect();
+            (masks, views)
+        };
+    if mode == "pairs" {
+        let p = parse_pose(&args[3]);
+        let band_px: f32 = args[4].parse().unwrap();
+        let (_, bviews) = segment_under(&p, band_px);
+        let pairs: Vec<(usize, usize)> = (0..n)
+            .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+            .collect();
+        let mut res: Vec<(f64, String)> = pairs
+            .par_iter()
+            .map(|&(i, j)| {
+                let sub = vec![bviews[i].clone(), bviews[j].clone()];
+                let rep = solve(&r, &run.camera, &sub, &p, &opts).unwrap();
+                let q = rep.camera_from_base;
+                let all: Vec<f64> = (0..n)
+                    .map(|k| {
+                        r.render(&robots[k], &cam, &q, None)
+                            .mask
+                            .iou(&bviews[k].observed)
+                    })
+                    .collect();
+                (
+                    rep.mean_iou(),
+                    format!(
+                        "pair ({i},{j}): mean IoU {:.3}; all views {:?}; {:.2} deg / {:.1} mm",
+                        rep.mean_iou(),
+                        all.iter()
+                            .map(|x| (x * 100.0).round() / 100.0)
+                            .collect::<Vec<_>>(),
+                        rotation_error_deg(&q, &pose),
+                        translation_error_mm(&q, &pose)
+                    ),
+                )
+            })
+            .collect();
+        res.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for (_, line) in res {
+            println!("{line}");
+        }
+        return;
+    }
+    if mode == "chain" {
+        let mut p = parse_pose(&args[3]);
+        let bands: Vec<f32> = args[4].split(',').map(|x| x.parse().unwrap()).collect();
+        let only: Option<Vec<usize>> = args
+            .get(5)
+            .map(|a| a.split(',').map(|x| x.parse().unwrap()).collect());
+        for band_px in bands {
+            let (masks, bviews) = segment_under(&p, band_px);
+            let ious: Vec<f64> = masks
+                .iter()
+                .zip(&run.views)
+                .map(|(m, v)| m.iou(&v.observed))
+                .collect();
+            let (rep, kept) = match &only {
+                Some(k) => {
+                    let sub: Vec<View> = k.iter().map(|&i| bviews[i].clone()).collect();
+                    (solve(&r, &run.camera, &sub, &p, &opts).unwrap(), k.clone())
+                }
+                None => {
+                    let all = solve(&r, &run.camera, &bviews, &p, &opts).unwrap();
+                    match find_consensus(
+                        &r,
+                        &run.camera,
+                        &bviews,
+                        &all,
+                        &opts,
+                        &ConsensusOptions::default(),
+                    )
+                    .unwrap()
+                    {
+                        Some(c) => (c.report, c.kept),
+                        None => (all, (0..n).collect()),
+                    }
+                }
+            };
+            p = rep.camera_from_base;
+            println!(
+                "band {band_px}: mask IoU vs provided {:?}; solve kept {:?} mean IoU {:.3}; {:.2} deg / {:.1} mm from the reference",
+                ious.iter().map(|x| (x * 100.0).round() / 100.0).collect::<Vec<_>>(),
+                kept,
+                rep.mean_iou(),
+                rotation_error_deg(&p, &pose),
+                translation_error_mm(&p, &pose)
+            );
+        }
+        return;
+    }
     // search: the camera pose by the region score, coarse to fine.
     let levels: Vec<(Camera, Vec<Vec<f32>>, Vec<PosedRobot>)> = [16usize, 8, 4, 2]
         .iter()
@@ -259,6 +389,119 @@ fn main() {
         nearest.0,
         nearest.1
     );
+    let refine = |start: Isometry3<f64>, level: usize| -> (f64, Isometry3<f64>) {
+        let mut p = start;
+        let mut best = 0.0;
+        for (level, m, deg) in [
+            (level, 0.04, 4.0),
+            (level, 0.02, 2.0),
+            (1, 0.02, 2.0),
+            (2, 0.01, 1.0),
+            (3, 0.005, 0.5),
+            (9, 0.002, 0.2),
+            (9, 0.001, 0.1),
+        ] {
+            best = robust(&p, level);
+            let mut improved = true;
+            while improved {
+                improved = false;
+                for d in 0..6 {
+                    for sign in [-1.0, 1.0] {
+                        let mut xi = Twist::zeros();
+                        xi[d] = sign * if d < 3 { m } else { f64::to_radians(deg) };
+                        let cand = exp_se3(&xi) * p;
+                        let v = robust(&cand, level);
+                        if v > best + 1e-5 {
+                            (best, p, improved) = (v, cand, true);
+                        }
+                    }
+                }
+            }
+        }
+        (best, p)
+    };
+    let per_view = |p: &Isometry3<f64>, level: usize| -> Vec<f64> {
+        let (low, ev, dec) = &levels[level];
+        (0..n)
+            .map(|k| region_score(&r.render(&dec[k], low, p, None).mask, &ev[k]) / positive[k])
+            .collect()
+    };
+    if mode == "rank" {
+        let t0 = std::time::Instant::now();
+        let raw: Vec<Vec<f64>> = grid.par_iter().map(|p| per_view(p, 0)).collect();
+        println!(
+            "scored {} at level 0 in {:.1} s",
+            grid.len(),
+            t0.elapsed().as_secs_f64()
+        );
+        let d = |p: &Isometry3<f64>| {
+            rotation_error_deg(p, &pose) + translation_error_mm(p, &pose) / 10.0
+        };
+        let mut near: Vec<usize> = (0..grid.len()).collect();
+        near.sort_by(|&a, &b| d(&grid[a]).total_cmp(&d(&grid[b])));
+        let near: Vec<usize> = near.into_iter().take(40).collect();
+        let scores: [(&str, ViewSum); 4] = [
+            ("plain", |v| v.iter().sum()),
+            ("robust", |v| v.iter().map(|x| x.max(0.0)).sum()),
+            ("top3", |v| {
+                let mut s = v.to_vec();
+                s.sort_by(|a, b| b.total_cmp(a));
+                s[..3].iter().sum()
+            }),
+            ("max", |v| v.iter().copied().fold(f64::MIN, f64::max)),
+        ];
+        for (name, f) in &scores {
+            let sc: Vec<f64> = raw.iter().map(|v| f(v)).collect();
+            let mut order: Vec<usize> = (0..grid.len()).collect();
+            order.sort_by(|&a, &b| sc[b].total_cmp(&sc[a]));
+            let mut rank = vec![0usize; grid.len()];
+            for (r, &i) in order.iter().enumerate() {
+                rank[i] = r;
+            }
+            let mut rs: Vec<usize> = near.iter().map(|&i| rank[i]).collect();
+            rs.sort();
+            println!("{name}: ranks of the 40 nearest grid poses {:?}", &rs[..10]);
+        }
+        return;
+    }
+    if mode == "probe" {
+        let t0 = std::time::Instant::now();
+        let scored: Vec<f64> = grid.par_iter().map(|p| robust(p, 0)).collect();
+        println!(
+            "scored {} at level 0 in {:.1} s",
+            grid.len(),
+            t0.elapsed().as_secs_f64()
+        );
+        let mut order: Vec<usize> = (0..grid.len()).collect();
+        order.sort_by(|&a, &b| scored[b].total_cmp(&scored[a]));
+        let mut rank = vec![0usize; grid.len()];
+        for (r, &i) in order.iter().enumerate() {
+            rank[i] = r;
+        }
+        let mut near: Vec<usize> = (0..grid.len()).collect();
+        let d = |p: &Isometry3<f64>| {
+            rotation_error_deg(p, &pose) + translation_error_mm(p, &pose) / 10.0
+        };
+        near.sort_by(|&a, &b| d(&grid[a]).total_cmp(&d(&grid[b])));
+        for &i in near.iter().take(12) {
+            let t = std::time::Instant::now();
+            let (s, p) = refine(grid[i], 0);
+            println!(
+                "grid {:.1} deg / {:.0} mm off, level-0 score {:.3} rank {}; refined score {s:.3}, {:.2} deg / {:.1} mm off ({:.1} s)",
+                rotation_error_deg(&grid[i], &pose),
+                translation_error_mm(&grid[i], &pose),
+                scored[i],
+                rank[i],
+                rotation_error_deg(&p, &pose),
+                translation_error_mm(&p, &pose),
+                t.elapsed().as_secs_f64()
+            );
+            if s > 0.9 {
+                println!("pose {:?}", p.to_homogeneous().transpose().as_slice());
+            }
+        }
+        return;
+    }
     for (label, hypotheses, level) in [
         ("around the guess", around_guess, 2),
         ("hemisphere grid", grid, 0),
@@ -279,34 +522,7 @@ fn main() {
             }
         }
         for start in starts {
-            let mut p = start;
-            let mut best = 0.0;
-            for (level, m, deg) in [
-                (level, 0.04, 4.0),
-                (level, 0.02, 2.0),
-                (1, 0.02, 2.0),
-                (2, 0.01, 1.0),
-                (3, 0.005, 0.5),
-                (9, 0.002, 0.2),
-                (9, 0.001, 0.1),
-            ] {
-                best = robust(&p, level);
-                let mut improved = true;
-                while improved {
-                    improved = false;
-                    for d in 0..6 {
-                        for sign in [-1.0, 1.0] {
-                            let mut xi = Twist::zeros();
-                            xi[d] = sign * if d < 3 { m } else { f64::to_radians(deg) };
-                            let cand = exp_se3(&xi) * p;
-                            let v = robust(&cand, level);
-                            if v > best + 1e-5 {
-                                (best, p, improved) = (v, cand, true);
-                            }
-                        }
-                    }
-                }
-            }
+            let (best, p) = refine(start, level);
             println!(
                 "{label}: refined to score {best:.3}, {:.2} deg / {:.1} mm from the reference",
                 rotation_error_deg(&p, &pose),
