@@ -20,9 +20,16 @@
 //! - `chain POSE BANDS [VIEWS]`: from `POSE` (16 comma-separated row-major numbers), segments
 //!   every frame under the render with each band in `BANDS` (pixels, comma-separated) in turn
 //!   and solves; with `VIEWS` (comma-separated indices) only those views, else every view and
-//!   the consistency check. Prints the error against the reference after each band.
+//!   the consistency check. Prints the error against the reference after each band. With a
+//!   sixth argument `finish`, then refits every view's joints at the chained pose by the
+//!   region score, segments under them (4, 8 and 16 px) and solves every view with the
+//!   consistency check, printing the masks' IoU against the provided ones and the error.
 //! - `pairs POSE BAND`: segments under `POSE`'s render with one band and solves every pair of
 //!   views, best mean IoU first.
+//! - `pairchain POSE BANDS`: for every pair of views, `chain` restricted to that pair (each
+//!   band re-segments all frames under the pair's latest pose); ranks the pairs by their IoU
+//!   on their own last masks, by the region score of their render and by the IoU on a
+//!   re-segmentation with the first band.
 
 use easyhec::camera::Camera;
 use easyhec::consensus::{find_consensus, ConsensusOptions};
@@ -123,71 +130,61 @@ fn main() {
         .iter()
         .map(|e| e.iter().map(|&x| f64::from(x.max(0.0))).sum())
         .collect();
-    if mode == "joints" {
+    // Each view's joints refitted at `at` by the region score alone (the library's refit).
+    let recorded: Vec<Vec<f64>> = run.views.iter().map(|v| v.joints.clone()).collect();
+    let refit_joints = |at: &Isometry3<f64>, verbose: bool| -> Vec<PosedRobot> {
         let render = |q: &[f64]| {
-            r.render(&PosedRobot::new(&run.robot, q), &cam, &pose, None)
+            r.render(&PosedRobot::new(&run.robot, q), &cam, at, None)
                 .mask
         };
         let mut fitted = Vec::new();
         for (k, (view, ev)) in run.views.iter().zip(&evidence).enumerate() {
-            let own = &view.joints;
-            let score = |q: &[f64]| region_score(&render(q), ev);
-            let mut best_q = own.clone();
-            let mut best = score(own);
-            for other in &run.views {
-                for t in [0.25, 0.5, 0.75, 1.0] {
-                    let q: Vec<f64> = own
-                        .iter()
-                        .zip(&other.joints)
-                        .map(|(a, b)| a + t * (b - a))
-                        .collect();
-                    let s = score(&q);
-                    if s > best {
-                        (best, best_q) = (s, q);
-                    }
-                }
-            }
-            let candidate_iou = render(&best_q).iou(&view.observed);
-            for step in [0.1, 0.05, 0.02, 0.01] {
-                let mut improved = true;
-                while improved {
-                    improved = false;
-                    for j in 0..7 {
-                        for s in [-step, step] {
-                            let mut q = best_q.clone();
-                            q[j] += s;
-                            let v = score(&q);
-                            if v > best + 1e-3 {
-                                (best, best_q, improved) = (v, q, true);
-                            }
-                        }
-                    }
-                }
-            }
-            println!(
-                "view {k}: IoU against the provided mask with its recorded joints {:.3}, best candidate {candidate_iou:.3}, refined {:.3}",
-                render(own).iou(&view.observed),
-                render(&best_q).iou(&view.observed)
+            let best_q = easyhec::segment::refine::refit_joints(
+                &r,
+                &run.camera,
+                &run.robot,
+                &recorded,
+                k,
+                ev,
+                at,
             );
+            if verbose {
+                println!(
+                    "view {k}: IoU against the provided mask with its recorded joints {:.3}, refitted {:.3}",
+                    render(&view.joints).iou(&view.observed),
+                    render(&best_q).iou(&view.observed)
+                );
+            }
             fitted.push(PosedRobot::new(&run.robot, &best_q));
         }
+        fitted
+    };
+    // Builtin masks of every frame under the render of `fitted` at `at`, and their IoU against
+    // the provided masks.
+    let masks_under_fitted = |at: &Isometry3<f64>, fitted: &[PosedRobot], band_px: f32| {
+        let priors = easyhec::segment::refine::priors(&r, &run.camera, fitted, at);
+        let inputs: Vec<ViewInput> = frames
+            .iter()
+            .zip(&priors)
+            .map(|(frame, p)| ViewInput {
+                frame,
+                prior: Some(p),
+                band_px,
+            })
+            .collect();
+        let (masks, _) = segment_views_with_evidence(&inputs, &params).unwrap();
+        let ious: Vec<f64> = masks
+            .iter()
+            .zip(&run.views)
+            .map(|(m, v)| m.iou(&v.observed))
+            .collect();
+        (masks, ious)
+    };
+    if mode == "joints" {
+        let fitted = refit_joints(&pose, true);
         let priors = easyhec::segment::refine::priors(&r, &run.camera, &fitted, &pose);
         for band_px in [4.0f32, 8.0] {
-            let inputs: Vec<ViewInput> = frames
-                .iter()
-                .zip(&priors)
-                .map(|(frame, p)| ViewInput {
-                    frame,
-                    prior: Some(p),
-                    band_px,
-                })
-                .collect();
-            let (masks, _) = segment_views_with_evidence(&inputs, &params).unwrap();
-            let ious: Vec<f64> = masks
-                .iter()
-                .zip(&run.views)
-                .map(|(m, v)| m.iou(&v.observed))
-                .collect();
+            let (_, ious) = masks_under_fitted(&pose, &fitted, band_px);
             let prior_ious: Vec<f64> = priors
                 .iter()
                 .zip(&run.views)
@@ -266,6 +263,62 @@ fn main() {
         }
         return;
     }
+    if mode == "pairchain" {
+        let start = parse_pose(&args[3]);
+        let bands: Vec<f32> = args[4].split(',').map(|x| x.parse().unwrap()).collect();
+        let pairs: Vec<(usize, usize)> = (0..n)
+            .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+            .collect();
+        let mut res: Vec<(f64, f64, f64, String)> = pairs
+            .par_iter()
+            .map(|&(i, j)| {
+                let mut p = start;
+                let mut iou = 0.0;
+                for &band_px in &bands {
+                    let (_, bviews) = segment_under(&p, band_px);
+                    let sub = vec![bviews[i].clone(), bviews[j].clone()];
+                    let rep = solve(&r, &run.camera, &sub, &p, &opts).unwrap();
+                    p = rep.camera_from_base;
+                    iou = rep.mean_iou();
+                }
+                // Prior-free: the evidence over the pair's render at the pose it settled on.
+                let region: f64 = [i, j]
+                    .iter()
+                    .map(|&k| {
+                        region_score(&r.render(&robots[k], &cam, &p, None).mask, &evidence[k])
+                            / positive[k]
+                    })
+                    .sum::<f64>()
+                    / 2.0;
+                // The widest band again, under the settled pose.
+                let (_, wide) = segment_under(&p, bands[0]);
+                let wide_iou = [i, j]
+                    .iter()
+                    .map(|&k| r.render(&robots[k], &cam, &p, None).mask.iou(&wide[k].observed))
+                    .sum::<f64>()
+                    / 2.0;
+                (
+                    iou,
+                    region,
+                    wide_iou,
+                    format!(
+                        "pair ({i},{j}): settled IoU {iou:.3}, region {region:.3}, wide-band IoU {wide_iou:.3}; {:.2} deg / {:.1} mm",
+                        rotation_error_deg(&p, &pose),
+                        translation_error_mm(&p, &pose)
+                    ),
+                )
+            })
+            .collect();
+        for (name, key) in [("settled IoU", 0usize), ("region", 1), ("wide-band IoU", 2)] {
+            let k = |x: &(f64, f64, f64, String)| [x.0, x.1, x.2][key];
+            res.sort_by(|a, b| k(b).total_cmp(&k(a)));
+            println!("by {name}:");
+            for x in res.iter().take(8) {
+                println!("  {}", x.3);
+            }
+        }
+        return;
+    }
     if mode == "chain" {
         let mut p = parse_pose(&args[3]);
         let bands: Vec<f32> = args[4].split(',').map(|x| x.parse().unwrap()).collect();
@@ -310,6 +363,46 @@ fn main() {
                 rotation_error_deg(&p, &pose),
                 translation_error_mm(&p, &pose)
             );
+        }
+        if args.get(6).map(String::as_str) == Some("finish") {
+            // The masks: every view's joints refitted at the chained pose, segmented under them.
+            let fitted = refit_joints(&p, false);
+            for band_px in [4.0f32, 8.0, 16.0] {
+                let (masks, ious) = masks_under_fitted(&p, &fitted, band_px);
+                // The calibration: those masks with the recorded joints, every view, the
+                // consistency check, from the chained pose.
+                let fviews: Vec<View> = masks
+                    .iter()
+                    .zip(&robots)
+                    .map(|(m, robot)| View {
+                        robot: robot.clone(),
+                        observed: run.camera.undistort_mask(m),
+                    })
+                    .collect();
+                let all = solve(&r, &run.camera, &fviews, &p, &opts).unwrap();
+                let (rep, kept) = match find_consensus(
+                    &r,
+                    &run.camera,
+                    &fviews,
+                    &all,
+                    &opts,
+                    &ConsensusOptions::default(),
+                )
+                .unwrap()
+                {
+                    Some(c) => (c.report, c.kept),
+                    None => (all, (0..n).collect()),
+                };
+                let q = rep.camera_from_base;
+                println!(
+                    "finish, band {band_px}: masks under refitted joints mean IoU {:.3} (min {:.3}); solve kept {kept:?} mean IoU {:.3}; {:.2} deg / {:.1} mm from the reference",
+                    ious.iter().sum::<f64>() / n as f64,
+                    ious.iter().copied().fold(1.0, f64::min),
+                    rep.mean_iou(),
+                    rotation_error_deg(&q, &pose),
+                    translation_error_mm(&q, &pose)
+                );
+            }
         }
         return;
     }

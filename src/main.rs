@@ -665,6 +665,48 @@ fn segment_run(
         settled.rounds,
         settled.report.mean_iou()
     );
+    // No pose fits the masks: some views' joints may not describe their images. Find the two
+    // views that agree on a pose, from the images alone.
+    let settled = if settled.report.mean_iou() < refine::POOR_FIT_IOU && segmenter.uses_context() {
+        let joints: Vec<Vec<f64>> = need.iter().map(|&i| run.views[i].joints.clone()).collect();
+        let t = Instant::now();
+        match refine::search_view_pairs(
+            renderer,
+            &run.camera,
+            segmenter.as_ref(),
+            &frame_refs,
+            &run.robot,
+            &joints,
+            &settled.report.camera_from_base,
+            &SolveOptions::default(),
+            &refine::PairSearchOptions::default(),
+        )? {
+            Some(found) => {
+                let (i, j) = found.pair;
+                let runner_up = found.runner_up.map_or(String::new(), |((a, b), s)| {
+                    format!(", next views {} and {} at {s:.3}", need[a], need[b])
+                });
+                eprintln!(
+                    "segmenter {name}: the masks fit no pose, so every pair of views was tried: views {} and {} agree best (IoU {:.3} on masks under their own pose{runner_up}; {:.1} s); masks redrawn around joints refitted to each image, the pair fits them at IoU {:.3}",
+                    need[i],
+                    need[j],
+                    found.score,
+                    t.elapsed().as_secs_f64(),
+                    found.settled.report.mean_iou()
+                );
+                found.settled
+            }
+            None => {
+                eprintln!(
+                    "segmenter {name}: the masks fit no pose and no pair of views agrees on one ({:.1} s)",
+                    t.elapsed().as_secs_f64()
+                );
+                settled
+            }
+        }
+    } else {
+        settled
+    };
     for (&i, mask) in need.iter().zip(&settled.masks) {
         if let Some(dir) = masks_out {
             easyhec::io::write_atomic(&dir.join(format!("{i:03}.mask.png")), &mask.to_png_bytes())?;

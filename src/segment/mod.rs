@@ -43,6 +43,13 @@ pub trait Segmenter: Send + Sync {
     fn uses_context(&self) -> bool {
         false
     }
+
+    /// Per-pixel log-odds for robot from the images alone (no prior), one per frame, when the
+    /// segmenter has such evidence: it lets a caller fit each view's joints to its image where
+    /// the recorded ones are wrong ([`refine::search_view_pairs`]). None by default.
+    fn evidence(&self, _frames: &[&Frame]) -> Result<Option<Vec<Vec<f32>>>> {
+        Ok(None)
+    }
 }
 
 /// `[segmenter]` in a cell config.
@@ -323,6 +330,21 @@ impl Segmenter for Builtin {
 
     fn uses_context(&self) -> bool {
         true
+    }
+
+    /// Change and colour evidence with no prior (the plate from every view).
+    fn evidence(&self, frames: &[&Frame]) -> Result<Option<Vec<Vec<f32>>>> {
+        let views: Vec<ViewInput> = frames
+            .iter()
+            .map(|frame| ViewInput {
+                frame,
+                prior: None,
+                band_px: self.min_band_px,
+            })
+            .collect();
+        Ok(Some(
+            builtin::segment_views_with_evidence(&views, &self.params)?.1,
+        ))
     }
 }
 

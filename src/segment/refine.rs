@@ -9,8 +9,11 @@ use crate::camera::Camera;
 use crate::error::Result;
 use crate::mask::Mask;
 use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::robot::RobotModel;
+use crate::segment::builtin::evidence_over;
 use crate::segment::{Segmenter, ViewInput};
 use crate::solve::{solve, SolveOptions, SolveReport, View};
+use rayon::prelude::*;
 
 /// The robot's silhouettes under `camera_from_base`, in each frame's own (distorted) image:
 /// the prior a context-aware segmenter bounds its search with.
@@ -204,4 +207,216 @@ pub fn segment_and_solve(
         report,
         rounds: best.rounds + 1,
     })
+}
+
+/// Tuning of [`search_view_pairs`].
+#[derive(Clone, Debug)]
+pub struct PairSearchOptions {
+    /// Band (pixels) of the one segmentation every pair is first solved on: wide, because the
+    /// start pose is poor.
+    pub screen_band_px: f32,
+    /// How many of the best-fitting pairs are re-segmented under their own pose.
+    pub finalists: usize,
+    /// Band of that re-segmentation; the pair that fits its own masks best wins.
+    pub settle_band_px: f32,
+    /// Band of the final masks, drawn around each view's refitted joints.
+    pub final_band_px: f32,
+}
+
+impl Default for PairSearchOptions {
+    fn default() -> Self {
+        PairSearchOptions {
+            screen_band_px: 80.0,
+            finalists: 6,
+            settle_band_px: 40.0,
+            final_band_px: 4.0,
+        }
+    }
+}
+
+/// What [`search_view_pairs`] settled on.
+pub struct PairFound {
+    /// The two views (indices into the frames) whose solve fits its own masks best.
+    pub pair: (usize, usize),
+    /// That pair's mean IoU on masks segmented under its own pose.
+    pub score: f64,
+    /// The next-best finalist and its score, for the log: a close second means a weak choice.
+    pub runner_up: Option<((usize, usize), f64)>,
+    /// Every view's mask (drawn under its refitted joints where the segmenter has evidence)
+    /// and the pair's solve on them.
+    pub settled: Settled,
+}
+
+/// Every view pair, one segmentation under `start`; the best `finalists` re-segmented under
+/// their own pose; the best of those kept. For runs where no pose fits all views (recorded
+/// joints that do not describe their images, the README's Panda example) and the masks come
+/// from a context-aware segmenter: masks segmented around a wrong render fit no pose, the
+/// consistency check then has nothing to tell views apart with, and a solve of the right two
+/// views lands near the pose the provided masks give (0.45° / 4.5 mm on the Panda). The final
+/// masks are drawn around each view's joints refitted to the segmenter's own evidence at that
+/// pose ([`refit_joints`]): the recorded joints' render is a poor prior exactly where they are
+/// wrong. Returns None with fewer than three views or when the pair does not fit its final
+/// masks (mean IoU below [`POOR_FIT_IOU`]).
+#[allow(clippy::too_many_arguments)]
+pub fn search_view_pairs(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    segmenter: &dyn Segmenter,
+    frames: &[&Frame],
+    robot: &RobotModel,
+    joints: &[Vec<f64>],
+    start: &Isometry3<f64>,
+    solve_opts: &SolveOptions,
+    opts: &PairSearchOptions,
+) -> Result<Option<PairFound>> {
+    let n = frames.len();
+    if n < 3 || joints.len() != n {
+        return Ok(None);
+    }
+    let robots: Vec<PosedRobot> = joints.iter().map(|q| PosedRobot::new(robot, q)).collect();
+    let segment_under = |posed: &[PosedRobot], pose: &Isometry3<f64>, band_px: f32| {
+        let rendered = priors(renderer, camera, posed, pose);
+        let inputs: Vec<ViewInput> = frames
+            .iter()
+            .zip(&rendered)
+            .map(|(frame, prior)| ViewInput {
+                frame,
+                prior: Some(prior),
+                band_px,
+            })
+            .collect();
+        segmenter.segment_views(&inputs)
+    };
+    let view = |masks: &[Mask], k: usize| View {
+        robot: robots[k].clone(),
+        observed: camera.undistort_mask(&masks[k]),
+    };
+    // Pairs of views that disagree fit at IoU 0.5–0.6: the solve's recovery search (meant for
+    // a start in the wrong basin) and posterior refinement would cost most of the time and
+    // decide nothing, so the screening and settling solves go without them.
+    let quick = SolveOptions {
+        recover_below_iou: 0.0,
+        refine_samples: 0,
+        ..solve_opts.clone()
+    };
+    let solve_with =
+        |masks: &[Mask], (i, j): (usize, usize), from: &Isometry3<f64>, opts: &SolveOptions| {
+            solve(
+                renderer,
+                camera,
+                &[view(masks, i), view(masks, j)],
+                from,
+                opts,
+            )
+        };
+    let solve_pair = |masks: &[Mask], pair: (usize, usize), from: &Isometry3<f64>| {
+        solve_with(masks, pair, from, &quick)
+    };
+    let screen = segment_under(&robots, start, opts.screen_band_px)?;
+    let pairs: Vec<(usize, usize)> = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+        .collect();
+    // Screening only ranks the pairs: half resolution is enough.
+    let coarse = SolveOptions {
+        pyramid: quick.pyramid.iter().copied().filter(|&f| f > 1).collect(),
+        ..quick.clone()
+    };
+    let mut screened: Vec<((usize, usize), SolveReport)> = pairs
+        .par_iter()
+        .map(|&pair| Ok((pair, solve_with(&screen, pair, start, &coarse)?)))
+        .collect::<Result<_>>()?;
+    screened.sort_by(|a, b| b.1.mean_iou().total_cmp(&a.1.mean_iou()));
+    screened.truncate(opts.finalists.max(1));
+    let mut finals: Vec<((usize, usize), SolveReport)> = screened
+        .par_iter()
+        .map(|(pair, report)| {
+            let masks = segment_under(&robots, &report.camera_from_base, opts.settle_band_px)?;
+            Ok((*pair, solve_pair(&masks, *pair, &report.camera_from_base)?))
+        })
+        .collect::<Result<_>>()?;
+    finals.sort_by(|a, b| b.1.mean_iou().total_cmp(&a.1.mean_iou()));
+    let (pair, best) = finals[0].clone();
+    let runner_up = finals.get(1).map(|(p, r)| (*p, r.mean_iou()));
+    let pose = best.camera_from_base;
+    let posed = match segmenter.evidence(frames)? {
+        Some(evidence) => (0..n)
+            .into_par_iter()
+            .map(|k| {
+                let q = refit_joints(renderer, camera, robot, joints, k, &evidence[k], &pose);
+                PosedRobot::new(robot, &q)
+            })
+            .collect(),
+        None => robots.clone(),
+    };
+    let masks = segment_under(&posed, &pose, opts.final_band_px)?;
+    let report = solve_with(&masks, pair, &pose, solve_opts)?;
+    if report.mean_iou() < POOR_FIT_IOU {
+        return Ok(None);
+    }
+    Ok(Some(PairFound {
+        pair,
+        score: best.mean_iou(),
+        runner_up,
+        settled: Settled {
+            masks,
+            report,
+            rounds: 3,
+        },
+    }))
+}
+
+/// View `k`'s joints refitted to its image at `camera_from_base`: the recorded vector, or one
+/// part of the way (a quarter to all of it) towards another view's, whichever render covers
+/// the most `evidence` (per-pixel log-odds for robot, [`Segmenter::evidence`]); then each
+/// joint in turn, in steps from 0.1 down to 0.01 rad. For drawing masks only: the solve keeps
+/// the recorded joints, so a refitted view still has to agree with the others to be used.
+pub fn refit_joints(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Camera,
+    robot: &RobotModel,
+    joints: &[Vec<f64>],
+    k: usize,
+    evidence: &[f32],
+    camera_from_base: &Isometry3<f64>,
+) -> Vec<f64> {
+    let score = |q: &[f64]| {
+        let posed = [PosedRobot::new(robot, q)];
+        evidence_over(
+            &priors(renderer, camera, &posed, camera_from_base)[0],
+            evidence,
+        )
+    };
+    let own = &joints[k];
+    let mut best_q = own.clone();
+    let mut best = score(own);
+    for other in joints {
+        for t in [0.25, 0.5, 0.75, 1.0] {
+            let q: Vec<f64> = own
+                .iter()
+                .zip(other)
+                .map(|(a, b)| a + t * (b - a))
+                .collect();
+            let s = score(&q);
+            if s > best {
+                (best, best_q) = (s, q);
+            }
+        }
+    }
+    for step in [0.1, 0.05, 0.02, 0.01] {
+        let mut improved = true;
+        while improved {
+            improved = false;
+            for j in 0..best_q.len() {
+                for s in [-step, step] {
+                    let mut q = best_q.clone();
+                    q[j] += s;
+                    let v = score(&q);
+                    if v > best + 1e-3 {
+                        (best, best_q, improved) = (v, q, true);
+                    }
+                }
+            }
+        }
+    }
+    best_q
 }
