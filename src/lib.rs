@@ -11,7 +11,7 @@
 //! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
 //! - [`calibrate`], [`cell`], [`daemon`]: the closed loop on a configured cell, and the
 //!   long-running service around it (`easyhec daemon`).
-//! - [`synth`], [`interop`], [`overlay`], [`bench`]: synthetic runs, import/export, overlays,
+//! - [`synth`], [`interop`], [`overlay`], [`bench`](mod@bench): synthetic runs, import/export, overlays,
 //!   benchmarks.
 
 pub mod bench;

@@ -383,7 +383,7 @@ impl Store {
         write_json_atomic(&self.dir.join("active.json"), &copy)
     }
 
-    /// Appends a bump check (the latest [`CHECKS_KEPT`] are kept).
+    /// Appends a bump check (the latest `CHECKS_KEPT` are kept).
     pub fn push_check(&self, check: &CheckRecord) -> Result<()> {
         let mut inner = lock(&self.inner);
         inner.checks.push(check.clone());
