@@ -437,7 +437,13 @@ impl Daemon {
                 } else {
                     State::Succeeded
                 };
-                let result = o.result.clone();
+                // Activate before the record turns final: a client that sees "succeeded" may
+                // check against the active calibration at once (it got 409 in between).
+                if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
+                    if let Err(e) = self.store.activate(&id, o.result.clone(), &now()) {
+                        eprintln!("easyhec daemon: {id}: cannot activate: {e}");
+                    }
+                }
                 self.finish(job, state, |r| {
                     r.stop_reason = Some(o.result.stop_reason.clone());
                     r.camera_from_base = Some(o.result.camera_from_base);
@@ -459,11 +465,6 @@ impl Daemon {
                     state.name(),
                     o.result.stop_reason
                 );
-                if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
-                    if let Err(e) = self.store.activate(&id, result, &now()) {
-                        eprintln!("easyhec daemon: {id}: cannot activate: {e}");
-                    }
-                }
             }
             Err(e) => {
                 // The loop stops the arm when a move fails; stop again in case it failed
