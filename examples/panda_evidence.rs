@@ -202,17 +202,7 @@ fn main() {
     // Builtin masks of every frame under `p`'s render with one band, and the views they make.
     let segment_under =
         |p: &Isometry3<f64>, band_px: f32| -> (Vec<easyhec::mask::Mask>, Vec<View>) {
-            let priors = easyhec::segment::refine::priors(&r, &run.camera, &robots, p);
-            let inputs: Vec<ViewInput> = frames
-                .iter()
-                .zip(&priors)
-                .map(|(frame, pr)| ViewInput {
-                    frame,
-                    prior: Some(pr),
-                    band_px,
-                })
-                .collect();
-            let (masks, _) = segment_views_with_evidence(&inputs, &params).unwrap();
+            let (masks, _) = masks_under_fitted(p, &robots, band_px);
             let views = masks
                 .iter()
                 .zip(&robots)

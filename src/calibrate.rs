@@ -21,7 +21,7 @@ use crate::cell::{Cell, LookAt};
 
 use crate::error::{Error, Result};
 use crate::explore::{
-    camera_candidates, information_gain, view_information, CandidateSource, ExploreOptions,
+    camera_candidates, cost_reduction, view_terms, CandidateSource, ExploreOptions, ViewTerms,
 };
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
@@ -93,7 +93,7 @@ pub struct CalibrationSettings {
     #[serde(default)]
     pub score: ScoreSetting,
     /// Error of a reported joint position, radians (1 sigma, per view: encoder noise plus
-    /// kinematic error). `information` scoring discounts views a joint error could fake.
+    /// kinematic error). `information` scoring counts what such errors do to the estimate.
     #[serde(default = "default_joint_noise")]
     pub joint_noise_rad: f64,
     /// Renderer backend: `auto` (default: wgpu on a hardware GPU, the CPU otherwise), `cpu`
@@ -185,7 +185,8 @@ pub enum SelectionSetting {
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScoreSetting {
-    /// Expected shrinkage of the posterior's volume ([`crate::explore::information_gain`]).
+    /// How much a view lowers the predicted rotation and translation covariance of the
+    /// solver's estimate, joint errors included ([`crate::explore::cost_reduction`]).
     #[default]
     Information,
     /// Variance of the camera candidates' masks (method.md §5, the paper's score).
@@ -690,8 +691,8 @@ pub fn rank_poses(
             })
             .collect(),
         (SelectionSetting::Explore, ScoreSetting::Information) => {
-            let info = |posed: &PosedRobot, q: &[f64]| {
-                view_information(
+            let terms = |posed: &PosedRobot, q: &[f64]| {
+                view_terms(
                     &low,
                     pinhole.fx,
                     posed,
@@ -701,14 +702,16 @@ pub fn rank_poses(
                     settings.joint_noise_rad,
                 )
             };
-            // What the views taken so far know, on the same footing as the candidates
-            // (a tiny ridge keeps a one-view matrix invertible).
-            let current: Matrix6<f64> = taken
+            // What the views taken so far contribute, on the same footing as the candidates
+            // (a tiny ridge keeps a one-view outline matrix invertible).
+            let mut current: ViewTerms = taken
                 .par_iter()
-                .map(|q| info(&pose_coarse(q), q))
-                .reduce(Matrix6::zeros, |a, b| a + b)
-                + Matrix6::identity() * 1e-6;
-            let score = |posed: &PosedRobot, q: &[f64]| information_gain(&current, &info(posed, q));
+                .map(|q| terms(&pose_coarse(q), q))
+                .reduce(ViewTerms::zeros, |a, b| a + b);
+            current.outline_information += Matrix6::identity() * 1e-6;
+            let score = |posed: &PosedRobot, q: &[f64]| {
+                cost_reduction(&current, &terms(posed, q), &estimate)
+            };
             let mut scored: Vec<(Ranked, PosedRobot)> = in_view
                 .into_par_iter()
                 .map(|(in_image, q, posed)| {

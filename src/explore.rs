@@ -127,18 +127,46 @@ pub fn disagreement_cpu(camera: &Camera, robot: &PosedRobot, candidates: &[Isome
         / (k * k)
 }
 
-/// Information one view of `robot` carries about the camera pose, as a 6x6 matrix over the
-/// left se(3) increment, with the reported joints' errors marginalised out.
-///
-/// Each outline sample `s` (rendered at `estimate`) contributes `l_s j_s j_s^T / noise_px2`,
-/// with `j_s` its normal displacement per unit increment and `l_s` the outline length it
-/// stands for (full-resolution pixels). A joint error moves a whole link rigidly, which the
-/// outline sees exactly like a camera motion `Xi_L dq`; with `dq ~ N(0, joint_noise_rad^2)`
-/// per view the information left about the camera is the Schur complement
-/// `A - B (C + I / joint_noise_rad^2)^-1 B^T`. Views whose outline a joint error could fake
-/// are worth little, however long their outline: segmentation noise averages out along an
-/// outline, joint errors do not.
-pub fn view_information(
+/// What one view tells the solver about the camera pose, over the left se(3) increment
+/// `(rho, phi)`: how its outline pins the pose, and how its reported joints' errors push the
+/// solver's estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewTerms {
+    /// `A = sum_s l_s j_s j_s^T / noise_px2` over outline samples `s` (rendered at the
+    /// estimate): `j_s` the sample's normal displacement per unit increment, `l_s` the outline
+    /// length it stands for (full-resolution pixels). The solver's normal matrix for the view.
+    pub outline_information: Matrix6<f64>,
+    /// `S = sigma_q^2 B B^T`, `B = sum_links H_link Xi_link`: the covariance of the pull the
+    /// view's joint errors (`N(0, sigma_q^2)` per joint) put on the solver's normal equations.
+    /// A joint error moves a whole link rigidly, which the outline sees exactly like a camera
+    /// motion `Xi dq`; the solver, which takes the reported joints as true, follows it.
+    pub joint_scatter: Matrix6<f64>,
+}
+
+impl ViewTerms {
+    /// No views.
+    pub fn zeros() -> Self {
+        ViewTerms {
+            outline_information: Matrix6::zeros(),
+            joint_scatter: Matrix6::zeros(),
+        }
+    }
+}
+
+impl std::ops::Add for ViewTerms {
+    type Output = ViewTerms;
+    fn add(self, other: ViewTerms) -> ViewTerms {
+        ViewTerms {
+            outline_information: self.outline_information + other.outline_information,
+            joint_scatter: self.joint_scatter + other.joint_scatter,
+        }
+    }
+}
+
+/// [`ViewTerms`] of one view of `robot` rendered at `estimate` on `camera` (a scoring
+/// camera; `full_fx` is the full-resolution focal length the outline lengths and
+/// displacements are scaled to).
+pub fn view_terms(
     camera: &Camera,
     full_fx: f64,
     robot: &PosedRobot,
@@ -146,7 +174,7 @@ pub fn view_information(
     estimate: &Isometry3<f64>,
     noise_px2: f64,
     joint_noise_rad: f64,
-) -> Matrix6<f64> {
+) -> ViewTerms {
     let sil = crate::render::CpuRenderer.render(robot, camera, estimate, Some(1.0));
     let links = motions.first().map_or(0, |m| m.moves_link.len());
     // Per link: sum of l j j^T (scoring pixels).
@@ -163,40 +191,88 @@ pub fn view_information(
     // Scoring pixels -> full-resolution pixels: displacement and length each scale by f.
     let f = full_fx / camera.fx;
     let scale = f * f * f / noise_px2.max(1e-12);
-    let a: Matrix6<f64> = per_link.iter().sum::<Matrix6<f64>>() * scale;
+    let outline_information: Matrix6<f64> = per_link.iter().sum::<Matrix6<f64>>() * scale;
     let n = motions.len();
     if joint_noise_rad <= 0.0 || n == 0 {
-        return a;
+        return ViewTerms {
+            outline_information,
+            joint_scatter: Matrix6::zeros(),
+        };
     }
     let twists: Vec<Twist> = motions
         .iter()
         .map(|m| joint_twist_in_camera(m, estimate))
         .collect();
     let mut b = nalgebra::DMatrix::<f64>::zeros(6, n);
-    let mut c = nalgebra::DMatrix::<f64>::zeros(n, n);
     for (link, h) in per_link.iter().enumerate().take(links) {
         if h.iter().all(|v| *v == 0.0) {
             continue;
         }
-        let mut xi = nalgebra::DMatrix::<f64>::zeros(6, n);
         for (k, m) in motions.iter().enumerate() {
             if m.moves_link[link] {
-                xi.set_column(k, &twists[k]);
+                let col = h * twists[k] * scale;
+                let mut dst = b.column_mut(k);
+                dst += col;
             }
         }
-        let hd = nalgebra::DMatrix::from_iterator(6, 6, h.iter().copied()) * scale;
-        let hx = &hd * &xi;
-        c += xi.transpose() * &hx;
-        b += hx;
     }
-    for k in 0..n {
-        c[(k, k)] += 1.0 / (joint_noise_rad * joint_noise_rad);
+    let scatter = &b * b.transpose() * (joint_noise_rad * joint_noise_rad);
+    ViewTerms {
+        outline_information,
+        joint_scatter: Matrix6::from_iterator(scatter.iter().copied()),
     }
-    let Some(c_inv) = c.try_inverse() else {
-        return a;
+}
+
+/// Covariance of the solver's estimate from views whose terms sum to `terms`: the sandwich
+/// `A^-1 (A + S) A^-1`, since the solver weighs each view by its outline (`A`) whatever its
+/// joints' errors (`S`) do to it. `None` when the outlines leave a direction unpinned.
+pub fn estimate_covariance(terms: &ViewTerms) -> Option<Matrix6<f64>> {
+    let a = &terms.outline_information;
+    let a_inv = a.cholesky()?.inverse();
+    Some(a_inv * (a + terms.joint_scatter) * a_inv)
+}
+
+/// The selection's cost of a covariance of `camera_from_base`'s left increment:
+/// `ln det` of the rotation block plus `ln det` of the covariance of the translation
+/// `camera_from_base` reports (`rho - t x phi`, `t` its translation), so that views are
+/// chosen for the two errors the calibration is judged by, each independent of units.
+pub fn selection_cost(covariance: &Matrix6<f64>, camera_from_base: &Isometry3<f64>) -> f64 {
+    let t = camera_from_base.translation.vector;
+    let mut p = nalgebra::Matrix3x6::<f64>::zeros();
+    p.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&nalgebra::Matrix3::identity());
+    p.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(-t.cross_matrix()));
+    let translation = p * covariance * p.transpose();
+    let rotation = covariance.fixed_view::<3, 3>(3, 3).into_owned();
+    let ln_det = |m: &nalgebra::Matrix3<f64>| {
+        m.cholesky().map_or(f64::INFINITY, |c| {
+            2.0 * c.l().diagonal().iter().map(|v| v.ln()).sum::<f64>()
+        })
     };
-    let schur = &b * c_inv * b.transpose();
-    a - Matrix6::from_iterator(schur.iter().copied())
+    ln_det(&rotation) + ln_det(&translation)
+}
+
+/// How much adding a view with terms `candidate` to the views taken (`current`) lowers the
+/// [`selection_cost`] of the solver's estimate at `camera_from_base` (higher is better).
+pub fn cost_reduction(
+    current: &ViewTerms,
+    candidate: &ViewTerms,
+    camera_from_base: &Isometry3<f64>,
+) -> f64 {
+    let cost = |t: &ViewTerms| {
+        estimate_covariance(t).map_or(f64::INFINITY, |c| selection_cost(&c, camera_from_base))
+    };
+    let after = cost(&(*current + *candidate));
+    if !after.is_finite() {
+        return f64::NEG_INFINITY;
+    }
+    let before = cost(current);
+    if before.is_finite() {
+        before - after
+    } else {
+        -after
+    }
 }
 
 /// A joint's motion as a left se(3) increment in the camera frame: a link it moves by `dq`
@@ -210,20 +286,6 @@ pub fn joint_twist_in_camera(motion: &JointMotion, camera_from_base: &Isometry3<
         let o = (camera_from_base * motion.origin_base).coords;
         let rho = o.cross(&axis);
         Twist::new(rho.x, rho.y, rho.z, axis.x, axis.y, axis.z)
-    }
-}
-
-/// How much a view with information `candidate` would add to `current`: the log of the
-/// posterior volume's shrinkage, `log det(current + candidate) - log det(current)`
-/// (D-optimal design; invariant to how rotation and translation are scaled).
-pub fn information_gain(current: &Matrix6<f64>, candidate: &Matrix6<f64>) -> f64 {
-    let logdet = |m: &Matrix6<f64>| {
-        m.cholesky()
-            .map(|c| 2.0 * c.l().diagonal().iter().map(|v| v.ln()).sum::<f64>())
-    };
-    match (logdet(current), logdet(&(current + candidate))) {
-        (Some(a), Some(b)) => b - a,
-        _ => 0.0,
     }
 }
 
@@ -415,11 +477,25 @@ mod tests {
     use nalgebra::Vector3;
 
     #[test]
-    fn doubling_the_information_halves_each_variance() {
-        let current = Matrix6::from_diagonal(&Twist::new(4.0, 1.0, 9.0, 2.0, 3.0, 5.0));
-        assert!(information_gain(&current, &Matrix6::zeros()).abs() < 1e-12);
-        let g = information_gain(&current, &current);
+    fn doubling_every_view_halves_each_variance() {
+        let current = ViewTerms {
+            outline_information: Matrix6::from_diagonal(&Twist::new(4.0, 1.0, 9.0, 2.0, 3.0, 5.0)),
+            joint_scatter: Matrix6::from_diagonal(&Twist::new(1.0, 0.0, 2.0, 0.5, 0.0, 1.0)),
+        };
+        let pose = look_at_camera_from_base(
+            &Vector3::new(1.3, 0.5, 0.8),
+            &Vector3::new(0.1, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        assert!(cost_reduction(&current, &ViewTerms::zeros(), &pose).abs() < 1e-12);
+        // Twice the outline and twice the scatter: the sandwich covariance halves, so each
+        // 3x3 determinant drops by 2^3.
+        let g = cost_reduction(&current, &current, &pose);
         assert!((g - 6.0 * 2f64.ln()).abs() < 1e-9, "{g}");
+        // A view that pins nothing on its own still counts once the sum is invertible.
+        let none = ViewTerms::zeros();
+        assert!(cost_reduction(&none, &current, &pose).is_finite());
+        assert_eq!(cost_reduction(&none, &none, &pose), f64::NEG_INFINITY);
     }
 
     #[test]
@@ -459,7 +535,7 @@ mod tests {
     }
 
     #[test]
-    fn joint_errors_take_information_away_and_only_away() {
+    fn joint_errors_widen_the_estimate_and_only_widen_it() {
         let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
         let robot = RobotModel::from_urdf(urdf).unwrap();
         let q = [0.3, -0.4, -0.5, 0.2, 0.9, 0.1];
@@ -471,24 +547,29 @@ mod tests {
             &Vector3::z(),
         );
         let motions = robot.joint_motions(&q);
-        let info =
-            |noise| view_information(&camera, 600.0, &posed, &motions, &estimate, 0.3, noise);
-        let exact = info(0.0);
-        let noisy = info(0.0005);
+        let terms = |noise| view_terms(&camera, 600.0, &posed, &motions, &estimate, 0.3, noise);
+        let exact = terms(0.0);
+        let noisy = terms(0.0005);
+        // The outline's information does not depend on the joints' errors.
+        assert_eq!(exact.outline_information, noisy.outline_information);
+        assert_eq!(exact.joint_scatter, Matrix6::zeros());
         // Exact joints: one view pins all six degrees of freedom.
-        assert!(exact.cholesky().is_some());
-        // Marginalising joint errors removes a positive semi-definite part…
-        let removed = (exact - noisy).symmetric_eigen();
-        let largest = exact.symmetric_eigen().eigenvalues.max();
+        let cov_exact = estimate_covariance(&exact).expect("one view pins the pose");
+        let cov_noisy = estimate_covariance(&noisy).expect("one view pins the pose");
+        // Joint errors add a positive semi-definite part to the covariance…
+        let added = (cov_noisy - cov_exact).symmetric_eigen();
+        let largest = cov_noisy.symmetric_eigen().eigenvalues.max();
         assert!(
-            removed.eigenvalues.min() > -1e-9 * largest,
+            added.eigenvalues.min() > -1e-9 * largest,
             "{:?}",
-            removed.eigenvalues
+            added.eigenvalues
         );
-        // …and a real one: camera rotations a joint error can fake lose most of their weight.
-        let lost = 1.0 - noisy.determinant() / exact.determinant();
-        assert!(lost > 0.5, "determinant lost only {lost}");
-        // Larger joint errors take more.
-        assert!(info(0.002).determinant() < noisy.determinant());
+        // …and a real one: 0.5 mrad per joint at least doubles the predicted volume…
+        let grown = cov_noisy.determinant() / cov_exact.determinant();
+        assert!(grown > 2.0, "determinant grew only {grown}x");
+        // …and larger joint errors widen it more, in the calibration's own terms too.
+        let cov_worse = estimate_covariance(&terms(0.002)).unwrap();
+        assert!(cov_worse.determinant() > cov_noisy.determinant());
+        assert!(selection_cost(&cov_worse, &estimate) > selection_cost(&cov_noisy, &estimate));
     }
 }

@@ -32,6 +32,27 @@ pub fn priors(
         .collect()
 }
 
+/// Segments `frames` together, frame `i` under `rendered[i]` (when given) with band
+/// `bands_px[i]`: the one way every segment-and-solve step calls the segmenter.
+fn segment_frames(
+    segmenter: &dyn Segmenter,
+    frames: &[&Frame],
+    rendered: Option<&[Mask]>,
+    bands_px: &[f32],
+) -> Result<Vec<Mask>> {
+    let inputs: Vec<ViewInput> = frames
+        .iter()
+        .zip(bands_px)
+        .enumerate()
+        .map(|(i, (frame, &band_px))| ViewInput {
+            frame,
+            prior: rendered.map(|r| &r[i]),
+            band_px,
+        })
+        .collect();
+    segmenter.segment_views(&inputs)
+}
+
 /// Prior band per view, pixels: the smallest band, plus three sigma of the pose uncertainty
 /// projected into the image, plus the outline offset a view's misfit implies (a view that
 /// fits at IoU 0.7 has outlines about 0.3 · area / perimeter apart: wrong joints, a bad mask).
@@ -118,32 +139,19 @@ pub fn segment_and_solve(
     let resegment = |report: &SolveReport, floor_px: f32| -> Result<Vec<Mask>> {
         let rendered = priors(renderer, camera, robots, &report.camera_from_base);
         let bands = bands_px(camera, report, &rendered, floor_px);
-        let inputs: Vec<ViewInput> = frames
-            .iter()
-            .enumerate()
-            .map(|(i, f)| ViewInput {
-                frame: f,
-                prior: Some(&rendered[i]),
-                band_px: bands[i],
-            })
-            .collect();
-        segmenter.segment_views(&inputs)
+        segment_frames(segmenter, frames, Some(&rendered), &bands)
     };
     // One alternation; round 0 under `round0_prior`'s render (pose, band) when given, else
     // from the plate alone.
     let run = |round0_prior: Option<(&Isometry3<f64>, f32)>| -> Result<Settled> {
         let first_priors = round0_prior.map(|(pose, _)| priors(renderer, camera, robots, pose));
         let band0 = round0_prior.map_or(min_band_px, |(_, b)| b);
-        let inputs: Vec<ViewInput> = frames
-            .iter()
-            .enumerate()
-            .map(|(i, f)| ViewInput {
-                frame: f,
-                prior: first_priors.as_ref().map(|p| &p[i]),
-                band_px: band0,
-            })
-            .collect();
-        let mut masks = segmenter.segment_views(&inputs)?;
+        let mut masks = segment_frames(
+            segmenter,
+            frames,
+            first_priors.as_deref(),
+            &vec![band0; frames.len()],
+        )?;
         let mut views = views_of(&masks);
         let initial = start(&views)?;
         let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
@@ -276,16 +284,7 @@ pub fn search_view_pairs(
     let robots: Vec<PosedRobot> = joints.iter().map(|q| PosedRobot::new(robot, q)).collect();
     let segment_under = |posed: &[PosedRobot], pose: &Isometry3<f64>, band_px: f32| {
         let rendered = priors(renderer, camera, posed, pose);
-        let inputs: Vec<ViewInput> = frames
-            .iter()
-            .zip(&rendered)
-            .map(|(frame, prior)| ViewInput {
-                frame,
-                prior: Some(prior),
-                band_px,
-            })
-            .collect();
-        segmenter.segment_views(&inputs)
+        segment_frames(segmenter, frames, Some(&rendered), &vec![band_px; n])
     };
     let view = |masks: &[Mask], k: usize| View {
         robot: robots[k].clone(),
