@@ -237,13 +237,7 @@ pub fn estimate_covariance(terms: &ViewTerms) -> Option<Matrix6<f64>> {
 /// `camera_from_base` reports (`rho - t x phi`, `t` its translation), so that views are
 /// chosen for the two errors the calibration is judged by, each independent of units.
 pub fn selection_cost(covariance: &Matrix6<f64>, camera_from_base: &Isometry3<f64>) -> f64 {
-    let t = camera_from_base.translation.vector;
-    let mut p = nalgebra::Matrix3x6::<f64>::zeros();
-    p.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&nalgebra::Matrix3::identity());
-    p.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&(-t.cross_matrix()));
-    let translation = p * covariance * p.transpose();
+    let translation = crate::solve::translation_covariance(covariance, camera_from_base);
     let rotation = covariance.fixed_view::<3, 3>(3, 3).into_owned();
     let ln_det = |m: &nalgebra::Matrix3<f64>| {
         m.cholesky().map_or(f64::INFINITY, |c| {
