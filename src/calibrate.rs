@@ -947,17 +947,12 @@ impl Context<'_> {
             (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, band_floor_px),
             _ => vec![GUESS_BAND_PX; robots.len()],
         };
-        let inputs: Vec<crate::segment::ViewInput> = self
-            .frames
-            .iter()
-            .enumerate()
-            .map(|(i, frame)| crate::segment::ViewInput {
-                frame,
-                prior: priors.as_ref().map(|p| &p[i]),
-                band_px: bands[i],
-            })
-            .collect();
-        let masks = cell.segmenter.segment_views(&inputs)?;
+        let masks = crate::segment::refine::segment_frames(
+            cell.segmenter.as_ref(),
+            &self.frames,
+            priors.as_deref(),
+            &bands,
+        )?;
         for (i, m) in masks.iter().enumerate().take(views.len()) {
             let observed = camera.undistort_mask(m);
             if observed != views[i].observed {

@@ -1098,8 +1098,7 @@ pub fn translation_covariance(
 }
 
 /// 1-sigma rotation (about camera axes) and translation of `camera_from_base`'s translation
-/// part, from the covariance of the left increment. Under `exp(xi) * T` the translation moves
-/// by `rho + phi x t`, hence `A = [I, -[t]x]`.
+/// part, from the covariance of the left increment (see [`translation_covariance`]).
 pub fn uncertainty_of(covariance: &Matrix6<f64>, camera_from_base: &Isometry3<f64>) -> Uncertainty {
     let ct = translation_covariance(covariance, camera_from_base);
     Uncertainty {

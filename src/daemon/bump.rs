@@ -177,20 +177,15 @@ fn segment_with_recorded(
         .map(|q| PosedRobot::new(&cell.robot, q))
         .collect();
     let priors = crate::segment::refine::priors(&CpuRenderer, camera, &robots, pose);
-    let band_px = cell.config.segmenter.min_band_px();
-    let inputs: Vec<crate::segment::ViewInput> = frames
-        .iter()
-        .zip(&priors)
-        .map(|(frame, prior)| crate::segment::ViewInput {
-            frame,
-            prior: Some(prior),
-            band_px,
-        })
-        .collect();
-    cell.segmenter
-        .segment_views(&inputs)?
-        .pop()
-        .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))
+    let bands_px = vec![cell.config.segmenter.min_band_px(); frames.len()];
+    crate::segment::refine::segment_frames(
+        cell.segmenter.as_ref(),
+        &frames,
+        Some(&priors),
+        &bands_px,
+    )?
+    .pop()
+    .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))
 }
 
 /// Moves to `check_pose` if configured, captures, segments and compares.

@@ -33,10 +33,11 @@ pub fn priors(
 }
 
 /// Segments `frames` together, frame `i` under `rendered[i]` (when given) with band
-/// `bands_px[i]`: the one way every segment-and-solve step calls the segmenter.
-fn segment_frames(
+/// `bands_px[i]`: the one way the segment-and-solve steps, the calibration loop and the bump
+/// check call the segmenter.
+pub fn segment_frames<F: std::borrow::Borrow<Frame>>(
     segmenter: &dyn Segmenter,
-    frames: &[&Frame],
+    frames: &[F],
     rendered: Option<&[Mask]>,
     bands_px: &[f32],
 ) -> Result<Vec<Mask>> {
@@ -45,7 +46,7 @@ fn segment_frames(
         .zip(bands_px)
         .enumerate()
         .map(|(i, (frame, &band_px))| ViewInput {
-            frame,
+            frame: frame.borrow(),
             prior: rendered.map(|r| &r[i]),
             band_px,
         })
