@@ -219,12 +219,7 @@ pub fn seeded_sim_cell(
         .ok_or_else(|| crate::Error::input(config_path, "camera.kind", "needs a simulated camera"))?
         .undistorted();
     for _ in 0..10_000 {
-        let q: Vec<f64> = cell
-            .checker
-            .limits()
-            .iter()
-            .map(|&(lo, hi)| rng.random_range(lo..=hi))
-            .collect();
+        let q = uniform_joints(cell.checker.limits(), &mut rng);
         if cell.checker.check_pose(&q).is_err() {
             continue;
         }
@@ -244,6 +239,15 @@ pub fn seeded_sim_cell(
     Err(crate::Error::Solve(format!(
         "seed {seed}: no safe start pose shows the robot"
     )))
+}
+
+/// A joint vector drawn uniformly within `limits` (how the planner and the random selection
+/// draw their samples).
+fn uniform_joints(limits: &[(f64, f64)], rng: &mut impl rand::Rng) -> Vec<f64> {
+    limits
+        .iter()
+        .map(|&(lo, hi)| rng.random_range(lo..=hi))
+        .collect()
 }
 
 /// Runs the simulated calibration of `cfg` with `selection`, `views` views, no early stop.
@@ -402,4 +406,396 @@ pub fn explore_round(
         timing.best_score = scores.iter().copied().fold(0.0, f64::max);
     }
     Ok(timing)
+}
+
+/// One set of views of a [`ViewSetCell`]: what the selection score's model predicts for its
+/// 3-view error and what repeated noisy solves measure.
+#[derive(Clone, Debug)]
+pub struct ViewSet {
+    /// `explore` (the loop's planner) or `random N`.
+    pub name: String,
+    /// Joints of each view, view 0 (the start pose) first.
+    pub joints: Vec<Vec<f64>>,
+    /// Predicted RMS rotation error (root of the trace of the rotation block of
+    /// [`crate::explore::estimate_covariance`]), degrees.
+    pub predicted_deg: f64,
+    /// Predicted RMS error of `camera_from_base`'s translation, millimetres.
+    pub predicted_mm: f64,
+    /// `(rotation deg, translation mm)` of each noisy solve of this set.
+    pub errors: Vec<(f64, f64)>,
+}
+
+impl ViewSet {
+    /// RMS of the measured errors over `trials` (`0` rotation, `1` translation).
+    pub fn rms(&self, which: usize, trials: std::ops::Range<usize>) -> f64 {
+        let e = &self.errors[trials];
+        let sq: f64 = e
+            .iter()
+            .map(|v| if which == 0 { v.0 * v.0 } else { v.1 * v.1 })
+            .sum();
+        (sq / e.len().max(1) as f64).sqrt()
+    }
+
+    /// Predicted RMS error (`0` rotation, `1` translation).
+    pub fn predicted(&self, which: usize) -> f64 {
+        if which == 0 {
+            self.predicted_deg
+        } else {
+            self.predicted_mm
+        }
+    }
+}
+
+/// The view sets of one seeded cell: the loop's explored pair first, then random pairs.
+#[derive(Clone, Debug)]
+pub struct ViewSetCell {
+    /// Cell seed.
+    pub seed: u64,
+    /// Explore's set first.
+    pub sets: Vec<ViewSet>,
+}
+
+/// Why a 3-view ratio is what it is: on the seeded cell of `cfg`, the start pose plus the
+/// pair the loop's planner picks ([`crate::calibrate::rank_poses`], its hill climb and path
+/// check, from real noisy solves of the views before), and `random_pairs` random pairs of
+/// safe poses that show the robot (each move path-checked, as the random selection's are).
+/// Every set is solved `trials` times from the guess, each time with fresh encoder noise and
+/// mask noise as the cell config sets them, so each set's expected error is measured, not
+/// one draw of it; the score's model predicts each set's error at the truth. Masks are
+/// rendered on the undistorted camera (the cell's lens model plays no part here).
+pub fn view_set_cell(
+    cfg: &crate::cell::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    random_pairs: usize,
+    trials: usize,
+) -> Result<ViewSetCell> {
+    use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses, SelectionSetting};
+    use crate::cell::{ArmConfig, Cell};
+    use crate::explore::{estimate_covariance, view_terms, ViewTerms};
+    use crate::render::SilhouetteRenderer;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let bad = |why: &str| crate::Error::Solve(format!("seed {seed}: {why}"));
+    let mut cfg = cfg.clone();
+    cfg.calibration.selection = SelectionSetting::Explore;
+    let ArmConfig::Sim {
+        start,
+        encoder_noise_rad,
+        ..
+    } = &cfg.arm
+    else {
+        return Err(bad("view sets need [arm] kind = \"sim\""));
+    };
+    let (q0, encoder) = (start.clone(), *encoder_noise_rad);
+    let mask_noise = match &cfg.segmenter {
+        crate::segment::SegmenterConfig::SimTruth { noise, .. } => noise.clone(),
+        _ => return Err(bad("view sets need [segmenter] kind = \"sim-truth\"")),
+    };
+    let guess = cfg
+        .calibration
+        .initial_guess
+        .as_ref()
+        .ok_or_else(|| bad("no initial guess"))?
+        .camera_from_base()
+        .map_err(|e| bad(&e))?;
+    let cell = Cell::build(cfg, config_path)?;
+    let settings = &cell.config.calibration;
+    let truth = cell
+        .sim
+        .camera_from_base
+        .ok_or_else(|| bad("view sets need a simulated camera"))?;
+    let camera = cell
+        .config
+        .camera
+        .camera()
+        .ok_or_else(|| bad("view sets need a simulated camera"))?
+        .undistorted();
+    let robot = &cell.robot;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed.wrapping_mul(7717) + 3);
+    let encoder_noise = Normal::new(0.0, encoder.max(0.0)).map_err(|e| bad(&e.to_string()))?;
+    // One noisy capture of each of `qs`: the true mask with segmentation noise, the joints
+    // as the encoders report them.
+    let capture = |qs: &[Vec<f64>], rng: &mut rand_chacha::ChaCha8Rng| -> Vec<View> {
+        qs.iter()
+            .map(|q| {
+                let exact = CpuRenderer
+                    .render(&PosedRobot::new(robot, q), &camera, &truth, None)
+                    .mask;
+                let observed = match &mask_noise {
+                    Some(n) => crate::synth::apply_mask_noise(rng, &exact, n),
+                    None => exact,
+                };
+                let reported: Vec<f64> = q.iter().map(|v| v + encoder_noise.sample(rng)).collect();
+                View {
+                    robot: PosedRobot::new(robot, &reported),
+                    observed,
+                }
+            })
+            .collect()
+    };
+    let opts = SolveOptions::default();
+    // The explored pair, planned as the loop plans it.
+    let mut taken = vec![q0.clone()];
+    let mut report = solve(
+        &CpuRenderer,
+        &camera,
+        &capture(&taken, &mut rng),
+        &guess,
+        &opts,
+    )?;
+    let noise_px2 = report.outline_noise_px2;
+    for round in 0..2 {
+        let (ranked, _) = rank_poses(
+            &CpuRenderer,
+            &cell,
+            &camera,
+            &report,
+            &taken,
+            settings,
+            round,
+        );
+        let from = taken.last().expect("view 0").clone();
+        let (next, _) = choose_reachable(
+            &cell,
+            &ranked,
+            &from,
+            settings.speed_rad_s,
+            |_| false,
+            &mut Vec::new(),
+        )
+        .ok_or_else(|| bad("the planner found no reachable pose"))?;
+        taken.push(next.joints);
+        let views = capture(&taken, &mut rng);
+        report = solve(
+            &CpuRenderer,
+            &camera,
+            &views,
+            &report.camera_from_base,
+            &opts,
+        )?;
+    }
+    let mut sets = vec![("explore".to_string(), taken)];
+    // Random pairs, drawn as the random selection draws its poses.
+    let visible = |q: &[f64]| {
+        cell.checker.check_pose(q).is_ok()
+            && in_image_fraction(&PosedRobot::new(robot, q).decimated(0.01), &camera, &truth)
+                >= cell.checker.min_in_image
+    };
+    let reachable =
+        |a: &[f64], b: &[f64]| cell.checker.check_move(a, b, settings.speed_rad_s).is_ok();
+    let mut draws = 0usize;
+    while sets.len() < random_pairs + 1 {
+        let mut pair: Vec<Vec<f64>> = Vec::new();
+        while pair.len() < 2 {
+            draws += 1;
+            if draws > 200_000 {
+                return Err(bad("no random pair of safe, visible, reachable poses"));
+            }
+            let q = uniform_joints(cell.checker.limits(), &mut rng);
+            let from = pair.last().unwrap_or(&q0);
+            if visible(&q) && reachable(from, &q) {
+                pair.push(q);
+            }
+        }
+        let mut joints = vec![q0.clone()];
+        joints.extend(pair);
+        sets.push((format!("random {}", sets.len()), joints));
+    }
+    // The score's model of each set, at the truth, at the planner's scoring resolution.
+    let low = camera.downsampled(settings.score_downsample.max(1));
+    let cell_m = f64::from(settings.score_downsample.max(1)) / camera.fx.max(camera.fy);
+    let terms = |q: &[f64]| {
+        view_terms(
+            &low,
+            camera.fx,
+            &PosedRobot::new(robot, q).decimated(cell_m),
+            &robot.joint_motions(q),
+            &truth,
+            noise_px2,
+            settings.joint_noise_rad,
+        )
+    };
+    let mut out = Vec::new();
+    for (name, joints) in sets {
+        let total = joints
+            .iter()
+            .map(|q| terms(q))
+            .fold(ViewTerms::zeros(), |a, b| a + b);
+        let cov =
+            estimate_covariance(&total).ok_or_else(|| bad("a set leaves the pose unpinned"))?;
+        let predicted_deg = (0..3)
+            .map(|k| cov[(3 + k, 3 + k)])
+            .sum::<f64>()
+            .max(0.0)
+            .sqrt()
+            .to_degrees();
+        let predicted_mm = crate::solve::translation_covariance(&cov, &truth)
+            .trace()
+            .max(0.0)
+            .sqrt()
+            * 1000.0;
+        let mut errors = Vec::with_capacity(trials);
+        for _ in 0..trials {
+            let rep = solve(
+                &CpuRenderer,
+                &camera,
+                &capture(&joints, &mut rng),
+                &guess,
+                &opts,
+            )?;
+            errors.push((
+                rotation_error_deg(&rep.camera_from_base, &truth),
+                translation_error_mm(&rep.camera_from_base, &truth),
+            ));
+        }
+        out.push(ViewSet {
+            name,
+            joints,
+            predicted_deg,
+            predicted_mm,
+            errors,
+        });
+    }
+    Ok(ViewSetCell { seed, sets: out })
+}
+
+/// Figures over [`ViewSetCell`]s, each per error (`[rotation, translation]`); ratios are
+/// geometric means over cells of explore's figure over the median of the cell's random pairs.
+#[derive(Clone, Debug)]
+pub struct ViewSetSummary {
+    /// Explore's predicted RMS error over the random pairs' median prediction.
+    pub predicted_ratio: [f64; 2],
+    /// Explore's measured RMS error over the random pairs' median measured RMS error.
+    pub measured_ratio: [f64; 2],
+    /// The best random pair's measured RMS error over the median (picked on the same trials
+    /// it is scored on, so biased low: an optimistic bound for choosing among those pairs).
+    pub best_random_ratio: [f64; 2],
+    /// Spread (standard deviation of the log) of the random pairs' measured RMS error within a
+    /// cell, mean over cells.
+    pub random_log_sd: [f64; 2],
+    /// The part of that spread the finite trials explain (from the two halves of the trials).
+    pub trial_log_sd: [f64; 2],
+    /// Within-cell correlation of the predicted and measured log error over all sets, and the
+    /// same with the trials' noise taken out of the measured spread (`None` when the trials'
+    /// noise explains all of it).
+    pub correlation: [(f64, Option<f64>); 2],
+}
+
+/// Summarises [`view_set_cell`] results (cells with fewer than 3 random pairs are skipped).
+pub fn view_set_summary(cells: &[ViewSetCell]) -> Option<ViewSetSummary> {
+    let cells: Vec<&ViewSetCell> = cells.iter().filter(|c| c.sets.len() >= 4).collect();
+    if cells.is_empty() {
+        return None;
+    }
+    let gm = |v: &[f64]| (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp();
+    let sd = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    let mut s = ViewSetSummary {
+        predicted_ratio: [0.0; 2],
+        measured_ratio: [0.0; 2],
+        best_random_ratio: [0.0; 2],
+        random_log_sd: [0.0; 2],
+        trial_log_sd: [0.0; 2],
+        correlation: [(0.0, None); 2],
+    };
+    for which in 0..2 {
+        let (mut pred, mut meas, mut best, mut spread) = (vec![], vec![], vec![], vec![]);
+        let (mut halves, mut pairs) = (Vec::new(), Vec::new());
+        for c in &cells {
+            let n = c.sets[0].errors.len();
+            let full = |v: &ViewSet| v.rms(which, 0..n);
+            let random = &c.sets[1..];
+            let rp: Vec<f64> = random.iter().map(|v| v.predicted(which)).collect();
+            let rm: Vec<f64> = random.iter().map(full).collect();
+            pred.push(c.sets[0].predicted(which) / median(&rp));
+            meas.push(full(&c.sets[0]) / median(&rm));
+            best.push(rm.iter().copied().fold(f64::INFINITY, f64::min) / median(&rm));
+            spread.push(sd(&rm.iter().map(|x| x.ln()).collect::<Vec<_>>()));
+            let lp: Vec<f64> = c.sets.iter().map(|v| v.predicted(which).ln()).collect();
+            let lm: Vec<f64> = c.sets.iter().map(|v| full(v).ln()).collect();
+            let (mp, mm) = (
+                lp.iter().sum::<f64>() / lp.len() as f64,
+                lm.iter().sum::<f64>() / lm.len() as f64,
+            );
+            pairs.extend(lp.iter().zip(&lm).map(|(p, m)| (p - mp, m - mm)));
+            if n >= 2 {
+                halves.extend(
+                    c.sets
+                        .iter()
+                        .map(|v| (v.rms(which, 0..n / 2) / v.rms(which, n / 2..n)).ln()),
+                );
+            }
+        }
+        let sxy: f64 = pairs.iter().map(|p| p.0 * p.1).sum();
+        let sxx: f64 = pairs.iter().map(|p| p.0 * p.0).sum();
+        let syy: f64 = pairs.iter().map(|p| p.1 * p.1).sum();
+        let r = sxy / (sxx * syy).sqrt();
+        // log RMS over all trials ~ the mean of the halves' logs: a quarter of the variance of
+        // their difference.
+        let trial = if halves.is_empty() {
+            0.0
+        } else {
+            (halves.iter().map(|h| h * h).sum::<f64>() / halves.len() as f64 / 4.0).sqrt()
+        };
+        let measured_var = syy / pairs.len() as f64;
+        let true_var = measured_var - trial * trial;
+        s.predicted_ratio[which] = gm(&pred);
+        s.measured_ratio[which] = gm(&meas);
+        s.best_random_ratio[which] = gm(&best);
+        s.random_log_sd[which] = spread.iter().sum::<f64>() / spread.len() as f64;
+        s.trial_log_sd[which] = trial;
+        s.correlation[which] = (
+            r,
+            (true_var > 0.0).then(|| r * (measured_var / true_var).sqrt()),
+        );
+    }
+    Some(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn set(name: &str, predicted: f64, errors: &[f64]) -> ViewSet {
+        ViewSet {
+            name: name.into(),
+            joints: Vec::new(),
+            predicted_deg: predicted,
+            predicted_mm: 10.0 * predicted,
+            errors: errors.iter().map(|&e| (e, 10.0 * e)).collect(),
+        }
+    }
+
+    #[test]
+    fn view_set_summary_reads_ratios_spread_and_correlation() {
+        // Explore's errors are half the middle random pair's; every set's errors follow its
+        // prediction exactly, and its two halves of trials agree (no trial noise).
+        let cell = |seed| ViewSetCell {
+            seed,
+            sets: vec![
+                set("explore", 0.5, &[0.5, 0.5, 0.5, 0.5]),
+                set("random 1", 0.8, &[0.8, 0.8, 0.8, 0.8]),
+                set("random 2", 1.0, &[1.0, 1.0, 1.0, 1.0]),
+                set("random 3", 1.25, &[1.25, 1.25, 1.25, 1.25]),
+            ],
+        };
+        let s = view_set_summary(&[cell(0), cell(1)]).expect("two cells");
+        for which in 0..2 {
+            assert!((s.predicted_ratio[which] - 0.5).abs() < 1e-12);
+            assert!((s.measured_ratio[which] - 0.5).abs() < 1e-12);
+            assert!((s.best_random_ratio[which] - 0.8).abs() < 1e-12);
+            let spread = ((0.8f64.ln().powi(2) + 1.25f64.ln().powi(2)) / 3.0).sqrt();
+            assert!((s.random_log_sd[which] - spread).abs() < 1e-12);
+            assert!(s.trial_log_sd[which].abs() < 1e-12);
+            assert!((s.correlation[which].0 - 1.0).abs() < 1e-12);
+            assert!((s.correlation[which].1.expect("no trial noise") - 1.0).abs() < 1e-12);
+        }
+        // Too few random pairs to take a median from: nothing to summarise.
+        let mut short = cell(2);
+        short.sets.truncate(3);
+        assert!(view_set_summary(&[short]).is_none());
+    }
 }

@@ -275,6 +275,26 @@ enum BenchCommand {
         #[arg(long)]
         score: Option<String>,
     },
+    /// How far 3-view selection can go: per seeded cell, the loop's explored pair and random
+    /// pairs, each solved many times with fresh noise, against the selection score's
+    /// prediction (README: closed loop).
+    ViewSets {
+        /// Base cell config (seeded variants move the camera, start pose and guess).
+        #[arg(long, default_value = "config/sim-xarm6.toml")]
+        config: PathBuf,
+        /// Number of cells (seeds FIRST..FIRST+N-1).
+        #[arg(long, default_value_t = 12)]
+        cells: u64,
+        /// First cell seed.
+        #[arg(long, default_value_t = 0)]
+        first_seed: u64,
+        /// Random pairs per cell.
+        #[arg(long, default_value_t = 12)]
+        random_pairs: usize,
+        /// Noisy solves per set.
+        #[arg(long, default_value_t = 10)]
+        trials: usize,
+    },
     /// The builtin segmenter: mask IoU and RGB-only calibration error on seeded simulated
     /// cells, and (with --run) its figures on a recorded run whose masks are the reference.
     Segment {
@@ -1102,6 +1122,68 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                     f.rounds
                 );
             }
+        }
+        BenchCommand::ViewSets {
+            config,
+            cells,
+            first_seed,
+            random_pairs,
+            trials,
+        } => {
+            if random_pairs < 3 || trials < 2 {
+                bail!("--random-pairs must be at least 3 and --trials at least 2");
+            }
+            let base = easyhec::cell::read_config(&config)?;
+            let mut results = Vec::new();
+            for seed in first_seed..first_seed + cells {
+                let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
+                let c = bench::view_set_cell(&cfg, &config, seed, random_pairs, trials)?;
+                let n = c.sets[0].errors.len();
+                let median_of = |f: &dyn Fn(&bench::ViewSet) -> f64| {
+                    bench::median(&c.sets[1..].iter().map(f).collect::<Vec<_>>())
+                };
+                let e = &c.sets[0];
+                eprintln!(
+                    "seed {seed}: explore predicted {:.4} deg {:.3} mm, measured RMS {:.4} deg {:.3} mm; random pairs' median predicted {:.4} deg {:.3} mm, measured {:.4} deg {:.3} mm",
+                    e.predicted_deg,
+                    e.predicted_mm,
+                    e.rms(0, 0..n),
+                    e.rms(1, 0..n),
+                    median_of(&|v| v.predicted_deg),
+                    median_of(&|v| v.predicted_mm),
+                    median_of(&|v| v.rms(0, 0..n)),
+                    median_of(&|v| v.rms(1, 0..n)),
+                );
+                results.push(c);
+            }
+            let s =
+                bench::view_set_summary(&results).ok_or_else(|| anyhow!("no cell to summarise"))?;
+            println!("| over {cells} cells, {random_pairs} random pairs, {trials} solves each | rotation | translation |");
+            println!("|---|---|---|");
+            let row =
+                |name: &str, v: [f64; 2]| println!("| {name} | {:.2}x | {:.2}x |", v[0], v[1]);
+            row(
+                "explore / random, predicted by the score's model",
+                s.predicted_ratio,
+            );
+            row("explore / random, measured", s.measured_ratio);
+            row(
+                "best random pair / random (picked on its own trials)",
+                s.best_random_ratio,
+            );
+            println!(
+                "| spread of the random pairs' error (sd of log) | {:.2} ({:.2} from the finite trials) | {:.2} ({:.2}) |",
+                s.random_log_sd[0], s.trial_log_sd[0], s.random_log_sd[1], s.trial_log_sd[1]
+            );
+            let corr = |c: (f64, Option<f64>)| match c.1 {
+                Some(r) => format!("{:.2} ({r:.2})", c.0),
+                None => format!("{:.2} (-)", c.0),
+            };
+            println!(
+                "| correlation of predicted and measured log error within a cell (trial noise removed) | {} | {} |",
+                corr(s.correlation[0]),
+                corr(s.correlation[1])
+            );
         }
         BenchCommand::Loop {
             config,
