@@ -624,17 +624,10 @@ pub fn view_set_cell(
             .fold(ViewTerms::zeros(), |a, b| a + b);
         let cov =
             estimate_covariance(&total).ok_or_else(|| bad("a set leaves the pose unpinned"))?;
-        let predicted_deg = (0..3)
-            .map(|k| cov[(3 + k, 3 + k)])
-            .sum::<f64>()
-            .max(0.0)
-            .sqrt()
-            .to_degrees();
-        let predicted_mm = crate::solve::translation_covariance(&cov, &truth)
-            .trace()
-            .max(0.0)
-            .sqrt()
-            * 1000.0;
+        // RMS over the camera axes of the 1-sigma errors the covariance reports.
+        let u = crate::solve::uncertainty_of(&cov, &truth);
+        let norm = |v: [f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let (predicted_deg, predicted_mm) = (norm(u.rotation_deg), norm(u.translation_mm));
         let mut errors = Vec::with_capacity(trials);
         for _ in 0..trials {
             let rep = solve(
@@ -684,14 +677,15 @@ pub struct ViewSetSummary {
 
 /// Summarises [`view_set_cell`] results (cells with fewer than 3 random pairs are skipped).
 pub fn view_set_summary(cells: &[ViewSetCell]) -> Option<ViewSetSummary> {
+    use crate::solve::mean;
     let cells: Vec<&ViewSetCell> = cells.iter().filter(|c| c.sets.len() >= 4).collect();
     if cells.is_empty() {
         return None;
     }
     let gm = |v: &[f64]| (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp();
     let sd = |v: &[f64]| {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+        let m = mean(v);
+        mean(&v.iter().map(|x| (x - m) * (x - m)).collect::<Vec<_>>()).sqrt()
     };
     let mut s = ViewSetSummary {
         predicted_ratio: [0.0; 2],
@@ -716,10 +710,7 @@ pub fn view_set_summary(cells: &[ViewSetCell]) -> Option<ViewSetSummary> {
             spread.push(sd(&rm.iter().map(|x| x.ln()).collect::<Vec<_>>()));
             let lp: Vec<f64> = c.sets.iter().map(|v| v.predicted(which).ln()).collect();
             let lm: Vec<f64> = c.sets.iter().map(|v| full(v).ln()).collect();
-            let (mp, mm) = (
-                lp.iter().sum::<f64>() / lp.len() as f64,
-                lm.iter().sum::<f64>() / lm.len() as f64,
-            );
+            let (mp, mm) = (mean(&lp), mean(&lm));
             pairs.extend(lp.iter().zip(&lm).map(|(p, m)| (p - mp, m - mm)));
             if n >= 2 {
                 halves.extend(
@@ -745,7 +736,7 @@ pub fn view_set_summary(cells: &[ViewSetCell]) -> Option<ViewSetSummary> {
         s.predicted_ratio[which] = gm(&pred);
         s.measured_ratio[which] = gm(&meas);
         s.best_random_ratio[which] = gm(&best);
-        s.random_log_sd[which] = spread.iter().sum::<f64>() / spread.len() as f64;
+        s.random_log_sd[which] = mean(&spread);
         s.trial_log_sd[which] = trial;
         s.correlation[which] = (
             r,
