@@ -345,6 +345,11 @@ pub struct RunOptions {
     pub initial_guess: Option<Isometry3<f64>>,
     /// `[calibration] max_views` for this run only (at least 1).
     pub max_views: Option<usize>,
+    /// A benchmark protocol, not a product setting: the frame where the arm stands is still
+    /// captured, recorded and solved for the first estimate, but every later solve, the
+    /// planner's record of views taken and the view count use only the views the selection
+    /// chose (so `max_views` of them are all chosen). Measures what choosing every view gains.
+    pub start_view_initialises_only: bool,
 }
 
 impl RunOptions {
@@ -1155,6 +1160,12 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let mut planned = Vec::new();
     let stop_reason;
     let mut cancelled = false;
+    // Views before this index are left out of every solve after the first
+    // (`RunOptions::start_view_initialises_only`).
+    let first_used = usize::from(opts.start_view_initialises_only);
+    if first_used > 0 {
+        rounds[0].views = 0;
+    }
     loop {
         let round = rounds.len() - 1;
         if opts.cancelled() {
@@ -1162,13 +1173,20 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             stop_reason = format!("cancelled after {} views", views.len());
             break;
         }
-        if views.len() >= s.max_views && !opts.dry_run {
+        if views.len() - first_used >= s.max_views && !opts.dry_run {
             stop_reason = format!("reached the maximum of {} views", s.max_views);
             break;
         }
         let t = Instant::now();
-        let (ranked, stats) =
-            rank_poses(renderer.as_ref(), cell, &camera, &report, &taken, s, round);
+        let (ranked, stats) = rank_poses(
+            renderer.as_ref(),
+            cell,
+            &camera,
+            &report,
+            &taken[first_used..],
+            s,
+            round,
+        );
         let best = ranked.first().and_then(|r| r.variance);
         explore_s += t.elapsed().as_secs_f64();
         opts.emit(Progress::Planned {
@@ -1183,7 +1201,11 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         ));
         if let (Some(prev), Some(best), Some([deg, mm])) = (previous_best, best, last.pose_change) {
             let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
-            if settled && views.len() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm {
+            if settled
+                && views.len() - first_used >= s.min_views
+                && deg < s.pose_tol_deg
+                && mm < s.pose_tol_mm
+            {
                 stop_reason = format!("variance converged after {} views", views.len());
                 break;
             }
@@ -1311,7 +1333,13 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         pb.set_position(views.len() as u64);
         let previous = report.camera_from_base;
         let t = Instant::now();
-        report = solve(renderer.as_ref(), &camera, &views, &previous, &solve_opts)?;
+        report = solve(
+            renderer.as_ref(),
+            &camera,
+            &views[first_used..],
+            &previous,
+            &solve_opts,
+        )?;
         report.trajectory.insert(0, previous);
         solve_s += t.elapsed().as_secs_f64();
         let change = [
@@ -1320,7 +1348,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         ];
         rounds.push(RoundRecord {
             round: round + 1,
-            views: views.len(),
+            views: views.len() - first_used,
             camera_from_base: to_rows(&report.camera_from_base),
             mean_iou: report.mean_iou(),
             loss: report.loss,
@@ -1342,6 +1370,12 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         ));
     }
     pb.finish_and_clear();
+    // The views the final estimate rests on: with no chosen view taken, the start view's.
+    let used_from = if views.len() > first_used {
+        first_used
+    } else {
+        0
+    };
     if let Some(ctx) = &ctx {
         if !opts.dry_run && !cancelled {
             // The last views were segmented under the previous estimate: re-segment all of
@@ -1366,7 +1400,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             report = solve(
                 renderer.as_ref(),
                 &camera,
-                &views,
+                &views[used_from..],
                 &report.camera_from_base,
                 &solve_opts,
             )?;
@@ -1381,12 +1415,15 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     }
     rec.write_rounds(&rounds)?;
     let mut result = ResultFile::new(&report.camera_from_base, &cell.robot.links[cell.robot.base]);
-    result.views_used = (0..views.len()).collect();
+    result.views_used = (used_from..views.len()).collect();
     result.per_view = report
         .per_view_iou
         .iter()
         .enumerate()
-        .map(|(view, &iou)| PerView { view, iou })
+        .map(|(i, &iou)| PerView {
+            view: used_from + i,
+            iou,
+        })
         .collect();
     result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
     result.stop_reason = stop_reason;

@@ -274,6 +274,10 @@ enum BenchCommand {
         /// Exploration score: information (default) or variance (the paper's).
         #[arg(long)]
         score: Option<String>,
+        /// Every counted view is chosen by the selection: the start pose's frame only gives
+        /// the first estimate (a protocol for measuring selection, not a product setting).
+        #[arg(long)]
+        all_views_chosen: bool,
     },
     /// How far 3-view selection can go: per seeded cell, the loop's explored pair and random
     /// pairs, each solved many times with fresh noise, against the selection score's
@@ -1194,6 +1198,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             selections,
             renderer,
             score,
+            all_views_chosen,
         } => {
             use easyhec::calibrate::{ScoreSetting, SelectionSetting};
             let mut base = easyhec::cell::read_config(&config)?;
@@ -1217,7 +1222,14 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 let mut trials = Vec::new();
                 for seed in first_seed..first_seed + cells {
                     let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
-                    let t = bench::run_loop_trial(&cfg, &config, seed, selection, views)?;
+                    let t = bench::run_loop_trial(
+                        &cfg,
+                        &config,
+                        seed,
+                        selection,
+                        views,
+                        all_views_chosen,
+                    )?;
                     let last = t.errors.last().copied().unwrap_or((0, f64::NAN, f64::NAN));
                     // Every view count's error, so medians over any subset of seeds can be
                     // taken from one run.
