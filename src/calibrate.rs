@@ -348,7 +348,8 @@ pub struct RunOptions {
     /// A benchmark protocol, not a product setting: the frame where the arm stands is still
     /// captured, recorded and solved for the first estimate, but every later solve, the
     /// planner's record of views taken and the view count use only the views the selection
-    /// chose (so `max_views` of them are all chosen). Measures what choosing every view gains.
+    /// chose (so `max_views` of them are all chosen): round 0 counts 0 views and the result's
+    /// `views_used` / `per_view` leave view 0 out. Measures what choosing every view gains.
     pub start_view_initialises_only: bool,
 }
 
@@ -924,6 +925,9 @@ struct Context<'a> {
     min_band_px: f32,
     /// The narrowest band of the last re-segmentation (`[segmenter] final_band_px`).
     final_band_px: f32,
+    /// `RunOptions::start_view_initialises_only`: reports after the first leave out the
+    /// frames before this index.
+    first_used: usize,
 }
 
 impl Context<'_> {
@@ -948,6 +952,20 @@ impl Context<'_> {
             .collect();
         let priors = estimate
             .map(|pose| crate::segment::refine::priors(self.renderer, camera, &robots, pose));
+        // A report that left out the first frames (and has not seen the newest) is aligned to
+        // the frames by putting its mean fit in front, as for any frame it has not seen.
+        let aligned;
+        let report = match report {
+            Some(r) if self.first_used > 0 && !r.per_view_iou.is_empty() => {
+                let missing = views.len().saturating_sub(r.per_view_iou.len());
+                let mut a = r.clone();
+                a.per_view_iou
+                    .splice(0..0, std::iter::repeat_n(r.mean_iou(), missing));
+                aligned = a;
+                Some(&aligned)
+            }
+            other => other,
+        };
         let bands = match (report, &priors) {
             (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, band_floor_px),
             _ => vec![GUESS_BAND_PX; robots.len()],
@@ -1108,9 +1126,13 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let solve_opts = SolveOptions::default();
     let (mut solve_s, mut explore_s, mut motion_s) = (0.0, 0.0, 0.0);
 
+    // Views before this index are left out of every solve after the first and of the view
+    // count (`RunOptions::start_view_initialises_only`).
+    let first_used = usize::from(opts.start_view_initialises_only);
     let mut taken = Vec::new();
     let mut ctx = cell.segmenter.uses_context().then(|| Context {
         renderer: renderer.as_ref(),
+        first_used,
         frames: Vec::new(),
         min_band_px: cell.config.segmenter.min_band_px(),
         final_band_px: cell.config.segmenter.final_band_px(),
@@ -1128,7 +1150,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     )
     .await?;
     emit_view(opts, &taken);
-    pb.set_position(1);
+    pb.set_position((1 - first_used) as u64);
     let t = Instant::now();
     let mut report = match guess {
         Some(g) => solve(renderer.as_ref(), &camera, &views, &g, &solve_opts)?,
@@ -1143,7 +1165,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     solve_s += t.elapsed().as_secs_f64();
     let mut rounds = vec![RoundRecord {
         round: 0,
-        views: 1,
+        views: 1 - first_used,
         camera_from_base: to_rows(&report.camera_from_base),
         mean_iou: report.mean_iou(),
         loss: report.loss,
@@ -1160,17 +1182,11 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     let mut planned = Vec::new();
     let stop_reason;
     let mut cancelled = false;
-    // Views before this index are left out of every solve after the first
-    // (`RunOptions::start_view_initialises_only`).
-    let first_used = usize::from(opts.start_view_initialises_only);
-    if first_used > 0 {
-        rounds[0].views = 0;
-    }
     loop {
         let round = rounds.len() - 1;
         if opts.cancelled() {
             cancelled = true;
-            stop_reason = format!("cancelled after {} views", views.len());
+            stop_reason = format!("cancelled after {} views", views.len() - first_used);
             break;
         }
         if views.len() - first_used >= s.max_views && !opts.dry_run {
@@ -1206,7 +1222,10 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
                 && deg < s.pose_tol_deg
                 && mm < s.pose_tol_mm
             {
-                stop_reason = format!("variance converged after {} views", views.len());
+                stop_reason = format!(
+                    "variance converged after {} views",
+                    views.len() - first_used
+                );
                 break;
             }
         }
@@ -1217,7 +1236,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             // Plan the whole sequence from the first view's estimate, chaining paths.
             let mut at = from.clone();
             let mut events = Vec::new();
-            for _ in 1..s.max_views {
+            for _ in (1 - first_used)..s.max_views {
                 let far = |q: &[f64]| {
                     planned.iter().any(|p: &PlannedPose| {
                         p.joints
@@ -1245,24 +1264,30 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             choose_reachable(cell, &ranked, &from, speed, |_| false, &mut events)
         else {
             rounds.last_mut().expect("round").events.extend(events);
-            stop_reason = format!("no safe, reachable pose left after {} views", views.len());
+            stop_reason = format!(
+                "no safe, reachable pose left after {} views",
+                views.len() - first_used
+            );
             break;
         };
         rounds.last_mut().expect("round").events.extend(events);
         if let Some(confirm) = &opts.confirm {
             let ok = pb.suspend(|| confirm(&pose));
             if !ok {
-                stop_reason = format!("operator declined a move after {} views", views.len());
+                stop_reason = format!(
+                    "operator declined a move after {} views",
+                    views.len() - first_used
+                );
                 break;
             }
         }
         if opts.cancelled() {
             cancelled = true;
-            stop_reason = format!("cancelled after {} views", views.len());
+            stop_reason = format!("cancelled after {} views", views.len() - first_used);
             break;
         }
         rounds.last_mut().expect("round").next_joints = Some(pose.joints.clone());
-        pb.set_message(format!("moving to view {}", views.len() + 1));
+        pb.set_message(format!("moving to view {}", views.len() - first_used + 1));
         opts.emit(Progress::Moving {
             view: views.len(),
             joints: pose.joints.clone(),
@@ -1292,7 +1317,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
                     .push("move stopped: calibration cancelled".into());
             }
             cancelled = true;
-            stop_reason = format!("cancelled after {} views", views.len());
+            stop_reason = format!("cancelled after {} views", views.len() - first_used);
             break;
         }
         if let Err(e) = moved {
@@ -1330,7 +1355,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         )
         .await?;
         emit_view(opts, &taken);
-        pb.set_position(views.len() as u64);
+        pb.set_position((views.len() - first_used) as u64);
         let previous = report.camera_from_base;
         let t = Instant::now();
         report = solve(

@@ -266,7 +266,7 @@ fn start_view_that_only_initialises_is_recorded_but_left_out_of_the_result() {
     let path = config_path("sim-xarm6.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 2);
     cfg.calibration.min_views = 2;
-    let cell = Cell::build(cfg, &path).unwrap();
+    let cell = Cell::build(cfg.clone(), &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let opts = RunOptions {
@@ -289,6 +289,19 @@ fn start_view_that_only_initialises_is_recorded_but_left_out_of_the_result() {
     );
     let (r, t) = truth_error(&cell, &outcome);
     assert!(r < 0.3 && t < 3.0, "error {r:.4} deg {t:.3} mm");
+    // A dry run plans every counted view, the first one included.
+    let dry_cell = Cell::build(cfg, &path).unwrap();
+    let dry = run(
+        &dry_cell,
+        &dir.path().join("dry"),
+        &RunOptions {
+            dry_run: true,
+            ..opts
+        },
+    )
+    .unwrap();
+    assert_eq!(dry.planned.len(), 2);
+    assert!(dry_cell.sim.arm.as_ref().unwrap().commands().is_empty());
 }
 
 #[test]
