@@ -952,22 +952,17 @@ impl Context<'_> {
             .collect();
         let priors = estimate
             .map(|pose| crate::segment::refine::priors(self.renderer, camera, &robots, pose));
-        // A report that left out the first frames (and has not seen the newest) is aligned to
-        // the frames by putting its mean fit in front, as for any frame it has not seen.
-        let aligned;
-        let report = match report {
-            Some(r) if self.first_used > 0 && !r.per_view_iou.is_empty() => {
-                let missing = views.len().saturating_sub(r.per_view_iou.len());
-                let mut a = r.clone();
-                a.per_view_iou
-                    .splice(0..0, std::iter::repeat_n(r.mean_iou(), missing));
-                aligned = a;
-                Some(&aligned)
-            }
-            other => other,
-        };
         let bands = match (report, &priors) {
-            (Some(r), Some(p)) => crate::segment::refine::bands_px(camera, r, p, band_floor_px),
+            (Some(r), Some(p)) => {
+                // A report after the first may have left out the frames before `first_used`
+                // (it has not seen the newest frame either).
+                let first_view = if self.first_used > 0 {
+                    views.len().saturating_sub(r.per_view_iou.len())
+                } else {
+                    0
+                };
+                crate::segment::refine::bands_px(camera, r, p, first_view, band_floor_px)
+            }
             _ => vec![GUESS_BAND_PX; robots.len()],
         };
         let masks = crate::segment::refine::segment_frames(

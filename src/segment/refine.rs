@@ -57,10 +57,13 @@ pub fn segment_frames<F: std::borrow::Borrow<Frame>>(
 /// Prior band per view, pixels: the smallest band, plus three sigma of the pose uncertainty
 /// projected into the image, plus the outline offset a view's misfit implies (a view that
 /// fits at IoU 0.7 has outlines about 0.3 · area / perimeter apart: wrong joints, a bad mask).
+/// `report`'s per-view fits belong to `rendered[first_view..]`; frames it did not solve get
+/// its mean fit.
 pub fn bands_px(
     camera: &Camera,
     report: &SolveReport,
     rendered: &[Mask],
+    first_view: usize,
     min_band_px: f32,
 ) -> Vec<f32> {
     let u = &report.uncertainty;
@@ -69,7 +72,7 @@ pub fn bands_px(
     let sigma_px =
         camera.fx * (norm(&u.rotation_deg).to_radians() + norm(&u.translation_mm) * 1e-3 / depth_m);
     let sigma_px = if sigma_px.is_finite() { sigma_px } else { 50.0 };
-    // Views the report has not seen yet (just captured) get its mean fit.
+    // Views the report has not seen (just captured, or left out) get its mean fit.
     let mean_iou = if report.per_view_iou.is_empty() {
         0.9
     } else {
@@ -79,7 +82,11 @@ pub fn bands_px(
         .iter()
         .enumerate()
         .map(|(i, m)| {
-            let iou = report.per_view_iou.get(i).copied().unwrap_or(mean_iou);
+            let iou = i
+                .checked_sub(first_view)
+                .and_then(|k| report.per_view_iou.get(k))
+                .copied()
+                .unwrap_or(mean_iou);
             let area = m.count() as f64;
             let perimeter = m.outline_crossings().len().max(1) as f64;
             let misfit_px = (1.0 - iou).max(0.0) * area / perimeter;
@@ -139,7 +146,7 @@ pub fn segment_and_solve(
     // Every view under `report`'s render, bands of at least `floor_px`.
     let resegment = |report: &SolveReport, floor_px: f32| -> Result<Vec<Mask>> {
         let rendered = priors(renderer, camera, robots, &report.camera_from_base);
-        let bands = bands_px(camera, report, &rendered, floor_px);
+        let bands = bands_px(camera, report, &rendered, 0, floor_px);
         segment_frames(segmenter, frames, Some(&rendered), &bands)
     };
     // One alternation; round 0 under `round0_prior`'s render (pose, band) when given, else
