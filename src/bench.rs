@@ -160,12 +160,13 @@ pub struct LoopTrial {
 /// A seeded variant of a simulated cell config: true camera anywhere on a band of the
 /// hemisphere around the robot, a random safe visible start pose, a guess 2–6° / 2–8 cm off.
 pub fn seeded_sim_cell(
-    base: &crate::cell::CellConfig,
+    base: &crate::config::CellConfig,
     config_path: &std::path::Path,
     seed: u64,
-) -> Result<crate::cell::CellConfig> {
-    use crate::calibrate::InitialGuess;
-    use crate::cell::{ArmConfig, CameraConfig, Cell, LookAt};
+) -> Result<crate::config::CellConfig> {
+    use crate::cell::Cell;
+    use crate::config::InitialGuess;
+    use crate::config::{ArmConfig, CameraConfig, LookAt};
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
     let mut cfg = base.clone();
@@ -208,7 +209,7 @@ pub fn seeded_sim_cell(
             (0.02, 0.08),
         )),
     });
-    if let crate::segment::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
+    if let crate::config::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
         *s = seed;
     }
     // A start pose that is safe and shows the robot to the true camera.
@@ -254,10 +255,10 @@ fn uniform_joints(limits: &[(f64, f64)], rng: &mut impl rand::Rng) -> Vec<f64> {
 /// with `all_views_chosen`, the start pose's frame only gives the first estimate
 /// ([`crate::calibrate::RunOptions::start_view_initialises_only`]).
 pub fn run_loop_trial(
-    cfg: &crate::cell::CellConfig,
+    cfg: &crate::config::CellConfig,
     config_path: &std::path::Path,
     seed: u64,
-    selection: crate::calibrate::SelectionSetting,
+    selection: crate::config::SelectionSetting,
     views: usize,
     all_views_chosen: bool,
 ) -> Result<LoopTrial> {
@@ -470,14 +471,15 @@ pub struct ViewSetCell {
 /// one draw of it; the score's model predicts each set's error at the truth. Masks are
 /// rendered on the undistorted camera (the cell's lens model plays no part here).
 pub fn view_set_cell(
-    cfg: &crate::cell::CellConfig,
+    cfg: &crate::config::CellConfig,
     config_path: &std::path::Path,
     seed: u64,
     random_pairs: usize,
     trials: usize,
 ) -> Result<ViewSetCell> {
-    use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses, SelectionSetting};
-    use crate::cell::{ArmConfig, Cell};
+    use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses};
+    use crate::cell::Cell;
+    use crate::config::{ArmConfig, SelectionSetting};
     use crate::explore::{estimate_covariance, view_terms, ViewTerms};
     use crate::render::SilhouetteRenderer;
     use rand::SeedableRng;
@@ -495,7 +497,7 @@ pub fn view_set_cell(
     };
     let (q0, encoder) = (start.clone(), *encoder_noise_rad);
     let mask_noise = match &cfg.segmenter {
-        crate::segment::SegmenterConfig::SimTruth { noise, .. } => noise.clone(),
+        crate::config::SegmenterConfig::SimTruth { noise, .. } => noise.clone(),
         _ => return Err(bad("view sets need [segmenter] kind = \"sim-truth\"")),
     };
     let guess = cfg

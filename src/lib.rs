@@ -19,6 +19,7 @@ pub mod calibrate;
 pub mod camera;
 pub mod cell;
 pub mod collision;
+pub mod config;
 pub mod consensus;
 pub mod daemon;
 pub mod error;

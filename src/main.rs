@@ -8,6 +8,8 @@ use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser, Subcommand};
 
 use easyhec::bench;
+use easyhec::config::NoiseModel;
+use easyhec::config::{ScenePreset, SceneSettings};
 use easyhec::consensus::{find_consensus, ConsensusOptions};
 use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::init::{initialise, InitOptions};
@@ -18,11 +20,9 @@ use easyhec::robot::{RobotModel, RobotSource};
 use easyhec::run::{
     load_run, load_run_with, MaskSource, PerView, ResultFile, RobotEntry, UncertaintyEntry,
 };
-use easyhec::scene::{ScenePreset, SceneSettings};
 use easyhec::solve::{solve, Optimizer, SolveOptions, View};
 use easyhec::synth::{
-    generate, generate_frames, write_imaged_scene, write_scene, NoiseModel, SynthOptions,
-    Truncation,
+    generate, generate_frames, write_imaged_scene, write_scene, SynthOptions, Truncation,
 };
 
 #[derive(Parser)]
@@ -427,7 +427,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     use easyhec::calibrate::{calibrate, rfc3339, PlannedPose, RunOptions};
     use std::io::Write;
     use std::sync::Arc;
-    let mut config = easyhec::cell::read_config(&a.config)?;
+    let mut config = easyhec::config::read_config(&a.config)?;
     if let Some(r) = a.renderer {
         config.calibration.renderer = r;
     }
@@ -519,7 +519,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
     }
     if let Some(truth) = cell.sim.camera_from_base {
         let noise = match &cell.config.arm {
-            easyhec::cell::ArmConfig::Sim {
+            easyhec::config::ArmConfig::Sim {
                 encoder_noise_rad, ..
             } => *encoder_noise_rad,
             // The controller's own readings (a mock's are exact).
@@ -537,7 +537,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
             },
             seed: cell.config.calibration.seed,
             scene: match &cell.config.camera {
-                easyhec::cell::CameraConfig::Sim { scene, .. } => Some(scene.clone()),
+                easyhec::config::CameraConfig::Sim { scene, .. } => Some(scene.clone()),
                 _ => None,
             },
         };
@@ -626,9 +626,10 @@ fn segment_run(
     renderer: RendererChoice,
     masks_out: Option<&Path>,
 ) -> anyhow::Result<Option<nalgebra::Isometry3<f64>>> {
-    use easyhec::segment::{refine, SegmenterConfig};
+    use easyhec::config::SegmenterConfig;
+    use easyhec::segment::refine;
     let config = SegmenterConfig::by_name(name).map_err(|e| anyhow!(e))?;
-    let segmenter = config.build(&run.dir.join("run.json"))?;
+    let segmenter = easyhec::segment::build(&config, &run.dir.join("run.json"))?;
     let need: Vec<usize> = (0..run.views.len())
         .filter(|&i| run.views[i].needs_mask)
         .collect();
@@ -1081,7 +1082,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 .parse()
                 .map_err(|e: String| anyhow!("--frames: {e}"))?;
             if scenes > 0 {
-                let mut base = easyhec::cell::read_config(&config)?;
+                let mut base = easyhec::config::read_config(&config)?;
                 base.calibration.renderer = renderer;
                 let mut trials = Vec::new();
                 for seed in 0..scenes {
@@ -1137,7 +1138,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             if random_pairs < 3 || trials < 2 {
                 bail!("--random-pairs must be at least 3 and --trials at least 2");
             }
-            let base = easyhec::cell::read_config(&config)?;
+            let base = easyhec::config::read_config(&config)?;
             let mut results = Vec::new();
             for seed in first_seed..first_seed + cells {
                 let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
@@ -1200,8 +1201,8 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             score,
             all_views_chosen,
         } => {
-            use easyhec::calibrate::{ScoreSetting, SelectionSetting};
-            let mut base = easyhec::cell::read_config(&config)?;
+            use easyhec::config::{ScoreSetting, SelectionSetting};
+            let mut base = easyhec::config::read_config(&config)?;
             base.calibration.renderer = renderer;
             if let Some(n) = climb_steps {
                 base.calibration.climb_steps = n;

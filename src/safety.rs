@@ -11,8 +11,7 @@
 //! [`CheckedMove`] can only be built by [`SafetyChecker::check_move`], and [`SafeArm`] only
 //! sends `CheckedMove`s, so the type system keeps unchecked targets away from the arm.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
@@ -20,149 +19,12 @@ use parry3d_f64::bounding_volume::Aabb;
 use parry3d_f64::query::{self, PointQuery};
 use parry3d_f64::shape::{Ball, Cuboid, HalfSpace, SharedShape};
 use rand::{Rng, SeedableRng};
-use serde::{Deserialize, Serialize};
 
 use crate::collision::{hull_of, CollisionModel};
+use crate::config::{ObstacleConfig, SafetyConfig};
 use crate::error::{Error, Result};
 use crate::mesh::load_mesh_file;
 use crate::robot::{JointKind, RobotModel};
-
-/// `[safety]` in a cell config.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct SafetyConfig {
-    /// Highest commanded speed of the fastest joint, rad/s.
-    #[serde(default = "default_speed_cap")]
-    pub speed_cap_rad_s: f64,
-    /// Per-joint sub-ranges `[lower, upper]` (radians) the calibration may use.
-    #[serde(default)]
-    pub joint_ranges: BTreeMap<String, [f64; 2]>,
-    /// Clearance kept between links and to obstacles, metres.
-    #[serde(default = "default_margin")]
-    pub margin_m: f64,
-    /// Link pairs never checked against each other (besides adjacent ones).
-    #[serde(default)]
-    pub allowed_collisions: Vec<[String; 2]>,
-    /// MoveIt SRDF whose `disable_collisions` entries are honoured (relative to the config).
-    #[serde(default)]
-    pub srdf: Option<PathBuf>,
-    /// Every collision piece's centre must stay within this ball.
-    #[serde(default)]
-    pub workspace: Option<WorkspaceConfig>,
-    /// Environment obstacles and keep-out zones, in the base frame.
-    #[serde(default)]
-    pub obstacles: Vec<ObstacleConfig>,
-    /// Least fraction of the robot that must project inside the image under the current
-    /// estimate for a pose to be worth visiting.
-    #[serde(default = "default_min_in_image")]
-    pub min_in_image: f64,
-}
-
-fn default_speed_cap() -> f64 {
-    0.5
-}
-fn default_margin() -> f64 {
-    0.01
-}
-fn default_min_in_image() -> f64 {
-    0.9
-}
-
-impl Default for SafetyConfig {
-    fn default() -> Self {
-        SafetyConfig {
-            speed_cap_rad_s: default_speed_cap(),
-            joint_ranges: BTreeMap::new(),
-            margin_m: default_margin(),
-            allowed_collisions: Vec::new(),
-            srdf: None,
-            workspace: None,
-            obstacles: Vec::new(),
-            min_in_image: default_min_in_image(),
-        }
-    }
-}
-
-/// `[safety.workspace]`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct WorkspaceConfig {
-    /// Centre, base frame, metres.
-    pub centre: [f64; 3],
-    /// Radius, metres.
-    pub radius_m: f64,
-}
-
-/// One `[[safety.obstacles]]` entry; all poses in the base frame, metres.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
-pub enum ObstacleConfig {
-    /// Everything on the side of the plane opposite `normal` (`n·p < offset_m`), e.g. a table
-    /// top with `normal = [0, 0, 1]`.
-    Plane {
-        /// Label in messages.
-        #[serde(default)]
-        name: String,
-        /// Normal pointing into free space.
-        normal: [f64; 3],
-        /// Plane offset along the normal.
-        offset_m: f64,
-    },
-    /// A box.
-    Box {
-        /// Label in messages.
-        #[serde(default)]
-        name: String,
-        /// Centre.
-        centre: [f64; 3],
-        /// Edge lengths.
-        size: [f64; 3],
-        /// Orientation (roll, pitch, yaw), degrees.
-        #[serde(default)]
-        rpy_deg: [f64; 3],
-    },
-    /// A sphere.
-    Sphere {
-        /// Label in messages.
-        #[serde(default)]
-        name: String,
-        /// Centre.
-        centre: [f64; 3],
-        /// Radius.
-        radius_m: f64,
-    },
-    /// A mesh (its convex hull), e.g. a fixture.
-    Mesh {
-        /// Label in messages.
-        #[serde(default)]
-        name: String,
-        /// STL/DAE/OBJ file, relative to the config.
-        file: PathBuf,
-        /// Position.
-        #[serde(default)]
-        xyz: [f64; 3],
-        /// Orientation (roll, pitch, yaw), degrees.
-        #[serde(default)]
-        rpy_deg: [f64; 3],
-        /// Per-axis scale (e.g. 0.001 for millimetre meshes).
-        #[serde(default = "unit_scale")]
-        scale: [f64; 3],
-    },
-    /// An axis-aligned region no link may enter (a person's side of the cell, a conveyor).
-    KeepOut {
-        /// Label in messages.
-        #[serde(default)]
-        name: String,
-        /// Lowest corner.
-        min: [f64; 3],
-        /// Highest corner.
-        max: [f64; 3],
-    },
-}
-
-fn unit_scale() -> [f64; 3] {
-    [1.0; 3]
-}
 
 /// Why a pose or move is refused.
 #[derive(Clone, Debug, PartialEq)]

@@ -29,6 +29,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
+use crate::config::{NoiseModel, SceneSettings};
 use crate::error::{Error, Result};
 use crate::geometry::{look_at_camera_from_base, to_rows};
 use crate::io::{write_atomic, write_json_atomic};
@@ -36,38 +37,7 @@ use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
 use crate::run::{CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
-use crate::scene::{SceneSettings, SimFrame, SimScene};
-
-/// The segmentation-noise model (see the module docs).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct NoiseModel {
-    /// RMS boundary displacement, pixels.
-    pub boundary_jitter_px: f64,
-    /// Chance of blobs in a view.
-    pub blob_probability: f64,
-    /// Standard deviation of recorded joint noise, radians (or metres).
-    pub joint_noise_rad: f64,
-}
-
-impl NoiseModel {
-    /// The default benchmark noise: 0.5 px jitter, blobs in 30% of views, 0.5 mrad encoders.
-    pub fn standard() -> NoiseModel {
-        NoiseModel {
-            boundary_jitter_px: 0.5,
-            blob_probability: 0.3,
-            joint_noise_rad: 5e-4,
-        }
-    }
-
-    /// No noise at all.
-    pub fn none() -> NoiseModel {
-        NoiseModel {
-            boundary_jitter_px: 0.0,
-            blob_probability: 0.0,
-            joint_noise_rad: 0.0,
-        }
-    }
-}
+use crate::scene::{SimFrame, SimScene};
 
 /// Scene generator settings.
 #[derive(Clone, Debug)]

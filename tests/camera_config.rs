@@ -6,7 +6,9 @@
 
 use std::path::{Path, PathBuf};
 
-use easyhec::cell::{read_config, CameraCalibration, CameraConfig, Cell};
+use easyhec::cell::Cell;
+
+use easyhec::config::{read_config, CameraCalibration, CameraConfig};
 use easyhec_drivers::intrinsics::load_intrinsics;
 use easyhec_drivers::Intrinsics;
 

@@ -7,10 +7,11 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
-use easyhec::cell::{read_config, ArmConfig, Cell, CellConfig, FaultConfig};
+use easyhec::cell::Cell;
+use easyhec::config::ObstacleConfig;
+use easyhec::config::{read_config, ArmConfig, CellConfig, FaultConfig};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::run::load_run;
-use easyhec::safety::ObstacleConfig;
 
 fn config_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -472,9 +473,9 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
 /// re-segment it), and the pose still lands within the RGB-only bound.
 #[test]
 fn hard_cell_calibrates_from_colour_frames_alone() {
+    use easyhec::config::SegmenterConfig;
     use easyhec::mask::Mask;
     use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
-    use easyhec::segment::SegmenterConfig;
     let path = config_path("sim-xarm6-hard.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 5);
     cfg.calibration.min_views = 5;

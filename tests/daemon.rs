@@ -508,7 +508,7 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
     let err = run(&config, true);
     assert!(err.contains("tokn") && err.contains("cell.toml"), "{err}");
     // Out-of-range values, each naming its key.
-    type Tweak = fn(&mut easyhec::cell::CellConfig);
+    type Tweak = fn(&mut easyhec::config::CellConfig);
     let cases: [(Tweak, &str); 4] = [
         (
             |c| c.daemon.check_pose = Some(vec![0.0, 1.0]),
@@ -731,9 +731,9 @@ fn protect_reads_puts_the_read_only_routes_behind_the_token_too() {
 /// thresholds for its segmenter, as a real cell would (README, bump checks).
 #[test]
 fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
-    use easyhec::cell::CameraConfig;
-    use easyhec::scene::ScenePreset;
-    use easyhec::segment::SegmenterConfig;
+    use easyhec::config::CameraConfig;
+    use easyhec::config::ScenePreset;
+    use easyhec::config::SegmenterConfig;
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), |c| {
         full_resolution(c);

@@ -10,7 +10,7 @@
 use std::path::PathBuf;
 
 use easyhec::cell::Cell;
-use easyhec::segment::SegmenterConfig;
+use easyhec::config::SegmenterConfig;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -289,8 +289,7 @@ mod with_tract {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(dir.path().join("robot.onnx"), model).unwrap();
         let cfg: SegmenterConfig = toml::from_str(table).unwrap();
-        cfg.build(&dir.path().join("cell.toml"))
-            .map_err(|e| e.to_string())
+        easyhec::segment::build(&cfg, &dir.path().join("cell.toml")).map_err(|e| e.to_string())
     }
 
     fn segmenter(model: &[u8], table: &str) -> Box<dyn Segmenter> {
@@ -487,7 +486,10 @@ mod with_tract {
         let config = dir.path().join("cell.toml");
         let cfg: SegmenterConfig =
             toml::from_str("kind = \"onnx\"\nmodel = \"models/nope.onnx\"\n").unwrap();
-        let err = cfg.build(&config).err().unwrap().to_string();
+        let err = easyhec::segment::build(&cfg, &config)
+            .err()
+            .unwrap()
+            .to_string();
         assert_eq!(
             err,
             format!(
@@ -624,7 +626,7 @@ mod with_tract {
 
     #[test]
     fn shipped_template_parses() {
-        let cfg = easyhec::cell::read_config(&root().join("config/onnx-segmenter.toml.example"))
+        let cfg = easyhec::config::read_config(&root().join("config/onnx-segmenter.toml.example"))
             .unwrap_or_else(|e| panic!("{e}"));
         let SegmenterConfig::Onnx(onnx) = &cfg.segmenter else {
             panic!("{:?}", cfg.segmenter)

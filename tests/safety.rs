@@ -4,8 +4,9 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use easyhec::config::{ObstacleConfig, SafetyConfig};
 use easyhec::robot::RobotModel;
-use easyhec::safety::{ObstacleConfig, SafetyChecker, SafetyConfig, Violation};
+use easyhec::safety::{SafetyChecker, Violation};
 
 fn xarm6() -> Arc<RobotModel> {
     Arc::new(

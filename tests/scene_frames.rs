@@ -7,14 +7,16 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use easyhec::camera::Camera;
-use easyhec::cell::LookAt;
+use easyhec::config::LookAt;
+use easyhec::config::NoiseModel;
+use easyhec::config::{
+    ClutterSettings, DistractorSettings, ExposureSettings, PaletteSettings, ScenePreset,
+    SceneSettings, ShadowSettings,
+};
 use easyhec::mask::Mask;
 use easyhec::robot::RobotModel;
-use easyhec::scene::{
-    ClutterSettings, DistractorSettings, ExposureSettings, PaletteSettings, ScenePreset,
-    SceneSettings, ShadowSettings, SimFrame, SimScene,
-};
-use easyhec::synth::{generate_frames, write_imaged_scene, NoiseModel, SynthOptions, Truncation};
+use easyhec::scene::{SimFrame, SimScene};
+use easyhec::synth::{generate_frames, write_imaged_scene, SynthOptions, Truncation};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 fn repo(path: &str) -> PathBuf {
@@ -457,7 +459,8 @@ fn bad_scene_settings_name_the_key() {
 #[test]
 fn the_hard_cell_calibrates_from_its_truth_masks_and_records_hard_frames() {
     use easyhec::calibrate::{calibrate, RunOptions};
-    use easyhec::cell::{read_config, Cell};
+    use easyhec::cell::Cell;
+    use easyhec::config::read_config;
     use easyhec::geometry::{rotation_error_deg, translation_error_mm};
     let path = repo("config/sim-xarm6-hard.toml");
     let mut cfg = read_config(&path).unwrap();

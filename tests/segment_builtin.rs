@@ -6,12 +6,13 @@ mod common;
 
 use std::sync::Arc;
 
+use easyhec::config::SceneSettings;
+use easyhec::config::SegmenterConfig;
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::mask::Mask;
 use easyhec::render::{CpuRenderer, PosedRobot};
-use easyhec::scene::SceneSettings;
 use easyhec::segment::refine::segment_and_solve;
-use easyhec::segment::{SegmenterConfig, ViewInput};
+use easyhec::segment::ViewInput;
 use easyhec::solve::SolveOptions;
 use easyhec::synth::{generate_frames, SynthOptions};
 use easyhec_drivers::Frame;
@@ -30,10 +31,11 @@ fn frame_of(width: u32, height: u32, rgb: &[u8]) -> Frame {
 #[test]
 fn builtin_segments_hard_frames_and_calibrates_from_rgb_alone() {
     let robot = Arc::new(common::load_robot("xarm6"));
-    let segmenter = SegmenterConfig::by_name("builtin")
-        .unwrap()
-        .build(std::path::Path::new("run.json"))
-        .unwrap();
+    let segmenter = easyhec::segment::build(
+        &SegmenterConfig::by_name("builtin").unwrap(),
+        std::path::Path::new("run.json"),
+    )
+    .unwrap();
     let mut ious = Vec::new();
     for seed in [1u64, 2] {
         let cell = generate_frames(
@@ -128,10 +130,11 @@ fn without_prior(frames: &[Frame]) -> Vec<ViewInput<'_>> {
 #[test]
 fn builtin_needs_context_and_uses_the_plate() {
     let (cell, frames) = plate_cell(3);
-    let segmenter = SegmenterConfig::by_name("builtin")
-        .unwrap()
-        .build(std::path::Path::new("run.json"))
-        .unwrap();
+    let segmenter = easyhec::segment::build(
+        &SegmenterConfig::by_name("builtin").unwrap(),
+        std::path::Path::new("run.json"),
+    )
+    .unwrap();
     let err = segmenter.segment(&frames[0]).unwrap_err().to_string();
     assert!(err.contains("initial_guess"), "{err}");
     let inputs = without_prior(&frames);

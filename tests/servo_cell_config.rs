@@ -5,7 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
-use easyhec::cell::{read_config, ArmConfig, Cell};
+use easyhec::cell::Cell;
+
+use easyhec::config::{read_config, ArmConfig};
 use easyhec_drivers::piper::PIPER_LIMITS_RAD;
 
 fn root() -> PathBuf {

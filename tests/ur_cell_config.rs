@@ -4,7 +4,9 @@
 
 use std::path::PathBuf;
 
-use easyhec::cell::{read_config, ArmConfig, Cell};
+use easyhec::cell::Cell;
+
+use easyhec::config::{read_config, ArmConfig};
 
 fn config_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/mock-ur.toml")

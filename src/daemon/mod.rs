@@ -2,7 +2,7 @@
 //! calibrations on request, with an HTTP API, a web page, bump checks and crash-safe storage.
 //!
 //! # Layout
-//! - [`settings`]: the `[daemon]` table of a cell config.
+//! - the `[daemon]` table of a cell config lives in [`crate::config::daemon`].
 //! - [`store`]: the data folder (history index, active calibration, checks, run directories).
 //! - [`bump`]: the bump check (silhouette under the active calibration vs a fresh mask).
 //! - [`api`]: the axum router (JSON API, SSE progress, overlays, metrics, OpenAPI, web page).
@@ -14,7 +14,7 @@
 
 pub mod api;
 pub mod bump;
-pub mod settings;
+
 pub mod store;
 
 use std::collections::BTreeMap;
@@ -33,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use crate::run::ResultFile;
 
-pub use settings::DaemonSettings;
+use crate::config::DaemonSettings;
 use store::{CalibrationRecord, Recovery, State, Store, TruthError};
 
 /// The current time as RFC 3339.

@@ -4,14 +4,15 @@
 
 use std::path::Path;
 
-use crate::calibrate::{calibrate, RunOptions, SelectionSetting};
-use crate::cell::{Cell, CellConfig};
+use crate::calibrate::{calibrate, RunOptions};
+use crate::cell::Cell;
+use crate::config::SegmenterConfig;
+use crate::config::{CellConfig, SelectionSetting};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::mask::Mask;
 use crate::render::{PosedRobot, SilhouetteRenderer};
 use crate::run::{load_run, load_run_with, MaskSource};
-use crate::segment::SegmenterConfig;
 use crate::solve::{solve, SolveOptions, View};
 
 /// One seeded cell calibrated from colour frames alone.
@@ -35,10 +36,10 @@ pub fn cell_trial(
     config_path: &Path,
     seed: u64,
     views: usize,
-    preset: crate::scene::ScenePreset,
+    preset: crate::config::ScenePreset,
 ) -> Result<CellTrial> {
     let mut cfg = cfg.clone();
-    if let crate::cell::CameraConfig::Sim { scene, .. } = &mut cfg.camera {
+    if let crate::config::CameraConfig::Sim { scene, .. } = &mut cfg.camera {
         scene.preset = preset;
     }
     cfg.segmenter = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
@@ -49,9 +50,10 @@ pub fn cell_trial(
     let truths = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let inner = std::mem::replace(
         &mut cell.segmenter,
-        SegmenterConfig::by_name("builtin")
-            .map_err(Error::Solve)?
-            .build(config_path)?,
+        crate::segment::build(
+            &SegmenterConfig::by_name("builtin").map_err(Error::Solve)?,
+            config_path,
+        )?,
     );
     cell.segmenter = Box::new(TruthRecorder {
         inner,
@@ -178,7 +180,7 @@ pub fn run_figures(run_dir: &Path, renderer: &dyn SilhouetteRenderer) -> Result<
         .map(|v| PosedRobot::new(&images.robot, &v.joints))
         .collect();
     let config = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
-    let segmenter = config.build(&run_dir.join("run.json"))?;
+    let segmenter = crate::segment::build(&config, &run_dir.join("run.json"))?;
     let settled = crate::segment::refine::segment_and_solve(
         renderer,
         &images.camera,

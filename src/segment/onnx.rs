@@ -14,7 +14,8 @@ use easyhec_drivers::Frame;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::{DimFact, Factoid};
 
-use super::{Activation, ChannelOrder, OnnxConfig, PixelRange, Segmenter, TensorLayout};
+use super::Segmenter;
+use crate::config::segmenter::{Activation, ChannelOrder, OnnxConfig, PixelRange, TensorLayout};
 use crate::error::{Error, Result};
 use crate::mask::Mask;
 

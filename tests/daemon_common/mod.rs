@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use easyhec::cell::{read_config, ArmConfig, CameraConfig, Cell, CellConfig};
+use easyhec::cell::Cell;
+
+use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig};
 use easyhec::daemon::{serve, Daemon};
 use serde_json::Value;
 
@@ -69,7 +71,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
         *cx *= 2.0;
         *cy *= 2.0;
     }
-    let defaults = easyhec::cell::read_config(
+    let defaults = easyhec::config::read_config(
         &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/sim-xarm6.toml"),
     )
     .expect("shipped config");

@@ -1,0 +1,269 @@
+//! `[camera]`: which camera backend grabs frames, its intrinsics, and the poses people measure
+//! (`LookAt`).
+
+use std::path::{Path, PathBuf};
+
+use easyhec_drivers::aravis::PixelFormat as AravisPixelFormat;
+use easyhec_drivers::intrinsics::{check_frame_size, load_intrinsics, IntrinsicsError};
+use easyhec_drivers::v4l2::V4l2PixelFormat;
+use easyhec_drivers::Intrinsics;
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::scene::SceneSettings;
+use super::seconds;
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::geometry::look_at_camera_from_base;
+
+/// A camera pose given the way people measure one: where it is and what it looks at.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LookAt {
+    /// Camera centre in the base frame, metres.
+    pub eye: [f64; 3],
+    /// A point the optical axis passes through, base frame, metres.
+    pub look_at: [f64; 3],
+    /// Rotation about the optical axis, degrees.
+    #[serde(default)]
+    pub roll_deg: f64,
+}
+
+impl LookAt {
+    /// As `camera_from_base` (OpenCV optical frame, base z up).
+    pub fn camera_from_base(&self) -> Isometry3<f64> {
+        let look = look_at_camera_from_base(
+            &Vector3::from(self.eye),
+            &Vector3::from(self.look_at),
+            &Vector3::z(),
+        );
+        Isometry3::from_parts(
+            nalgebra::Translation3::identity(),
+            UnitQuaternion::from_scaled_axis(Vector3::z() * self.roll_deg.to_radians()),
+        ) * look
+    }
+}
+
+/// `[camera]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+// The simulated camera's scene dressing makes `Sim` large; a config is parsed once per cell,
+// and boxing the field would change how every caller reaches `scene`.
+#[allow(clippy::large_enum_variant)]
+pub enum CameraConfig {
+    /// The simulated camera.
+    Sim {
+        /// Image width.
+        width: u32,
+        /// Image height.
+        height: u32,
+        /// Focal length x, pixels.
+        fx: f64,
+        /// Focal length y, pixels.
+        fy: f64,
+        /// Principal point x.
+        cx: f64,
+        /// Principal point y.
+        cy: f64,
+        /// `plumb_bob` k1 k2 p1 p2 k3.
+        #[serde(default)]
+        distortion: Option<[f64; 5]>,
+        /// The true pose, which only the simulator sees.
+        truth: LookAt,
+        /// Scene dressing.
+        #[serde(default)]
+        scene: SceneSettings,
+        /// Where the true joints come from when the arm is not simulated (default: the
+        /// simulated arm).
+        #[serde(default)]
+        joints_from: Option<JointsFrom>,
+    },
+    /// A UVC webcam through V4L2. Needs the `v4l2` cargo feature; the variant exists without
+    /// it so such a config gets a one-line "rebuild" error.
+    V4l2 {
+        /// A device path (`/dev/video0`, `/dev/v4l/by-id/…`) or the camera's name as its
+        /// driver reports it (a unique part of it is enough).
+        device: String,
+        /// Stream width, pixels: must equal the calibration file's `image_width`.
+        width: u32,
+        /// Stream height, pixels: must equal the calibration file's `image_height`.
+        height: u32,
+        /// `"YUYV"` or `"MJPG"`.
+        pixel_format: String,
+        /// Fixed exposure, microseconds (default: the camera's own, usually automatic).
+        #[serde(default)]
+        exposure_us: Option<u32>,
+        /// The calibration file: ROS `camera_info` or OpenCV YAML.
+        intrinsics: PathBuf,
+        /// Limit for one frame, seconds (default 2).
+        #[serde(default)]
+        frame_timeout_s: Option<f64>,
+    },
+    /// A GigE Vision or USB3 Vision camera through Aravis. Needs the `aravis` cargo feature;
+    /// the variant exists without it so such a config gets a one-line "rebuild" error.
+    Aravis {
+        /// Aravis device id (`<vendor>-<model>-<serial>`, `<vendor>-<serial>`, user id, MAC or
+        /// IP; default: the first camera found). `"Fake_1"` is Aravis's built-in test camera.
+        #[serde(default)]
+        device_id: Option<String>,
+        /// `"Mono8"`, `"BayerRG8"`, `"BayerGR8"`, `"BayerBG8"`, `"BayerGB8"` or `"RGB8"`.
+        pixel_format: String,
+        /// Fixed exposure, microseconds (default: the camera's setting).
+        #[serde(default)]
+        exposure_us: Option<f64>,
+        /// Fixed gain, dB (default: the camera's setting).
+        #[serde(default)]
+        gain_db: Option<f64>,
+        /// The calibration file: ROS `camera_info` or OpenCV YAML; its size must be the
+        /// camera's region, which is checked when the camera opens.
+        intrinsics: PathBuf,
+        /// Limit for one frame, seconds (default 2).
+        #[serde(default)]
+        frame_timeout_s: Option<f64>,
+    },
+}
+
+/// A hardware camera's calibration, read and checked when the cell is built, before the arm
+/// is touched.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraCalibration {
+    /// The intrinsics in the file.
+    pub intrinsics: Intrinsics,
+    /// The file (resolved against the config's folder).
+    pub file: PathBuf,
+}
+
+/// The true-joint side channel of a simulated camera filming an arm that is not a
+/// `kind = "sim"` arm.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum JointsFrom {
+    /// An xArm controller's report port (30003 real or 30001 normal), mock or real.
+    XarmReport {
+        /// `host:port` of the report port.
+        addr: String,
+        /// Limit for receiving one report, seconds (default 2).
+        #[serde(default)]
+        timeout_s: Option<f64>,
+    },
+    /// A UR controller's RTDE port (`actual_q`), mock or real.
+    UrRtde {
+        /// `host:port` of the RTDE port (30004).
+        addr: String,
+        /// Limit for connecting and receiving one data package, seconds (default 2).
+        #[serde(default)]
+        timeout_s: Option<f64>,
+    },
+}
+
+impl CameraConfig {
+    /// The camera model written in the config itself: a simulated camera's. Hardware cameras
+    /// (`None` here) take theirs from their calibration file ([`CameraConfig::calibration`]).
+    pub fn camera(&self) -> Option<Camera> {
+        Some(match self {
+            CameraConfig::Sim {
+                width,
+                height,
+                fx,
+                fy,
+                cx,
+                cy,
+                distortion,
+                ..
+            } => Camera {
+                width: *width,
+                height: *height,
+                fx: *fx,
+                fy: *fy,
+                cx: *cx,
+                cy: *cy,
+                distortion: *distortion,
+            },
+            CameraConfig::V4l2 { .. } | CameraConfig::Aravis { .. } => return None,
+        })
+    }
+
+    /// Reads a hardware camera's calibration file (relative to the config at `config_path`)
+    /// and checks what can be checked without the device: the pixel format and settings
+    /// parse, and a V4L2 stream size equals the calibrated size. `None` for the simulated
+    /// camera. Errors name the calibration file (or the config) and the field.
+    pub fn calibration(&self, config_path: &Path) -> Result<Option<CameraCalibration>> {
+        let dir = config_path.parent().unwrap_or(Path::new("."));
+        let load = |file: &Path| -> Result<CameraCalibration> {
+            let file = dir.join(file);
+            let intrinsics =
+                load_intrinsics(&file).map_err(|e| intrinsics_error(e, config_path))?;
+            Ok(CameraCalibration { intrinsics, file })
+        };
+        match self {
+            CameraConfig::Sim { .. } => Ok(None),
+            CameraConfig::V4l2 {
+                width,
+                height,
+                pixel_format,
+                exposure_us,
+                intrinsics,
+                frame_timeout_s,
+                ..
+            } => {
+                pixel_format
+                    .parse::<V4l2PixelFormat>()
+                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+                if *exposure_us == Some(0) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.exposure_us",
+                        "0: give a positive exposure in microseconds, or leave it out for the camera's own",
+                    ));
+                }
+                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+                let calibration = load(intrinsics)?;
+                check_frame_size(&calibration.intrinsics, &calibration.file, *width, *height)
+                    .map_err(|e| intrinsics_error(e, config_path))?;
+                Ok(Some(calibration))
+            }
+            CameraConfig::Aravis {
+                pixel_format,
+                exposure_us,
+                gain_db,
+                intrinsics,
+                frame_timeout_s,
+                ..
+            } => {
+                pixel_format
+                    .parse::<AravisPixelFormat>()
+                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+                if let Some(us) = exposure_us.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.exposure_us",
+                        format!("{us}: give a positive exposure in microseconds"),
+                    ));
+                }
+                if let Some(db) = gain_db.filter(|v| !v.is_finite()) {
+                    return Err(Error::input(
+                        config_path,
+                        "camera.gain_db",
+                        format!("{db}: give a finite gain in dB"),
+                    ));
+                }
+                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+                Ok(Some(load(intrinsics)?))
+            }
+        }
+    }
+}
+
+/// A calibration-file error as a library error: the file and field at fault, and which
+/// config points at the file.
+fn intrinsics_error(e: IntrinsicsError, config_path: &Path) -> Error {
+    Error::input(
+        &e.file,
+        e.field,
+        format!(
+            "{} (the [camera] intrinsics of {})",
+            e.message,
+            config_path.display()
+        ),
+    )
+}

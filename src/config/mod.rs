@@ -1,0 +1,95 @@
+//! Cell configuration (`config/*.toml`): one home for every table of a cell file.
+//!
+//! Each table is plain data plus the checks that need nothing but the file itself: which arm,
+//! camera and segmenter to drive (`[arm]`, `[camera]`, `[segmenter]`), the robot description
+//! (`[robot]`), the safety envelope (`[safety]`), the loop's settings (`[calibration]`) and the
+//! service's (`[daemon]`). Building hardware from it is `crate::cell`'s job; this module sits
+//! below everything that interprets it, so it imports nothing above the foundation (`error`,
+//! `geometry`, `camera`, `render`'s backend choice) and the driver crate's file readers.
+//!
+//! Relative paths in a config are relative to the config file. `docs/config.md` lists every key.
+
+pub mod arm;
+pub mod calibration;
+pub mod camera;
+pub mod daemon;
+pub mod robot;
+pub mod safety;
+pub mod scene;
+pub mod segmenter;
+
+use std::path::Path;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+pub use arm::{ArmConfig, FaultConfig, ServoArmToml, ServoJointToml};
+pub use calibration::{
+    CalibrationSettings, InitialGuess, ScoreSetting, SelectionSetting, SourceSetting,
+};
+pub use camera::{CameraCalibration, CameraConfig, JointsFrom, LookAt};
+pub use daemon::DaemonSettings;
+pub use robot::RobotConfig;
+pub use safety::{ObstacleConfig, SafetyConfig, WorkspaceConfig};
+pub use scene::{
+    ClutterSettings, DistractorSettings, ExposureSettings, PaletteSettings, SceneEffects,
+    ScenePreset, SceneSettings, ShadowSettings,
+};
+pub use segmenter::{NoiseModel, OnnxConfig, SegmenterConfig};
+
+/// A whole cell config file.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellConfig {
+    /// The robot description.
+    pub robot: RobotConfig,
+    /// The arm backend.
+    pub arm: ArmConfig,
+    /// The camera backend.
+    pub camera: CameraConfig,
+    /// How frames become masks.
+    pub segmenter: SegmenterConfig,
+    /// Loop settings.
+    #[serde(default)]
+    pub calibration: CalibrationSettings,
+    /// Safety envelope.
+    #[serde(default)]
+    pub safety: SafetyConfig,
+    /// `easyhec daemon` settings (ignored by the other commands).
+    #[serde(default)]
+    pub daemon: DaemonSettings,
+}
+
+/// A duration from an optional config value in seconds (positive and finite).
+pub(crate) fn seconds(
+    path: &Path,
+    key: &str,
+    value: Option<f64>,
+    default_s: f64,
+) -> Result<Duration> {
+    let v = value.unwrap_or(default_s);
+    if v.is_finite() && v > 0.0 {
+        Ok(Duration::from_secs_f64(v))
+    } else {
+        Err(Error::input(
+            path,
+            key,
+            format!("{v} s: use a positive number of seconds"),
+        ))
+    }
+}
+
+/// Reads and parses a cell config, with one-line errors naming the key.
+pub fn read_config(path: &Path) -> Result<CellConfig> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::io(path, format!("cannot read cell config: {e}")))?;
+    toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
+            .unwrap_or(0);
+        Error::input(path, format!("line {line}"), e.message().replace('\n', " "))
+    })
+}
