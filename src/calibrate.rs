@@ -33,7 +33,7 @@ use crate::run::{
     CameraEntry, PerView, PoseEntry, ResultFile, RobotEntry, RunFile, UncertaintyEntry, ViewEntry,
     RUN_FORMAT,
 };
-use crate::safety::{CheckedMove, Clearance, SafeArm};
+use crate::safety::{CheckedMove, Clearance};
 use crate::solve::{solve, SolveOptions, SolveReport, View};
 
 /// One round of the loop, as `rounds.json` records it.
@@ -805,9 +805,8 @@ async fn capture(
     estimate: Option<&Isometry3<f64>>,
     report: Option<&SolveReport>,
 ) -> Result<()> {
-    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
-    let joints = cell.arm.read_joints().await.map_err(hw)?;
-    let frame = cell.camera.grab().await.map_err(hw)?;
+    let joints = cell.arm.read_joints().await?;
+    let frame = cell.camera.grab().await?;
     if frame.width != camera.width || frame.height != camera.height {
         return Err(Error::Hardware(format!(
             "camera returned a {}x{} frame; its intrinsics say {}x{}",
@@ -972,7 +971,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
     }];
     rec.write_rounds(&rounds)?;
     emit_round(opts, &rounds, &report);
-    let safe_arm = SafeArm::new(cell.arm.clone());
+    let safe_arm = &cell.arm;
     let mut previous_best: Option<f64> = None;
     let mut failures = 0;
     let mut planned = Vec::new();
@@ -1026,8 +1025,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             }
         }
         previous_best = best;
-        let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
-        let from = cell.arm.read_joints().await.map_err(hw)?;
+        let from = cell.arm.read_joints().await?;
         if opts.dry_run {
             // Plan the whole sequence from the first view's estimate, chaining paths.
             let mut at = from.clone();
@@ -1092,7 +1090,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
         let moved = match safe_arm.execute(&mv).await {
             Ok(motion) => {
                 tokio::select! {
-                    r = motion.wait() => r.map_err(|e| Error::Hardware(e.to_string())),
+                    r = motion.wait() => r.map_err(Error::from),
                     () = opts.wait_cancelled() => {
                         // Stop first; the motion future is dropped, the arm halts where it is.
                         let _ = cell.arm.stop().await;
@@ -1122,7 +1120,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
             rounds.last_mut().expect("round").events.push(note.clone());
             rec.write_rounds(&rounds)?;
             let _ = cell.arm.stop().await;
-            let status = cell.arm.status().await.map_err(hw)?;
+            let status = cell.arm.status().await?;
             let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
             if failures > s.max_motion_failures {
                 stop_reason = format!("gave up after {failures} failed moves ({note})");
@@ -1134,7 +1132,7 @@ pub async fn calibrate(cell: &Cell, out: &Path, opts: &RunOptions) -> Result<Out
                         format!("arm fault, not cleared (calibration.clear_faults = false): {e}");
                     break;
                 }
-                cell.arm.clear_fault().await.map_err(hw)?;
+                cell.arm.clear_fault().await?;
             }
             // Re-plan from wherever the arm stopped.
             continue;

@@ -28,9 +28,29 @@ pub enum Error {
     /// A computation could not produce a trustworthy answer.
     #[error("{0}")]
     Solve(String),
-    /// An arm or camera failed or refused.
+    /// The library found an arm or camera in a state it cannot work with (a frame of the
+    /// wrong size, an arm that moved since its path was checked, a segmenter's device error).
     #[error("{0}")]
     Hardware(String),
+    /// A driver call failed. The driver's error is kept whole, so a caller can tell a refused
+    /// target from a fault, a stall, a timeout or a lost link (`DriverError::kind`, or match
+    /// the variant) instead of reading a string.
+    #[error("{}{source}", if context.is_empty() { String::new() } else { format!("{context}: ") })]
+    Driver {
+        /// What the library was doing ("reading joints before a move"); may be empty.
+        context: String,
+        /// The driver's error.
+        source: easyhec_drivers::DriverError,
+    },
+}
+
+impl From<easyhec_drivers::DriverError> for Error {
+    fn from(source: easyhec_drivers::DriverError) -> Self {
+        Error::Driver {
+            context: String::new(),
+            source,
+        }
+    }
 }
 
 impl Error {
@@ -44,6 +64,22 @@ impl Error {
             file: file.as_ref().to_path_buf(),
             field: field.into(),
             message: message.into(),
+        }
+    }
+
+    /// A driver error with what the library was doing when it happened.
+    pub fn driver(context: impl Into<String>, source: easyhec_drivers::DriverError) -> Self {
+        Error::Driver {
+            context: context.into(),
+            source,
+        }
+    }
+
+    /// The driver error behind this error, when a driver call failed.
+    pub fn driver_error(&self) -> Option<&easyhec_drivers::DriverError> {
+        match self {
+            Error::Driver { source, .. } => Some(source),
+            _ => None,
         }
     }
 

@@ -14,6 +14,7 @@
 //! - [`synth`], [`interop`], [`overlay`], [`bench`](mod@bench): synthetic runs, import/export, overlays,
 //!   benchmarks.
 
+#[cfg(feature = "sim")]
 pub mod bench;
 pub mod calibrate;
 pub mod camera;
@@ -38,9 +39,11 @@ pub mod render;
 pub mod robot;
 pub mod run;
 pub mod safety;
+#[cfg(feature = "sim")]
 pub mod scene;
 pub mod segment;
 pub mod solve;
+#[cfg(feature = "sim")]
 pub mod synth;
 
 pub use error::{Error, Result};

@@ -526,7 +526,7 @@ fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
             // Every driver-backed arm (xArm, UR, servo buses, Piper).
             _ => 0.0,
         };
-        let gt = easyhec::synth::GroundTruth {
+        let gt = easyhec::run::GroundTruth {
             format: "easyhec-truth/1".into(),
             camera_from_base: easyhec::geometry::to_rows(&truth),
             true_joints: Vec::new(),
@@ -942,7 +942,7 @@ fn cmd_solve(a: SolveArgs) -> anyhow::Result<()> {
     // Synthetic runs carry their truth beside run.json: report the error against it.
     let truth_path = run.dir.join("ground_truth.json");
     if let Ok(text) = std::fs::read_to_string(&truth_path) {
-        if let Some(truth) = serde_json::from_str::<easyhec::synth::GroundTruth>(&text)
+        if let Some(truth) = serde_json::from_str::<easyhec::run::GroundTruth>(&text)
             .ok()
             .and_then(|t| easyhec::geometry::from_rows(&t.camera_from_base).ok())
         {

@@ -103,6 +103,24 @@ impl CameraEntry {
     }
 }
 
+/// `ground_truth.json`, written beside (never inside) `run.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct GroundTruth {
+    /// Always `easyhec-truth/1`.
+    pub format: String,
+    /// True `camera_from_base`.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// True joint vectors per view.
+    pub true_joints: Vec<Vec<f64>>,
+    /// The noise model used.
+    pub noise: crate::config::NoiseModel,
+    /// The seed.
+    pub seed: u64,
+    /// The scene dressing of the colour frames, when the run has them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<crate::config::SceneSettings>,
+}
+
 /// A 4x4 transform holder as the formats write it.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct PoseEntry {

@@ -778,7 +778,9 @@ fn joint_reach(robot: &RobotModel, collision: &CollisionModel) -> Vec<f64> {
 }
 
 /// An arm that only accepts [`CheckedMove`]s, re-reading the joints first to make sure the
-/// arm is still where the check assumed.
+/// arm is still where the check assumed. The raw driver stays inside: a cell hands out only
+/// this, so no code path can send a target the safety checker has not passed.
+#[derive(Clone)]
 pub struct SafeArm {
     arm: Arc<dyn easyhec_drivers::Arm>,
     /// Largest difference between the checked start and the arm's reading, radians.
@@ -794,9 +796,29 @@ impl SafeArm {
         }
     }
 
-    /// The wrapped arm (for reads).
-    pub fn arm(&self) -> &Arc<dyn easyhec_drivers::Arm> {
-        &self.arm
+    /// The controller's joint limits and speeds.
+    pub fn joints(&self) -> &[easyhec_drivers::JointLimit] {
+        self.arm.joints()
+    }
+
+    /// Reads the joints as the controller reports them.
+    pub async fn read_joints(&self) -> Result<Vec<f64>> {
+        Ok(self.arm.read_joints().await?)
+    }
+
+    /// The controller's state.
+    pub async fn status(&self) -> Result<easyhec_drivers::ArmStatus> {
+        Ok(self.arm.status().await?)
+    }
+
+    /// Stops any motion (always allowed: stopping never needs a check).
+    pub async fn stop(&self) -> Result<()> {
+        Ok(self.arm.stop().await?)
+    }
+
+    /// Clears a fault so the arm accepts moves again.
+    pub async fn clear_fault(&self) -> Result<()> {
+        Ok(self.arm.clear_fault().await?)
     }
 
     /// Sends a checked move.
@@ -805,7 +827,7 @@ impl SafeArm {
             .arm
             .read_joints()
             .await
-            .map_err(|e| Error::Hardware(format!("reading joints before a move: {e}")))?;
+            .map_err(|e| Error::driver("reading joints before a move", e))?;
         let drift = now
             .iter()
             .zip(mv.from())
@@ -819,6 +841,6 @@ impl SafeArm {
         self.arm
             .move_to(mv.to(), mv.speed_rad_s())
             .await
-            .map_err(|e| Error::Hardware(format!("arm: {e}")))
+            .map_err(|e| Error::driver("arm", e))
     }
 }

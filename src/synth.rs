@@ -26,7 +26,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::config::{NoiseModel, SceneSettings};
@@ -36,7 +35,7 @@ use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
-use crate::run::{CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
+use crate::run::{CameraEntry, GroundTruth, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
 use crate::scene::{SimFrame, SimScene};
 
 /// Scene generator settings.
@@ -122,24 +121,6 @@ pub struct Scene {
     pub recorded_joints: Vec<Vec<f64>>,
     /// Observed masks (with segmentation noise), in the camera's (distorted) image.
     pub masks: Vec<Mask>,
-}
-
-/// `ground_truth.json`, written beside (never inside) `run.json`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct GroundTruth {
-    /// Always `easyhec-truth/1`.
-    pub format: String,
-    /// True `camera_from_base`.
-    pub camera_from_base: [[f64; 4]; 4],
-    /// True joint vectors per view.
-    pub true_joints: Vec<Vec<f64>>,
-    /// The noise model used.
-    pub noise: NoiseModel,
-    /// The seed.
-    pub seed: u64,
-    /// The scene dressing of the colour frames, when the run has them.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scene: Option<SceneSettings>,
 }
 
 /// A random rigid perturbation with rotation angle and translation length drawn from ranges.

@@ -405,7 +405,9 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
             cell.camera.grab().await.unwrap(),
         )
     });
-    let mask = a.truth_mask.as_ref().unwrap();
+    // The truth stays with the simulator, looked up by the frame's sequence number.
+    let sim_camera = cell.sim.camera.as_ref().unwrap();
+    let mask = &sim_camera.truth_mask(a.sequence).unwrap();
     let n = mask.len();
     let robot = mask.iter().filter(|&&m| m >= 128).count();
     assert!(

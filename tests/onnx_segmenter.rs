@@ -278,7 +278,7 @@ mod with_tract {
             height: h,
             rgb,
             captured_at: std::time::SystemTime::now(),
-            truth_mask: None,
+            sequence: 0,
         };
         (frame, truth)
     }

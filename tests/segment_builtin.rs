@@ -23,7 +23,7 @@ fn frame_of(width: u32, height: u32, rgb: &[u8]) -> Frame {
         height,
         rgb: rgb.to_vec(),
         captured_at: std::time::SystemTime::now(),
-        truth_mask: None,
+        sequence: 0,
     }
 }
 

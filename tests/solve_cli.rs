@@ -6,8 +6,8 @@ use std::path::Path;
 use std::process::Command;
 
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::run::GroundTruth;
 use easyhec::run::ResultFile;
-use easyhec::synth::GroundTruth;
 
 fn synth(out: &Path, extra: &[&str]) {
     let args: Vec<&str> = ["--views", "3", "--seed", "5"]

@@ -36,9 +36,10 @@ pub struct Frame {
     pub rgb: Vec<u8>,
     /// When the exposure happened (sensor or host clock).
     pub captured_at: SystemTime,
-    /// Ground-truth robot mask (row-major, 0 or 255), only from simulated cameras: a side
-    /// channel for tests and for running the loop before a segmenter exists.
-    pub truth_mask: Option<Vec<u8>>,
+    /// The camera's frame counter (a V4L2 buffer's sequence, a GigE Vision block id, a
+    /// simulator's frame index): it tells frames apart, and lets a simulator look up what it
+    /// rendered for a frame without the frame carrying anything a real camera would not.
+    pub sequence: u64,
 }
 
 /// A camera that grabs colour frames on request.

@@ -54,7 +54,6 @@ async fn fake_camera_grabs_mono_and_bayer_frames_and_reports_typed_errors() {
         let frame = camera.grab().await.expect("grab");
         assert_eq!((frame.width, frame.height), (512, 512));
         assert_eq!(frame.rgb.len(), 512 * 512 * 3);
-        assert!(frame.truth_mask.is_none());
         // Mono is replicated: R = G = B everywhere.
         assert!(frame
             .rgb

@@ -1,8 +1,9 @@
 //! A simulated camera: frames of an arm's true joints (a [`SimArm`] or a controller's report
 //! stream) from a pose the solver never sees (the scene renderer owns it).
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::SystemTime;
 
 use async_trait::async_trait;
@@ -48,11 +49,18 @@ impl JointSource for SimArm {
     }
 }
 
-/// Simulated camera watching an arm's true joints.
+/// How many recent frames' ground-truth masks a simulated camera keeps (a calibration takes a
+/// few tens of views; the bound keeps a long-running simulated daemon's memory flat).
+pub const TRUTH_MASKS_KEPT: usize = 64;
+
+/// Simulated camera watching an arm's true joints. It keeps the ground-truth mask of each
+/// recent frame, looked up by the frame's sequence number ([`SimCamera::truth_mask`]): the
+/// truth stays with the simulator instead of riding on [`Frame`].
 pub struct SimCamera {
     arm: Arc<dyn JointSource>,
     scene: Arc<dyn SceneRenderer>,
     frames: AtomicU64,
+    truths: Mutex<VecDeque<(u64, Vec<u8>)>>,
 }
 
 impl SimCamera {
@@ -67,7 +75,18 @@ impl SimCamera {
             arm: source,
             scene,
             frames: AtomicU64::new(0),
+            truths: Mutex::new(VecDeque::new()),
         }
+    }
+
+    /// The ground-truth robot mask (row-major, 0 or 255) of the frame with this sequence
+    /// number, while it is among the last [`TRUTH_MASKS_KEPT`] frames grabbed.
+    pub fn truth_mask(&self, sequence: u64) -> Option<Vec<u8>> {
+        let truths = self.truths.lock().ok()?;
+        truths
+            .iter()
+            .find(|(s, _)| *s == sequence)
+            .map(|(_, m)| m.clone())
     }
 }
 
@@ -86,13 +105,19 @@ impl Camera for SimCamera {
             .await
             .map_err(|e| DriverError::Connection(format!("render task: {e}")))?
             .map_err(|e| DriverError::Backend(e.into()))?;
+        if let Ok(mut truths) = self.truths.lock() {
+            if truths.len() == TRUTH_MASKS_KEPT {
+                truths.pop_front();
+            }
+            truths.push_back((index, frame.mask));
+        }
         let i = self.scene.intrinsics();
         Ok(Frame {
             width: i.width,
             height: i.height,
             rgb: frame.rgb,
             captured_at,
-            truth_mask: Some(frame.mask),
+            sequence: index,
         })
     }
 }

@@ -22,7 +22,6 @@ use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::run::RunFile;
-use crate::safety::SafeArm;
 
 /// Agreement of an observed mask with a rendered one.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -195,8 +194,7 @@ async fn measure(
     pose: &Isometry3<f64>,
 ) -> Result<(Vec<f64>, bool, Agreement)> {
     let cell = daemon.cell().clone();
-    let hw = |e: easyhec_drivers::DriverError| Error::Hardware(e.to_string());
-    match cell.arm.status().await.map_err(hw)? {
+    match cell.arm.status().await? {
         ArmStatus::Fault(f) => {
             return Err(Error::Hardware(format!(
                 "the arm reports a fault ({f}): clear it before checking"
@@ -207,7 +205,7 @@ async fn measure(
     }
     let mut moved = false;
     if let Some(target) = &daemon.settings().check_pose {
-        let from = cell.arm.read_joints().await.map_err(hw)?;
+        let from = cell.arm.read_joints().await?;
         let far = from
             .iter()
             .zip(target)
@@ -218,17 +216,17 @@ async fn measure(
             let mv = cell.checker.check_move(&from, target, speed).map_err(|v| {
                 Error::Hardware(format!("check_pose refused by the safety checker: {v}"))
             })?;
-            SafeArm::new(cell.arm.clone())
+            cell.arm
                 .execute(&mv)
                 .await?
                 .wait()
                 .await
-                .map_err(|e| Error::Hardware(format!("moving to check_pose: {e}")))?;
+                .map_err(|e| Error::driver("moving to check_pose", e))?;
             moved = true;
         }
     }
-    let joints = cell.arm.read_joints().await.map_err(hw)?;
-    let frame = cell.camera.grab().await.map_err(hw)?;
+    let joints = cell.arm.read_joints().await?;
+    let frame = cell.camera.grab().await?;
     let pose = *pose;
     let q = joints.clone();
     let (daemon, id) = (daemon.clone(), id.to_string());

@@ -522,7 +522,7 @@ impl Daemon {
 
     /// Error against the simulated camera's true pose now (simulated cells only).
     fn truth_error(&self, est: &Isometry3<f64>) -> Option<TruthError> {
-        let truth = self.cell.sim.scene.as_ref()?.camera_from_base();
+        let truth = self.cell.sim.camera_from_base_now()?;
         Some(TruthError {
             rotation_deg: rotation_error_deg(est, &truth),
             translation_mm: translation_error_mm(est, &truth),

@@ -55,8 +55,12 @@ pub fn cell_trial(
             config_path,
         )?,
     );
+    let camera = cell.sim.camera.clone().ok_or_else(|| {
+        Error::Solve("the segmentation benchmark needs a simulated camera".into())
+    })?;
     cell.segmenter = Box::new(TruthRecorder {
         inner,
+        truth: camera,
         truths: truths.clone(),
     });
     let truth = cell
@@ -105,6 +109,7 @@ pub fn cell_trial(
 /// simulator's truth: robot pixels a distractor hides are left out), by view index.
 struct TruthRecorder {
     inner: Box<dyn crate::segment::Segmenter>,
+    truth: std::sync::Arc<dyn crate::segment::TruthSource>,
     truths: std::sync::Arc<std::sync::Mutex<Vec<Option<Vec<u8>>>>>,
 }
 
@@ -119,7 +124,10 @@ impl crate::segment::Segmenter for TruthRecorder {
 
     fn segment_views(&self, views: &[crate::segment::ViewInput<'_>]) -> Result<Vec<Mask>> {
         if let Ok(mut t) = self.truths.lock() {
-            *t = views.iter().map(|v| v.frame.truth_mask.clone()).collect();
+            *t = views
+                .iter()
+                .map(|v| self.truth.truth_mask(v.frame))
+                .collect();
         }
         self.inner.segment_views(views)
     }

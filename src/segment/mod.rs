@@ -6,9 +6,12 @@
 //! Per-frame segmenters implement [`Segmenter::segment`] only; segmenters that gain from
 //! context also override [`Segmenter::segment_views`] and [`Segmenter::uses_context`].
 
+#[cfg(feature = "sim")]
 pub mod bench;
 pub mod builtin;
 pub mod refine;
+#[cfg(feature = "sim")]
+mod sim_truth;
 
 pub use builtin::{BuiltinParams, ViewInput};
 
@@ -74,26 +77,66 @@ pub fn read_frame(path: &Path, width: u32, height: u32) -> Result<Frame> {
         height,
         rgb: img.into_raw(),
         captured_at: std::time::SystemTime::now(),
-        truth_mask: None,
+        sequence: 0,
     })
 }
 
 /// Builds the segmenter a `[segmenter]` table names; `config_path` is the cell config, which
 /// relative paths (the ONNX model) are resolved against and errors name.
 pub fn build(config: &SegmenterConfig, config_path: &Path) -> Result<Box<dyn Segmenter>> {
+    build_with_truth(config, config_path, None)
+}
+
+/// Where the `sim-truth` segmenter reads a simulated frame's true mask: the simulator's own
+/// camera, which remembers what it rendered for each frame it handed out.
+pub trait TruthSource: Send + Sync {
+    /// The true robot mask (row-major, 0 or 255) of `frame`, when the source rendered it.
+    fn truth_mask(&self, frame: &Frame) -> Option<Vec<u8>>;
+}
+
+/// [`build`], giving `sim-truth` the simulated camera it reads the truth from (without one,
+/// it refuses every frame with a message saying it needs a simulated camera).
+pub fn build_with_truth(
+    config: &SegmenterConfig,
+    config_path: &Path,
+    truth: Option<std::sync::Arc<dyn TruthSource>>,
+) -> Result<Box<dyn Segmenter>> {
     config.validate(config_path)?;
     match config {
-        SegmenterConfig::SimTruth { noise, seed } => Ok(Box::new(SimTruth {
-            noise: noise.clone(),
-            seed: *seed,
-            frames: std::sync::atomic::AtomicU64::new(0),
-        })),
+        SegmenterConfig::SimTruth { noise, seed } => {
+            sim_truth(truth, noise.clone(), *seed, config_path)
+        }
         SegmenterConfig::Onnx(cfg) => onnx_segmenter(cfg, config_path),
         SegmenterConfig::Builtin { min_band_px, .. } => Ok(Box::new(Builtin {
             params: BuiltinParams::default(),
             min_band_px: *min_band_px,
         })),
     }
+}
+
+#[cfg(feature = "sim")]
+fn sim_truth(
+    truth: Option<std::sync::Arc<dyn TruthSource>>,
+    noise: Option<NoiseModel>,
+    seed: u64,
+    _config_path: &Path,
+) -> Result<Box<dyn Segmenter>> {
+    Ok(Box::new(sim_truth::SimTruth::new(truth, noise, seed)))
+}
+
+/// Without the `sim` feature there is no simulator to read the truth from.
+#[cfg(not(feature = "sim"))]
+fn sim_truth(
+    _: Option<std::sync::Arc<dyn TruthSource>>,
+    _: Option<NoiseModel>,
+    _: u64,
+    config_path: &Path,
+) -> Result<Box<dyn Segmenter>> {
+    Err(Error::input(
+        config_path,
+        "segmenter.kind",
+        "\"sim-truth\" needs the simulator, which this build lacks: rebuild with the default `sim` feature",
+    ))
 }
 
 /// The `builtin` segmenter (see [`builtin`]).
@@ -160,50 +203,4 @@ fn onnx_segmenter(_cfg: &OnnxConfig, config_path: &Path) -> Result<Box<dyn Segme
 /// Where a model path in the config at `config_path` points.
 pub fn resolve_model_path(config_path: &Path, model: &Path) -> PathBuf {
     config_path.parent().unwrap_or(Path::new(".")).join(model)
-}
-
-/// Uses [`Frame::truth_mask`].
-pub struct SimTruth {
-    noise: Option<NoiseModel>,
-    seed: u64,
-    frames: std::sync::atomic::AtomicU64,
-}
-
-impl Segmenter for SimTruth {
-    fn name(&self) -> &str {
-        "sim-truth"
-    }
-
-    fn segment(&self, frame: &Frame) -> Result<Mask> {
-        let Some(truth) = &frame.truth_mask else {
-            return Err(Error::Hardware(
-                "segmenter 'sim-truth' needs a simulated camera (frames carry no ground-truth mask): set [segmenter] kind for this camera".into(),
-            ));
-        };
-        if truth.len() != (frame.width * frame.height) as usize {
-            return Err(Error::Hardware(format!(
-                "ground-truth mask has {} pixels for a {}x{} frame",
-                truth.len(),
-                frame.width,
-                frame.height
-            )));
-        }
-        let mask = Mask {
-            width: frame.width,
-            height: frame.height,
-            data: truth.iter().map(|&v| u8::from(v >= 128)).collect(),
-        };
-        Ok(match &self.noise {
-            None => mask,
-            Some(noise) => {
-                use rand::SeedableRng;
-                let n = self
-                    .frames
-                    .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let mut rng =
-                    rand_chacha::ChaCha8Rng::seed_from_u64(self.seed.wrapping_mul(1_000_003) + n);
-                crate::synth::apply_mask_noise(&mut rng, &mask, noise)
-            }
-        })
-    }
 }

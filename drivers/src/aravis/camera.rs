@@ -314,7 +314,7 @@ impl Worker {
             height,
             rgb,
             captured_at,
-            truth_mask: None,
+            sequence: buffer.frame_id(),
         })
     }
 }

@@ -338,7 +338,7 @@ impl Worker {
                 height: h,
                 rgb,
                 captured_at,
-                truth_mask: None,
+                sequence: u64::from(meta.sequence),
             });
         }
     }

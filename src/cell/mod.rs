@@ -1,0 +1,225 @@
+//! A built cell: the arm, camera and segmenter a config names, the robot model and the safety
+//! checker, ready for the loop. Backends are picked by each table's `kind` (module
+//! [`hardware`] for real devices, [`sim`] for the simulator), so the loop only ever sees a
+//! [`SafeArm`] and an `Arc<dyn Camera>`.
+//!
+//! Relative paths in a config are relative to the config file.
+
+mod hardware;
+#[cfg(feature = "sim")]
+pub mod sim;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use easyhec_drivers::{Arm, Camera as CameraDevice};
+#[cfg(not(feature = "sim"))]
+use nalgebra::Isometry3;
+
+use crate::config::{read_config, ArmConfig, CameraCalibration, CameraConfig, CellConfig};
+#[cfg(not(feature = "sim"))]
+use crate::error::Error;
+use crate::error::Result;
+use crate::robot::{RobotModel, RobotSource};
+use crate::safety::{SafeArm, SafetyChecker};
+use crate::segment::Segmenter;
+
+#[cfg(feature = "sim")]
+pub use sim::SimHandles;
+
+/// Stands in for the simulator's handles in a build without the `sim` feature: there is never
+/// a simulated part to reach.
+#[cfg(not(feature = "sim"))]
+#[derive(Clone, Default)]
+pub struct SimHandles {
+    /// Never set without the `sim` feature.
+    pub camera_from_base: Option<Isometry3<f64>>,
+}
+
+#[cfg(not(feature = "sim"))]
+impl SimHandles {
+    /// Never a pose without the `sim` feature.
+    pub fn camera_from_base_now(&self) -> Option<Isometry3<f64>> {
+        None
+    }
+}
+
+/// A built cell.
+pub struct Cell {
+    /// The parsed config.
+    pub config: CellConfig,
+    /// Where it was read from.
+    pub config_path: PathBuf,
+    /// Robot model (rendering, FK).
+    pub robot: Arc<RobotModel>,
+    /// The arm, behind the safety gate: every move must be a [`crate::safety::CheckedMove`].
+    pub arm: SafeArm,
+    /// The camera.
+    pub camera: Arc<dyn CameraDevice>,
+    /// The segmenter.
+    pub segmenter: Box<dyn Segmenter>,
+    /// The safety checker.
+    pub checker: SafetyChecker,
+    /// Simulator handles (empty on real hardware).
+    pub sim: SimHandles,
+}
+
+/// The arm a config builds, with the simulated arm's own handle when simulated.
+struct BuiltArm {
+    device: Arc<dyn Arm>,
+    #[cfg(feature = "sim")]
+    sim: Option<easyhec_mocks::SimArm>,
+}
+
+/// The camera a config builds, with the simulator's parts when simulated.
+struct BuiltCamera {
+    device: Arc<dyn CameraDevice>,
+    #[cfg(feature = "sim")]
+    sim: Option<sim::SimCameraParts>,
+}
+
+impl Cell {
+    /// Builds every backend named in the config at `path`.
+    pub fn open(path: &Path) -> Result<Cell> {
+        let config = read_config(path)?;
+        Cell::build(config, path)
+    }
+
+    /// Builds from an already parsed config (`path` resolves relative paths).
+    pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
+        // A bad calibration file fails here, before any hardware is opened.
+        let calibration = config.camera.calibration(path)?;
+        // So does a bad segmentation model.
+        let segmenter = crate::segment::build(&config.segmenter, path)?;
+        let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
+        let arm = build_arm(&config.arm, &robot, path)?;
+        let camera = build_camera(&config.camera, calibration, &robot, &arm, path)?;
+        let controller: Vec<(f64, f64, f64)> = arm
+            .device
+            .joints()
+            .iter()
+            .map(|j| (j.lower, j.upper, j.max_velocity))
+            .collect();
+        let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
+        config.calibration.validate(path)?;
+        config.daemon.validate(path, robot.actuated.len())?;
+        #[cfg(feature = "sim")]
+        let (segmenter, sim) = sim::attach(&config, path, segmenter, arm.sim, camera.sim)?;
+        #[cfg(not(feature = "sim"))]
+        let sim = SimHandles::default();
+        Ok(Cell {
+            segmenter,
+            config,
+            config_path: path.to_path_buf(),
+            robot,
+            arm: SafeArm::new(arm.device),
+            camera: camera.device,
+            checker,
+            sim,
+        })
+    }
+}
+
+/// The `[robot]` table as a model source, its paths resolved against the config's folder.
+fn robot_source(config: &CellConfig, path: &Path) -> RobotSource {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let r = &config.robot;
+    RobotSource {
+        urdf: dir.join(&r.urdf),
+        package_dirs: r
+            .package_dirs
+            .iter()
+            .map(|(k, v)| (k.clone(), dir.join(v)))
+            .collect(),
+        base_link: r.base_link.clone(),
+        ignore_links: r.ignore_links.clone(),
+        joints: r.joints.clone(),
+    }
+}
+
+/// The arm of the `[arm]` table.
+fn build_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
+    let device = match arm {
+        ArmConfig::Sim { .. } => return sim_arm(arm, robot, path),
+        ArmConfig::Xarm { .. } => hardware::xarm_arm(arm, robot, path)?,
+        ArmConfig::Ur { .. } => hardware::ur_arm(arm, robot, path)?,
+        ArmConfig::Dynamixel(t) => hardware::servo_arm(
+            easyhec_drivers::dynamixel::Family::Dynamixel,
+            t,
+            robot,
+            path,
+        )?,
+        ArmConfig::Feetech(t) => {
+            hardware::servo_arm(easyhec_drivers::dynamixel::Family::Feetech, t, robot, path)?
+        }
+        ArmConfig::Piper { .. } => hardware::piper_arm(arm, robot, path)?,
+    };
+    Ok(BuiltArm {
+        device,
+        #[cfg(feature = "sim")]
+        sim: None,
+    })
+}
+
+/// The camera of the `[camera]` table.
+fn build_camera(
+    camera: &CameraConfig,
+    calibration: Option<CameraCalibration>,
+    robot: &Arc<RobotModel>,
+    arm: &BuiltArm,
+    path: &Path,
+) -> Result<BuiltCamera> {
+    let device = match camera {
+        CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, path),
+        CameraConfig::V4l2 { .. } => hardware::v4l2_camera(camera, calibration, path)?,
+        CameraConfig::Aravis { .. } => hardware::aravis_camera(camera, calibration, path)?,
+    };
+    Ok(BuiltCamera {
+        device,
+        #[cfg(feature = "sim")]
+        sim: None,
+    })
+}
+
+#[cfg(feature = "sim")]
+fn sim_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
+    let sim = sim::arm(arm, robot, path)?;
+    Ok(BuiltArm {
+        device: Arc::new(sim.clone()),
+        sim: Some(sim),
+    })
+}
+
+#[cfg(feature = "sim")]
+fn sim_camera(
+    camera: &CameraConfig,
+    robot: &Arc<RobotModel>,
+    arm: &BuiltArm,
+    path: &Path,
+) -> Result<BuiltCamera> {
+    let parts = sim::camera(camera, robot, arm.sim.as_ref(), path)?;
+    Ok(BuiltCamera {
+        device: parts.camera.clone(),
+        sim: Some(parts),
+    })
+}
+
+/// Without the `sim` feature a simulated cell cannot be built: say how to get one.
+#[cfg(not(feature = "sim"))]
+fn sim_arm(_: &ArmConfig, _: &RobotModel, path: &Path) -> Result<BuiltArm> {
+    Err(Error::input(path, "arm.kind", NO_SIM))
+}
+
+#[cfg(not(feature = "sim"))]
+fn sim_camera(
+    _: &CameraConfig,
+    _: &Arc<RobotModel>,
+    _: &BuiltArm,
+    path: &Path,
+) -> Result<BuiltCamera> {
+    Err(Error::input(path, "camera.kind", NO_SIM))
+}
+
+#[cfg(not(feature = "sim"))]
+const NO_SIM: &str =
+    "\"sim\" needs the simulator, which this build lacks: rebuild with the default `sim` feature";

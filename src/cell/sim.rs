@@ -1,0 +1,226 @@
+//! The simulated parts of a cell (`[arm] kind = "sim"`, `[camera] kind = "sim"`,
+//! `[segmenter] kind = "sim-truth"`): built through the same driver traits as real hardware,
+//! with the simulator's own handles (true pose, scene, command log, ground-truth masks) kept
+//! beside the cell for tests and for `ground_truth.json`, never on the hardware types.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use easyhec_drivers::JointLimit;
+use easyhec_mocks::ur::UrRtdeJoints;
+use easyhec_mocks::xarm::XArmReportJoints;
+use easyhec_mocks::{Fault, JointSource, SimArm, SimArmConfig, SimCamera};
+use nalgebra::Isometry3;
+
+use crate::config::{
+    seconds, ArmConfig, CameraConfig, CellConfig, FaultConfig, JointsFrom, SegmenterConfig,
+};
+use crate::error::{Error, Result};
+use crate::robot::RobotModel;
+use crate::run::GroundTruth;
+use crate::scene::SimScene;
+use crate::segment::Segmenter;
+
+/// Handles into the simulated hardware, for tests and the truth report.
+#[derive(Clone, Default)]
+pub struct SimHandles {
+    /// The simulated arm (its command log).
+    pub arm: Option<SimArm>,
+    /// The simulated camera's true pose when the cell was built.
+    pub camera_from_base: Option<Isometry3<f64>>,
+    /// The simulated camera's scene: its true pose now, and a way to bump the camera
+    /// ([`SimScene::set_camera_from_base`]).
+    pub scene: Option<Arc<SimScene>>,
+    /// The simulated camera itself: the ground-truth mask of each recent frame
+    /// ([`SimCamera::truth_mask`], by the frame's sequence number).
+    pub camera: Option<Arc<SimCamera>>,
+}
+
+impl SimHandles {
+    /// The simulated camera's true pose now (it moves when a test bumps the camera).
+    pub fn camera_from_base_now(&self) -> Option<Isometry3<f64>> {
+        self.scene.as_ref().map(|s| s.camera_from_base())
+    }
+}
+
+/// What a simulated camera table builds.
+pub(super) struct SimCameraParts {
+    pub(super) camera: Arc<SimCamera>,
+    pub(super) camera_from_base: Isometry3<f64>,
+    pub(super) scene: Arc<SimScene>,
+}
+
+/// The simulated arm of an `[arm] kind = "sim"` table, with the URDF's limits.
+pub(super) fn arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<SimArm> {
+    let ArmConfig::Sim {
+        start,
+        encoder_noise_rad,
+        speedup,
+        faults,
+        seed,
+    } = arm
+    else {
+        unreachable!("called for kind = \"sim\" only")
+    };
+    let n = robot.actuated.len();
+    if start.len() != n {
+        return Err(Error::input(
+            path,
+            "arm.start",
+            format!("{} values for the {n} actuated joints", start.len()),
+        ));
+    }
+    let urdf_limits = robot.joint_limits();
+    let joints: Vec<JointLimit> = robot
+        .joint_names()
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let v = robot.joints[robot.actuated[k]].velocity;
+            JointLimit {
+                name: name.to_string(),
+                lower: urdf_limits[k].0,
+                upper: urdf_limits[k].1,
+                max_velocity: if v > 0.0 { v } else { 1.0 },
+            }
+        })
+        .collect();
+    Ok(SimArm::new(SimArmConfig {
+        joints,
+        start: start.clone(),
+        encoder_noise_rad: *encoder_noise_rad,
+        speedup: speedup.unwrap_or(f64::INFINITY),
+        faults: faults.iter().map(fault).collect(),
+        seed: *seed,
+    }))
+}
+
+fn fault(f: &FaultConfig) -> Fault {
+    match *f {
+        FaultConfig::Refuse { on_move } => Fault::Refuse { on_move },
+        FaultConfig::Error {
+            on_move,
+            at_fraction,
+        } => Fault::ErrorMidMove {
+            on_move,
+            at_fraction,
+        },
+        FaultConfig::Stall {
+            on_move,
+            at_fraction,
+        } => Fault::Stall {
+            on_move,
+            at_fraction,
+        },
+    }
+}
+
+/// The simulated camera of a `[camera] kind = "sim"` table: it films the simulated arm, or a
+/// controller's report stream when `joints_from` says so.
+pub(super) fn camera(
+    camera: &CameraConfig,
+    robot: &Arc<RobotModel>,
+    sim_arm: Option<&SimArm>,
+    path: &Path,
+) -> Result<SimCameraParts> {
+    let CameraConfig::Sim {
+        truth,
+        scene,
+        joints_from,
+        ..
+    } = camera
+    else {
+        unreachable!("called for kind = \"sim\" only")
+    };
+    let source = joint_source(joints_from.as_ref(), sim_arm, robot.actuated.len(), path)?;
+    let pose = truth.camera_from_base();
+    let model = camera
+        .camera()
+        .ok_or_else(|| Error::input(path, "camera", "a simulated camera without its intrinsics"))?;
+    scene.validate(path, "camera.scene")?;
+    let scene = Arc::new(SimScene::new(robot.clone(), model, pose, scene.clone()));
+    Ok(SimCameraParts {
+        camera: Arc::new(SimCamera::watching(source, scene.clone())),
+        camera_from_base: pose,
+        scene,
+    })
+}
+
+/// Where a simulated camera reads the true joints of the arm it films.
+fn joint_source(
+    joints_from: Option<&JointsFrom>,
+    sim_arm: Option<&SimArm>,
+    axes: usize,
+    path: &Path,
+) -> Result<Arc<dyn JointSource>> {
+    Ok(match (joints_from, sim_arm) {
+        (Some(JointsFrom::XarmReport { addr, timeout_s }), _) => Arc::new(XArmReportJoints {
+            addr: addr.clone(),
+            axes,
+            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+        }),
+        (Some(JointsFrom::UrRtde { addr, timeout_s }), _) => Arc::new(UrRtdeJoints {
+            addr: addr.clone(),
+            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+        }),
+        (None, Some(sim_arm)) => Arc::new(sim_arm.clone()),
+        (None, None) => {
+            return Err(Error::input(
+                path,
+                "camera.joints_from",
+                "a simulated camera needs the true joints of the arm it films: set [arm] kind = \"sim\", or joints_from = { kind = \"xarm-report\", addr = \"HOST:30003\" } or { kind = \"ur-rtde\", addr = \"HOST:30004\" }",
+            ))
+        }
+    })
+}
+
+/// Gathers the simulator's handles, and gives a `sim-truth` segmenter the simulated camera
+/// whose ground truth it reads.
+pub(super) fn attach(
+    config: &CellConfig,
+    path: &Path,
+    segmenter: Box<dyn Segmenter>,
+    arm: Option<SimArm>,
+    camera: Option<SimCameraParts>,
+) -> Result<(Box<dyn Segmenter>, SimHandles)> {
+    let segmenter = match (&config.segmenter, &camera) {
+        (SegmenterConfig::SimTruth { .. }, Some(parts)) => {
+            crate::segment::build_with_truth(&config.segmenter, path, Some(parts.camera.clone()))?
+        }
+        _ => segmenter,
+    };
+    let handles = SimHandles {
+        arm,
+        camera_from_base: camera.as_ref().map(|c| c.camera_from_base),
+        scene: camera.as_ref().map(|c| c.scene.clone()),
+        camera: camera.map(|c| c.camera),
+    };
+    Ok((segmenter, handles))
+}
+
+/// The simulator's truth for a run recorded on `config`'s cell (`ground_truth.json`): the true
+/// camera pose, the encoder noise the arm adds (a driver-backed arm's readings count as exact)
+/// and the scene's dressing.
+pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> GroundTruth {
+    let joint_noise_rad = match &config.arm {
+        ArmConfig::Sim {
+            encoder_noise_rad, ..
+        } => *encoder_noise_rad,
+        _ => 0.0,
+    };
+    GroundTruth {
+        format: "easyhec-truth/1".into(),
+        camera_from_base: crate::geometry::to_rows(camera_from_base),
+        true_joints: Vec::new(),
+        noise: crate::config::NoiseModel {
+            boundary_jitter_px: 0.0,
+            blob_probability: 0.0,
+            joint_noise_rad,
+        },
+        seed: config.calibration.seed,
+        scene: match &config.camera {
+            CameraConfig::Sim { scene, .. } => Some(scene.clone()),
+            _ => None,
+        },
+    }
+}
