@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use crate::camera::Camera;
 use crate::cell::{Cell, LookAt};
 
+use crate::backend::{open_renderer, Backend};
 use crate::error::{Error, Result};
 use crate::explore::{
     camera_candidates, cost_reduction, view_terms, CandidateSource, ExploreOptions, ViewTerms,
@@ -27,7 +28,7 @@ use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::render::{open_renderer, CoarseRobot, PosedRobot, RendererChoice, SilhouetteRenderer};
+use crate::render::{CoarseRobot, PosedRobot, RendererChoice, SilhouetteRenderer};
 use crate::run::{
     CameraEntry, PerView, PoseEntry, ResultFile, RobotEntry, RunFile, UncertaintyEntry, ViewEntry,
     RUN_FORMAT,
@@ -578,7 +579,7 @@ pub struct PlanStats {
 /// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
 /// by the candidates' disagreement, best first.
 pub fn rank_poses(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     cell: &Cell,
     camera: &Camera,
     report: &SolveReport,

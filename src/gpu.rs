@@ -8,7 +8,7 @@
 //!   a single submission; the masks come back and the outline samples are taken from them on
 //!   the CPU with [`outline_samples`], so the solver's gradient is the CPU's code on the
 //!   GPU's mask.
-//! - **Exploration** ([`SilhouetteRenderer::disagreement_many`]): a compute rasteriser, one
+//! - **Exploration** ([`BatchScoring::disagreement_many`]): a compute rasteriser, one
 //!   thread per (triangle, camera candidate, joint sample), applies the CPU's pixel rule in f32
 //!   and sets one bit per covered pixel in the candidate's bitmask; a second pass counts per
 //!   pixel how many candidates cover it and reduces `count * (K - count)` to one integer per
@@ -37,6 +37,7 @@ use crate::mesh::TriMesh;
 use crate::render::{
     outline_samples, project_vertices, PosedRobot, Silhouette, SilhouetteRenderer,
 };
+use crate::scoring::BatchScoring;
 
 /// GPU memory one exploration batch may use for its candidate bitmasks and vertices, bytes.
 const EXPLORE_BATCH_BYTES: u64 = 256 << 20;
@@ -1161,10 +1162,13 @@ impl WgpuRenderer {
         )
     }
 
-    /// [`SilhouetteRenderer::band_mismatches`] on the GPU: every (view, pose) silhouette as
+    /// [`BatchScoring::band_mismatches`] on the GPU alone: every (view, pose) silhouette as
     /// bits in one submission per batch of views, compared with the band and observation
-    /// bits on the GPU, only the counts read back.
-    fn band_mismatches_gpu(
+    /// bits on the GPU, only the counts read back. `None` where the GPU does not take the
+    /// batch (a distorted camera, fewer pixels than the CPU hand-off, masks of the wrong
+    /// size, a batch over the memory bound, a device failure); the trait method then counts
+    /// on the CPU. Public so that the parity tests can tell the two paths apart.
+    pub fn band_mismatches_on_gpu(
         &self,
         camera: &Camera,
         robots: &[&PosedRobot],
@@ -1172,6 +1176,14 @@ impl WgpuRenderer {
         observed: &[&[u8]],
         poses: &[Isometry3<f64>],
     ) -> Option<Vec<u32>> {
+        let pixels = u64::from(camera.width) * u64::from(camera.height) * robots.len() as u64;
+        if camera.is_distorted()
+            || pixels < self.min_pixels
+            || band.len() != robots.len()
+            || observed.len() != robots.len()
+        {
+            return None;
+        }
         let k = poses.len() as u32;
         let words = (camera.width * camera.height).div_ceil(32);
         let bits_per_view = u64::from(k) * u64::from(words) * 4;
@@ -1233,7 +1245,7 @@ impl WgpuRenderer {
     }
 
     /// Per-sample disagreement of `candidates` over `pool` (see
-    /// [`crate::explore::disagreement_cpu`]), on the GPU, in batches.
+    /// [`crate::scoring::cpu::disagreement`]), on the GPU, in batches.
     fn disagreement_gpu(
         &self,
         camera: &Camera,
@@ -1283,7 +1295,7 @@ impl WgpuRenderer {
             let Some(upload) = self.upload_pool(camera, group, k, words) else {
                 // More triangles than one dispatch row holds: a mesh no scoring pass decimates
                 // to; the CPU takes it.
-                scores.extend(crate::render::cpu_disagreement_many(
+                scores.extend(crate::scoring::cpu::disagreement_many(
                     camera, group, candidates,
                 ));
                 continue;
@@ -1298,7 +1310,7 @@ impl WgpuRenderer {
                 u64::from(entries),
                 [words.div_ceil(BITS_WORKGROUP), entries, 1],
             ) else {
-                scores.extend(crate::render::cpu_disagreement_many(
+                scores.extend(crate::scoring::cpu::disagreement_many(
                     camera, group, candidates,
                 ));
                 continue;
@@ -1397,7 +1409,9 @@ impl SilhouetteRenderer for WgpuRenderer {
             })
             .collect()
     }
+}
 
+impl BatchScoring for WgpuRenderer {
     fn disagreement_many(
         &self,
         camera: &Camera,
@@ -1405,7 +1419,7 @@ impl SilhouetteRenderer for WgpuRenderer {
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64> {
         if camera.is_distorted() || candidates.is_empty() {
-            return crate::render::cpu_disagreement_many(camera, pool, candidates);
+            return crate::scoring::cpu::disagreement_many(camera, pool, candidates);
         }
         self.disagreement_gpu(camera, pool, candidates)
     }
@@ -1417,15 +1431,10 @@ impl SilhouetteRenderer for WgpuRenderer {
         band: &[&[u8]],
         observed: &[&[u8]],
         poses: &[Isometry3<f64>],
-    ) -> Option<Vec<u32>> {
-        let pixels = u64::from(camera.width) * u64::from(camera.height) * robots.len() as u64;
-        if camera.is_distorted()
-            || pixels < self.min_pixels
-            || band.len() != robots.len()
-            || observed.len() != robots.len()
-        {
-            return None;
-        }
-        self.band_mismatches_gpu(camera, robots, band, observed, poses)
+    ) -> Vec<u32> {
+        self.band_mismatches_on_gpu(camera, robots, band, observed, poses)
+            .unwrap_or_else(|| {
+                crate::scoring::cpu::band_mismatches(camera, robots, band, observed, poses)
+            })
     }
 }

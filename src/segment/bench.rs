@@ -4,12 +4,13 @@
 
 use std::path::Path;
 
+use crate::backend::Backend;
 use crate::calibrate::{calibrate, RunOptions, SelectionSetting};
 use crate::cell::{Cell, CellConfig};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::mask::Mask;
-use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::render::PosedRobot;
 use crate::run::{load_run, load_run_with, MaskSource};
 use crate::segment::SegmenterConfig;
 use crate::solve::{solve, SolveOptions, View};
@@ -142,7 +143,7 @@ pub struct RunFigures {
 
 /// Solves `run` from its recorded masks, then from its images alone (masks withheld) with the
 /// builtin segmenter, and compares masks and poses. The run needs an `initial_guess`.
-pub fn run_figures(run_dir: &Path, renderer: &dyn SilhouetteRenderer) -> Result<RunFigures> {
+pub fn run_figures(run_dir: &Path, renderer: &dyn Backend) -> Result<RunFigures> {
     let reference = load_run(run_dir)?;
     let guess = reference.initial_guess.ok_or_else(|| {
         Error::input(
