@@ -345,7 +345,7 @@ pub struct ExploreTiming {
 /// posterior, `candidates` camera hypotheses are drawn from it (widened as the loop does),
 /// and `samples` random joint vectors are posed, decimated and scored at 1/4 resolution.
 pub fn explore_round(
-    renderer: &dyn crate::render::SilhouetteRenderer,
+    renderer: &dyn crate::backend::Backend,
     robot: &RobotModel,
     samples: usize,
     candidates: usize,

@@ -20,6 +20,7 @@ use crate::camera::Camera;
 use crate::cell::Cell;
 use crate::config::{CalibrationSettings, ScoreSetting, SelectionSetting, SourceSetting};
 
+use crate::backend::{open_renderer, Backend};
 use crate::error::{Error, Result};
 use crate::explore::{
     camera_candidates, cost_reduction, view_terms, CandidateSource, ExploreOptions, ViewTerms,
@@ -28,7 +29,7 @@ use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::render::{open_renderer, CoarseRobot, PosedRobot, SilhouetteRenderer};
+use crate::render::{CoarseRobot, PosedRobot, SilhouetteRenderer};
 use crate::run::{
     CameraEntry, PerView, PoseEntry, ResultFile, RobotEntry, RunFile, UncertaintyEntry, ViewEntry,
     RUN_FORMAT,
@@ -379,7 +380,7 @@ pub struct PlanStats {
 /// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
 /// by the candidates' disagreement, best first.
 pub fn rank_poses(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     cell: &Cell,
     camera: &Camera,
     report: &SolveReport,

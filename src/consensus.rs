@@ -10,6 +10,7 @@
 
 use nalgebra::Isometry3;
 
+use crate::backend::Backend;
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::render::SilhouetteRenderer;
@@ -80,7 +81,7 @@ fn best_n(ious: &[f64], n: usize) -> Vec<usize> {
 /// `None` when every view fits or no such subset is found (the caller then keeps `report` and
 /// warns).
 pub fn find_consensus(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     views: &[View],
     report: &SolveReport,

@@ -5,13 +5,17 @@
 //! optimisation trajectory (the paper's choice). A view's score is the per-pixel variance of
 //! the candidates' masks, `V = sum_p c_p (K - c_p) / K^2`, at reduced resolution; the paper
 //! shows the summed loss over candidates bounds it from above, so a high `V` is a view that
-//! will shrink the candidate set.
+//! will shrink the candidate set. The score itself is a batched computation of the backend
+//! ([`crate::scoring::BatchScoring::disagreement_many`], defined by
+//! [`crate::scoring::cpu::disagreement`]); this module chooses what to score and what to do
+//! with the scores.
 
 use nalgebra::{Isometry3, Matrix6};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use crate::backend::Backend;
 use crate::camera::Camera;
 use crate::geometry::{exp_se3, Twist};
 use crate::render::{PosedRobot, SilhouetteRenderer};
@@ -84,47 +88,6 @@ pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Iso
             (0..k).map(|i| tail[i * tail.len() / k]).collect()
         }
     }
-}
-
-/// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the
-/// scoring image, on the CPU rasteriser: single-threaded with reused buffers, because callers
-/// score many poses in parallel, where per-render thread fan-out and allocation would cost
-/// more than the rasterisation of a coarse mesh at scoring resolution.
-pub fn disagreement_cpu(camera: &Camera, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {
-    let k = candidates.len() as f64;
-    let mut counts = vec![0u16; (camera.width * camera.height) as usize];
-    let mut mask = crate::mask::Mask::new(camera.width, camera.height);
-    let mut pixels = vec![[0.0f64; 2]; robot.vertices_base.len()];
-    for pose in candidates {
-        mask.data.fill(0);
-        for (px, v) in pixels.iter_mut().zip(&robot.vertices_base) {
-            let p = pose * v;
-            *px = if p.z > crate::render::NEAR_PLANE_M {
-                camera.project(&p)
-            } else {
-                [f64::NAN, f64::NAN]
-            };
-        }
-        for t in &robot.topology.triangles {
-            let (a, b, c) = (
-                pixels[t[0] as usize],
-                pixels[t[1] as usize],
-                pixels[t[2] as usize],
-            );
-            if a[0].is_nan() || b[0].is_nan() || c[0].is_nan() {
-                continue;
-            }
-            crate::render::fill_triangle(&mut mask, a, b, c);
-        }
-        for (c, &v) in counts.iter_mut().zip(&mask.data) {
-            *c += u16::from(v);
-        }
-    }
-    counts
-        .iter()
-        .map(|&c| f64::from(c) * (k - f64::from(c)))
-        .sum::<f64>()
-        / (k * k)
 }
 
 /// What one view tells the solver about the camera pose, over the left se(3) increment
@@ -287,7 +250,7 @@ pub fn joint_twist_in_camera(motion: &JointMotion, camera_from_base: &Isometry3<
 /// masks need no detail) and returns `(index into pool, score)` of the best, or `None` for
 /// an empty pool. Scoring is at `opts.downsample` resolution.
 pub fn choose_next(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     pool: &[&PosedRobot],
     candidates: &[Isometry3<f64>],
@@ -354,7 +317,7 @@ pub struct Selected {
 /// the others add one view per round and re-solve warm-started from the previous estimate.
 #[allow(clippy::too_many_arguments)]
 pub fn solve_selected(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     pool: &[crate::solve::View],
     initial: &Isometry3<f64>,

@@ -9,11 +9,12 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
+use crate::backend::Backend;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::look_at_camera_from_base;
 use crate::mask::Mask;
-use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::render::PosedRobot;
 use crate::solve::{coarse_search, solve, SolveOptions, SolveReport, View};
 
 /// Settings of the automatic initialisation.
@@ -100,7 +101,7 @@ pub fn hypotheses(
 
 /// Finds `camera_from_base` with no initial guess, or says why it could not.
 pub fn initialise(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     views: &[View],
     solve_opts: &SolveOptions,

@@ -6,6 +6,10 @@
 //! - [`camera`], [`mask`]: pinhole + distortion, binary masks and distance transforms.
 //! - [`render`]: silhouettes and their outline samples, behind [`render::SilhouetteRenderer`].
 //! - [`objective`]: the paper's loss and its exact boundary gradient.
+//! - [`scoring`]: many poses scored in one batch (exploration's disagreement, the solver's
+//!   refinement), behind [`scoring::BatchScoring`], with the CPU reference in [`scoring::cpu`].
+//! - `gpu` (feature `wgpu`): the wgpu backend, implementing both of the above.
+//! - [`backend`]: [`backend::Backend`] (render + score) and [`backend::open_renderer`].
 //! - [`solve`]: Levenberg–Marquardt (default) and Adam (baseline) solvers, uncertainty.
 //! - [`explore`]: consistency-based choice of the next view.
 //! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
@@ -14,6 +18,7 @@
 //! - [`synth`], [`interop`], [`overlay`], [`bench`](mod@bench): synthetic runs, import/export, overlays,
 //!   benchmarks.
 
+pub mod backend;
 #[cfg(feature = "sim")]
 pub mod bench;
 pub mod calibrate;
@@ -41,6 +46,7 @@ pub mod run;
 pub mod safety;
 #[cfg(feature = "sim")]
 pub mod scene;
+pub mod scoring;
 pub mod segment;
 pub mod solve;
 #[cfg(feature = "sim")]

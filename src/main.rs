@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context};
 use clap::{Args, Parser, Subcommand};
 
+use easyhec::backend::open_renderer;
 use easyhec::bench;
 use easyhec::config::NoiseModel;
 use easyhec::config::{ScenePreset, SceneSettings};
@@ -15,7 +16,7 @@ use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::init::{initialise, InitOptions};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
-use easyhec::render::{open_renderer, CpuRenderer, PosedRobot, RendererChoice};
+use easyhec::render::{CpuRenderer, PosedRobot, RendererChoice};
 use easyhec::robot::{RobotModel, RobotSource};
 use easyhec::run::{
     load_run, load_run_with, MaskSource, PerView, ResultFile, RobotEntry, UncertaintyEntry,

@@ -7,7 +7,9 @@
 //! (method.md §3) and the solver's sub-pixel residuals are sums over these samples.
 //!
 //! [`SilhouetteRenderer`] is the seam for other backends (wgpu): the solver only sees
-//! [`Silhouette`]s.
+//! [`Silhouette`]s. This module only renders: scoring many poses in a batch belongs to the
+//! `scoring` module and choosing a backend to `backend`, both above this one, so rendering
+//! depends on nothing but geometry, meshes, robots, cameras and masks.
 
 use std::sync::Arc;
 
@@ -241,50 +243,11 @@ pub trait SilhouetteRenderer: Send + Sync {
             .map(|r| self.render(r, camera, camera_from_base, boundary_step_px))
             .collect()
     }
-
-    /// Exploration's score of every pool entry: the candidates' total per-pixel silhouette
-    /// variance ([`crate::explore::disagreement_cpu`]) at `camera`'s (scoring) resolution, in
-    /// pool order. Backends may batch; the default runs the CPU rasteriser on all cores.
-    fn disagreement_many(
-        &self,
-        camera: &Camera,
-        pool: &[&PosedRobot],
-        candidates: &[Isometry3<f64>],
-    ) -> Vec<f64> {
-        cpu_disagreement_many(camera, pool, candidates)
-    }
-
-    /// The solver's posterior refinement in one batch: for every pose in `poses` and every
-    /// view `robots[v]`, how many pixels inside `band[v]` the silhouette at that pose covers
-    /// differently from `observed[v]`, as `counts[pose * views + v]`. Masks are one byte per
-    /// pixel over the image (`y * width + x`, nonzero = set), as in [`Mask`]. `None` (the
-    /// default) leaves the refinement to score on the CPU rasteriser.
-    fn band_mismatches(
-        &self,
-        camera: &Camera,
-        robots: &[&PosedRobot],
-        band: &[&[u8]],
-        observed: &[&[u8]],
-        poses: &[Isometry3<f64>],
-    ) -> Option<Vec<u32>> {
-        let _ = (camera, robots, band, observed, poses);
-        None
-    }
 }
 
-/// [`SilhouetteRenderer::disagreement_many`] on the CPU: one single-threaded scorer per pool
-/// entry, pool entries in parallel.
-pub fn cpu_disagreement_many(
-    camera: &Camera,
-    pool: &[&PosedRobot],
-    candidates: &[Isometry3<f64>],
-) -> Vec<f64> {
-    pool.par_iter()
-        .map(|r| crate::explore::disagreement_cpu(camera, r, candidates))
-        .collect()
-}
-
-/// Which renderer backend to use (`--renderer`, `[calibration] renderer`).
+/// Which renderer backend to use (`--renderer`, `[calibration] renderer`). Plain data, kept
+/// here, where config and CLI name it, while `backend::open_renderer` (above this module)
+/// acts on it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum RendererChoice {
@@ -305,74 +268,6 @@ impl std::str::FromStr for RendererChoice {
             "wgpu" => Ok(RendererChoice::Wgpu),
             "auto" => Ok(RendererChoice::Auto),
             other => Err(format!("unknown renderer {other:?}: use cpu, wgpu or auto")),
-        }
-    }
-}
-
-/// Whether Linux exposes a GPU: a DRM render node (Mesa, AMD, Intel, virtio) or NVIDIA's
-/// proprietary device nodes.
-#[cfg(all(feature = "wgpu", target_os = "linux"))]
-fn linux_gpu_device_present() -> bool {
-    let render_node = std::fs::read_dir("/dev/dri")
-        .map(|d| {
-            d.flatten()
-                .any(|e| e.file_name().to_string_lossy().starts_with("renderD"))
-        })
-        .unwrap_or(false);
-    render_node || std::path::Path::new("/dev/nvidia0").exists()
-}
-
-/// Opens the renderer `choice` asks for and logs which one (and which adapter) runs, on
-/// stderr unless `quiet`. `wgpu` fails when there is no adapter or the `wgpu` feature is off;
-/// `auto` falls back to the CPU and says why.
-pub fn open_renderer(
-    choice: RendererChoice,
-    quiet: bool,
-) -> Result<Arc<dyn SilhouetteRenderer>, String> {
-    let log = |m: String| {
-        if !quiet {
-            eprintln!("{m}");
-        }
-    };
-    match choice {
-        RendererChoice::Cpu => {
-            log("renderer: cpu".into());
-            Ok(Arc::new(CpuRenderer))
-        }
-        #[cfg(all(feature = "wgpu", target_os = "linux"))]
-        RendererChoice::Auto if !linux_gpu_device_present() => {
-            // No GPU device node: only a software adapter could answer, and probing one
-            // makes Mesa print display-server noise on headless machines.
-            log("renderer: cpu (no GPU device in /dev/dri or /dev/nvidia*)".into());
-            Ok(Arc::new(CpuRenderer))
-        }
-        #[cfg(feature = "wgpu")]
-        RendererChoice::Wgpu | RendererChoice::Auto => {
-            let policy = if choice == RendererChoice::Wgpu {
-                crate::gpu::AdapterPolicy::Any
-            } else {
-                crate::gpu::AdapterPolicy::HardwareOnly
-            };
-            match crate::gpu::WgpuRenderer::new(policy) {
-                Ok(r) => {
-                    log(format!("renderer: wgpu on {}", r.adapter()));
-                    Ok(Arc::new(r))
-                }
-                Err(e) if choice == RendererChoice::Auto => {
-                    log(format!("renderer: cpu ({e})"));
-                    Ok(Arc::new(CpuRenderer))
-                }
-                Err(e) => Err(e),
-            }
-        }
-        #[cfg(not(feature = "wgpu"))]
-        RendererChoice::Wgpu => {
-            Err("the wgpu renderer is not built in: rebuild with --features wgpu".into())
-        }
-        #[cfg(not(feature = "wgpu"))]
-        RendererChoice::Auto => {
-            log("renderer: cpu (built without the wgpu feature)".into());
-            Ok(Arc::new(CpuRenderer))
         }
     }
 }

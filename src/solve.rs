@@ -12,6 +12,7 @@
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 
+use crate::backend::Backend;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::{exp_se3, skew, Twist};
@@ -439,7 +440,7 @@ fn total_cost(n: &Normal) -> f64 {
 
 /// Solves for `camera_from_base` from `views`, starting at `initial`.
 pub fn solve(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     views: &[View],
     initial: &Isometry3<f64>,
@@ -527,21 +528,17 @@ fn max_displacement_px(
 
 /// The part of a view that poses near `centre` can change: pixels within `radius` of the
 /// rendered outline, and the triangles whose (dilated) bounds touch them. Samples render only
-/// the band's window of the image and only the vertices its triangles use, so one sample costs
-/// a small fraction of a full render.
+/// the band's window of the image and only the vertices its triangles use (see
+/// [`crate::scoring::cpu::band_mismatches`]), so one sample costs a small fraction of a full
+/// render.
 struct Band {
-    /// The image window holding every band pixel: `camera` with its principal point shifted so
-    /// that window pixel (0, 0) is image pixel (`x0`, `y0`); pixel centres stay put.
-    window: Camera,
-    /// Band pixels as indices into the window, with whether the observation covers them.
-    pixels: Vec<(u32, bool)>,
     robot: PosedRobot,
     /// Disagreeing pixels outside the band (constant for nearby poses).
     outside_wrong: usize,
     /// Pixels of the whole image, the loss's denominator.
     image_pixels: usize,
     /// The band over the whole image, one byte a pixel (for
-    /// [`SilhouetteRenderer::band_mismatches`]).
+    /// [`crate::scoring::BatchScoring::band_mismatches`]).
     image_band: Vec<u8>,
 }
 
@@ -629,43 +626,6 @@ impl Band {
                 })
             })
             .collect();
-        // The window: the band's bounding box (a 1x1 window when the band is empty).
-        let (mut x0, mut y0, mut x1, mut y1) = (w, h, -1, -1);
-        for v in 0..h {
-            let row = &band[(v * w) as usize..((v + 1) * w) as usize];
-            if let (Some(a), Some(b)) = (
-                row.iter().position(|&b| b != 0),
-                row.iter().rposition(|&b| b != 0),
-            ) {
-                x0 = x0.min(a as i64);
-                x1 = x1.max(b as i64);
-                y0 = y0.min(v);
-                y1 = y1.max(v);
-            }
-        }
-        if x1 < x0 {
-            (x0, y0, x1, y1) = (0, 0, 0, 0);
-        }
-        let window = Camera {
-            width: (x1 - x0 + 1) as u32,
-            height: (y1 - y0 + 1) as u32,
-            cx: camera.cx - x0 as f64,
-            cy: camera.cy - y0 as f64,
-            ..camera.clone()
-        };
-        let ww = x1 - x0 + 1;
-        let mut pixels = Vec::new();
-        for v in y0..=y1 {
-            for u in x0..=x1 {
-                let i = (v * w + u) as usize;
-                if band[i] != 0 {
-                    pixels.push((
-                        ((v - y0) * ww + (u - x0)) as u32,
-                        view.observed.data[i] != 0,
-                    ));
-                }
-            }
-        }
         let outside_wrong = band
             .iter()
             .zip(rendered.data.iter().zip(&view.observed.data))
@@ -681,46 +641,11 @@ impl Band {
             vertex_link: std::sync::Arc::new(vertex_link),
         };
         Band {
-            window,
-            pixels,
             robot,
             outside_wrong,
             image_pixels: (w * h) as usize,
             image_band: band,
         }
-    }
-
-    /// The paper's mask loss of one view at `pose` (near the band's centre), rendering only
-    /// the band's window. Always on the CPU rasteriser and on the calling thread: a band is
-    /// a few thousand triangles over a window, less work than one GPU submission's round
-    /// trip, the backends agree to the pixel, and the samples already run in parallel.
-    fn loss_at(&self, pose: &Isometry3<f64>) -> f64 {
-        let pixels: Vec<[f64; 2]> = self
-            .robot
-            .vertices_base
-            .iter()
-            .map(|v| {
-                let p = pose * v;
-                if p.z > crate::render::NEAR_PLANE_M {
-                    self.window.project(&p)
-                } else {
-                    [f64::NAN, f64::NAN]
-                }
-            })
-            .collect();
-        let mut m = Mask::new(self.window.width, self.window.height);
-        for t in &self.robot.topology.triangles {
-            let [a, b, c] = t.map(|i| pixels[i as usize]);
-            if !(a[0].is_nan() || b[0].is_nan() || c[0].is_nan()) {
-                crate::render::fill_triangle(&mut m, a, b, c);
-            }
-        }
-        let inside_wrong = self
-            .pixels
-            .iter()
-            .filter(|&&(i, observed)| (m.data[i as usize] != 0) != observed)
-            .count();
-        (self.outside_wrong + inside_wrong) as f64 / self.image_pixels as f64
     }
 }
 
@@ -730,7 +655,7 @@ impl Band {
 /// average the best few in the tangent space — a cheap posterior mean under the mask loss.
 /// On the benchmark it cuts the median translation error by ~40% (README).
 fn refine(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     views: &[View],
     report: SolveReport,
@@ -772,37 +697,34 @@ fn refine(
         .par_iter()
         .map(|v| Band::new(renderer, camera, v, &centre, radius))
         .collect();
-    // All samples in one batch where the renderer has one (a GPU), else on the CPU threads.
+    // All samples in one batch: a GPU backend renders them in one submission, the CPU one
+    // renders each band's window on one thread, samples in parallel; both count exactly.
     let poses: Vec<Isometry3<f64>> = offsets.iter().map(|xi| exp_se3(xi) * centre).collect();
     let robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
     let band: Vec<&[u8]> = bands.iter().map(|b| b.image_band.as_slice()).collect();
     let observed: Vec<&[u8]> = views.iter().map(|v| v.observed.data.as_slice()).collect();
-    let batched = renderer.band_mismatches(camera, &robots, &band, &observed, &poses);
-    let mut scored: Vec<(f64, Twist)> = match batched {
-        Some(counts) => offsets
-            .iter()
-            .enumerate()
-            .map(|(s, xi)| {
-                let loss: f64 = bands
-                    .iter()
-                    .enumerate()
-                    .map(|(v, b)| {
-                        (b.outside_wrong + counts[s * bands.len() + v] as usize) as f64
-                            / b.image_pixels as f64
-                    })
-                    .sum();
-                (loss, *xi)
-            })
-            .collect(),
-        None => offsets
-            .par_iter()
-            .zip(&poses)
-            .map(|(xi, pose)| (bands.iter().map(|b| b.loss_at(pose)).sum(), *xi))
-            .collect(),
-    };
+    let counts = renderer.band_mismatches(camera, &robots, &band, &observed, &poses);
+    let mut scored: Vec<(f64, Twist)> = offsets
+        .iter()
+        .enumerate()
+        .map(|(s, xi)| {
+            let loss: f64 = bands
+                .iter()
+                .enumerate()
+                .map(|(v, b)| {
+                    (b.outside_wrong + counts[s * bands.len() + v] as usize) as f64
+                        / b.image_pixels as f64
+                })
+                .sum();
+            (loss, *xi)
+        })
+        .collect();
     if std::env::var_os("EASYHEC_DEBUG").is_some() {
         let tris: usize = bands.iter().map(|b| b.robot.topology.triangles.len()).sum();
-        let px: usize = bands.iter().map(|b| b.pixels.len()).sum();
+        let px: usize = bands
+            .iter()
+            .map(|b| b.image_band.iter().filter(|&&p| p != 0).count())
+            .sum();
         eprintln!(
             "refine: {} samples, band {tris} triangles, {px} pixels over {} views",
             offsets.len(),

@@ -14,6 +14,7 @@ use easyhec::gpu::{AdapterPolicy, WgpuRenderer};
 use easyhec::objective::loss_gradient;
 use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use easyhec::robot::RobotModel;
+use easyhec::scoring::BatchScoring;
 use easyhec::solve::{solve, SolveOptions};
 use easyhec::synth::{generate, SynthOptions};
 use nalgebra::Vector3;
@@ -289,13 +290,15 @@ fn band_mismatch_counts_agree_with_the_cpu() {
     let bands: Vec<&[u8]> = views.iter().map(|_| band_mask.as_slice()).collect();
     let observed_refs: Vec<&[u8]> = observed.iter().map(|o| o.as_slice()).collect();
     let counts = gpu
-        .band_mismatches(&cam, &robots, &bands, &observed_refs, &poses)
+        .band_mismatches_on_gpu(&cam, &robots, &bands, &observed_refs, &poses)
         .expect("the wgpu backend batches band scores");
     assert_eq!(counts.len(), poses.len() * views.len());
+    // The trait method takes the same GPU path; the CPU reference counts in band windows.
     assert_eq!(
-        CpuRenderer.band_mismatches(&cam, &robots, &bands, &observed_refs, &poses),
-        None
+        gpu.band_mismatches(&cam, &robots, &bands, &observed_refs, &poses),
+        counts
     );
+    let cpu_counts = CpuRenderer.band_mismatches(&cam, &robots, &bands, &observed_refs, &poses);
     let mut distinct = std::collections::BTreeSet::new();
     for (s, pose) in poses.iter().enumerate() {
         for (v, posed) in robots.iter().enumerate() {
@@ -305,6 +308,11 @@ fn band_mismatch_counts_agree_with_the_cpu() {
                 .filter(|&i| band_mask[i] != 0 && (rendered.data[i] != 0) != (observed[v][i] != 0))
                 .count();
             let got = counts[s * views.len() + v] as usize;
+            assert_eq!(
+                cpu_counts[s * views.len() + v] as usize,
+                want,
+                "pose {s} view {v}"
+            );
             assert!(covered > 1000, "view {v}: robot barely visible");
             // The GPU applies the CPU's rule in f32: ties on pixel centres may differ.
             assert!(

@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use crate::backend::Backend;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::SegmenterConfig;
@@ -11,7 +12,7 @@ use crate::config::{CellConfig, SelectionSetting};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::mask::Mask;
-use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::render::PosedRobot;
 use crate::run::{load_run, load_run_with, MaskSource};
 use crate::solve::{solve, SolveOptions, View};
 
@@ -152,7 +153,7 @@ pub struct RunFigures {
 
 /// Solves `run` from its recorded masks, then from its images alone (masks withheld) with the
 /// builtin segmenter, and compares masks and poses. The run needs an `initial_guess`.
-pub fn run_figures(run_dir: &Path, renderer: &dyn SilhouetteRenderer) -> Result<RunFigures> {
+pub fn run_figures(run_dir: &Path, renderer: &dyn Backend) -> Result<RunFigures> {
     let reference = load_run(run_dir)?;
     let guess = reference.initial_guess.ok_or_else(|| {
         Error::input(

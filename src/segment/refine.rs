@@ -5,6 +5,7 @@
 use easyhec_drivers::Frame;
 use nalgebra::Isometry3;
 
+use crate::backend::Backend;
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::mask::Mask;
@@ -121,7 +122,7 @@ pub const POOR_FIT_IOU: f64 = 0.8;
 /// shaped by a guess's render fit that render whether or not the guess is right.
 #[allow(clippy::too_many_arguments)]
 pub fn segment_and_solve(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     segmenter: &dyn Segmenter,
     frames: &[&Frame],
@@ -275,7 +276,7 @@ pub struct PairFound {
 /// masks (mean IoU below [`POOR_FIT_IOU`]).
 #[allow(clippy::too_many_arguments)]
 pub fn search_view_pairs(
-    renderer: &dyn SilhouetteRenderer,
+    renderer: &dyn Backend,
     camera: &Camera,
     segmenter: &dyn Segmenter,
     frames: &[&Frame],
