@@ -9,7 +9,9 @@
 
 use std::sync::Arc;
 
-use crate::render::{CpuRenderer, RendererChoice, SilhouetteRenderer};
+use crate::render::{CpuRenderer, SilhouetteRenderer};
+
+use crate::config::RendererChoice;
 use crate::scoring::BatchScoring;
 
 /// Rendering and batched scoring on one device: what a solve or an exploration round needs.

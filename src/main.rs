@@ -10,13 +10,14 @@ use clap::{Args, Parser, Subcommand};
 use easyhec::backend::open_renderer;
 use easyhec::bench;
 use easyhec::config::NoiseModel;
+use easyhec::config::RendererChoice;
 use easyhec::config::{ScenePreset, SceneSettings};
 use easyhec::consensus::{find_consensus, ConsensusOptions};
 use easyhec::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use easyhec::init::{initialise, InitOptions};
 use easyhec::interop::{export, import_easyhec, EasyHecImport, ExportFormat};
 use easyhec::overlay::write_overlay;
-use easyhec::render::{CpuRenderer, PosedRobot, RendererChoice};
+use easyhec::render::{CpuRenderer, PosedRobot};
 use easyhec::robot::{RobotModel, RobotSource};
 use easyhec::run::{
     load_run, load_run_with, MaskSource, PerView, ResultFile, RobotEntry, UncertaintyEntry,

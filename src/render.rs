@@ -245,33 +245,6 @@ pub trait SilhouetteRenderer: Send + Sync {
     }
 }
 
-/// Which renderer backend to use (`--renderer`, `[calibration] renderer`). Plain data, kept
-/// here, where config and CLI name it, while `backend::open_renderer` (above this module)
-/// acts on it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum RendererChoice {
-    /// The CPU reference renderer.
-    Cpu,
-    /// wgpu on the best adapter there is, software rasterisers included.
-    Wgpu,
-    /// wgpu on a hardware GPU adapter, the CPU otherwise (default).
-    #[default]
-    Auto,
-}
-
-impl std::str::FromStr for RendererChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "cpu" => Ok(RendererChoice::Cpu),
-            "wgpu" => Ok(RendererChoice::Wgpu),
-            "auto" => Ok(RendererChoice::Auto),
-            other => Err(format!("unknown renderer {other:?}: use cpu, wgpu or auto")),
-        }
-    }
-}
-
 /// The reference renderer: scan-converts every triangle on the CPU (rayon over triangle
 /// chunks), then walks silhouette edges.
 #[derive(Clone, Copy, Debug, Default)]

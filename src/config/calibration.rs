@@ -7,7 +7,6 @@ use serde::{Deserialize, Serialize};
 
 use super::camera::LookAt;
 use crate::error::{Error, Result};
-use crate::render::RendererChoice;
 
 /// `[calibration]` in a cell config.
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -206,5 +205,31 @@ impl CalibrationSettings {
             }
         }
         Ok(())
+    }
+}
+
+/// Which renderer backend to use (`--renderer`, `[calibration] renderer`). Plain data, kept
+/// with the configuration; `backend::open_renderer` acts on it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RendererChoice {
+    /// The CPU reference renderer.
+    Cpu,
+    /// wgpu on the best adapter there is, software rasterisers included.
+    Wgpu,
+    /// wgpu on a hardware GPU adapter, the CPU otherwise (default).
+    #[default]
+    Auto,
+}
+
+impl std::str::FromStr for RendererChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(RendererChoice::Cpu),
+            "wgpu" => Ok(RendererChoice::Wgpu),
+            "auto" => Ok(RendererChoice::Auto),
+            other => Err(format!("unknown renderer {other:?}: use cpu, wgpu or auto")),
+        }
     }
 }

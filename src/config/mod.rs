@@ -27,7 +27,8 @@ use crate::error::{Error, Result};
 
 pub use arm::{ArmConfig, FaultConfig, ServoArmToml, ServoJointToml};
 pub use calibration::{
-    CalibrationSettings, InitialGuess, ScoreSetting, SelectionSetting, SourceSetting,
+    CalibrationSettings, InitialGuess, RendererChoice, ScoreSetting, SelectionSetting,
+    SourceSetting,
 };
 pub use camera::{CameraCalibration, CameraConfig, JointsFrom, LookAt};
 pub use daemon::DaemonSettings;
