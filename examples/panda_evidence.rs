@@ -139,7 +139,7 @@ fn main() {
         };
         let mut fitted = Vec::new();
         for (k, (view, ev)) in run.views.iter().zip(&evidence).enumerate() {
-            let best_q = easyhec::segment::refine::refit_joints(
+            let best_q = easyhec::pipeline::segment_solve::refit_joints(
                 &r,
                 &run.camera,
                 &run.robot,
@@ -162,7 +162,7 @@ fn main() {
     // Builtin masks of every frame under the render of `fitted` at `at`, and their IoU against
     // the provided masks.
     let masks_under_fitted = |at: &Isometry3<f64>, fitted: &[PosedRobot], band_px: f32| {
-        let priors = easyhec::segment::refine::priors(&r, &run.camera, fitted, at);
+        let priors = easyhec::pipeline::segment_solve::priors(&r, &run.camera, fitted, at);
         let inputs: Vec<ViewInput> = frames
             .iter()
             .zip(&priors)
@@ -182,7 +182,7 @@ fn main() {
     };
     if mode == "joints" {
         let fitted = refit_joints(&pose, true);
-        let priors = easyhec::segment::refine::priors(&r, &run.camera, &fitted, &pose);
+        let priors = easyhec::pipeline::segment_solve::priors(&r, &run.camera, &fitted, &pose);
         for band_px in [4.0f32, 8.0] {
             let (_, ious) = masks_under_fitted(&pose, &fitted, band_px);
             let prior_ious: Vec<f64> = priors

@@ -251,16 +251,13 @@ fn uniform_joints(limits: &[(f64, f64)], rng: &mut impl rand::Rng) -> Vec<f64> {
         .collect()
 }
 
-/// Runs the simulated calibration of `cfg` with `selection`, `views` views, no early stop;
-/// with `all_views_chosen`, the start pose's frame only gives the first estimate
-/// ([`crate::calibrate::RunOptions::start_view_initialises_only`]).
+/// Runs the simulated calibration of `cfg` with `selection`, `views` views, no early stop.
 pub fn run_loop_trial(
     cfg: &crate::config::CellConfig,
     config_path: &std::path::Path,
     seed: u64,
     selection: crate::config::SelectionSetting,
     views: usize,
-    all_views_chosen: bool,
 ) -> Result<LoopTrial> {
     use crate::calibrate::{calibrate, RunOptions};
     let mut cfg = cfg.clone();
@@ -280,10 +277,7 @@ pub fn run_loop_trial(
     let outcome = runtime.block_on(calibrate(
         &cell,
         &dir.path().join("run"),
-        &RunOptions {
-            start_view_initialises_only: all_views_chosen,
-            ..RunOptions::default()
-        },
+        &RunOptions::default(),
     ))?;
     let errors = outcome
         .rounds

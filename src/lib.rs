@@ -40,6 +40,7 @@ pub mod mask;
 pub mod mesh;
 pub mod objective;
 pub mod overlay;
+pub mod pipeline;
 pub mod render;
 pub mod robot;
 pub mod run;
@@ -51,6 +52,7 @@ pub mod segment;
 pub mod solve;
 #[cfg(feature = "sim")]
 pub mod synth;
+pub mod time;
 
 pub use error::{Error, Result};
 pub use nalgebra;

@@ -276,10 +276,6 @@ enum BenchCommand {
         /// Exploration score: information (default) or variance (the paper's).
         #[arg(long)]
         score: Option<String>,
-        /// Every counted view is chosen by the selection: the start pose's frame only gives
-        /// the first estimate (a protocol for measuring selection, not a product setting).
-        #[arg(long)]
-        all_views_chosen: bool,
     },
     /// How far 3-view selection can go: per seeded cell, the loop's explored pair and random
     /// pairs, each solved many times with fresh noise, against the selection score's
@@ -426,7 +422,8 @@ fn main() -> ExitCode {
 }
 
 fn cmd_calibrate(a: CalibrateArgs) -> anyhow::Result<()> {
-    use easyhec::calibrate::{calibrate, rfc3339, PlannedPose, RunOptions};
+    use easyhec::calibrate::{calibrate, PlannedPose, RunOptions};
+    use easyhec::time::rfc3339;
     use std::io::Write;
     use std::sync::Arc;
     let mut config = easyhec::config::read_config(&a.config)?;
@@ -629,7 +626,7 @@ fn segment_run(
     masks_out: Option<&Path>,
 ) -> anyhow::Result<Option<nalgebra::Isometry3<f64>>> {
     use easyhec::config::SegmenterConfig;
-    use easyhec::segment::refine;
+    use easyhec::pipeline::segment_solve as refine;
     let config = SegmenterConfig::by_name(name).map_err(|e| anyhow!(e))?;
     let segmenter = easyhec::segment::build(&config, &run.dir.join("run.json"))?;
     let need: Vec<usize> = (0..run.views.len())
@@ -1201,7 +1198,6 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
             selections,
             renderer,
             score,
-            all_views_chosen,
         } => {
             use easyhec::config::{ScoreSetting, SelectionSetting};
             let mut base = easyhec::config::read_config(&config)?;
@@ -1225,14 +1221,7 @@ fn cmd_bench(b: BenchCommand) -> anyhow::Result<()> {
                 let mut trials = Vec::new();
                 for seed in first_seed..first_seed + cells {
                     let cfg = bench::seeded_sim_cell(&base, &config, seed)?;
-                    let t = bench::run_loop_trial(
-                        &cfg,
-                        &config,
-                        seed,
-                        selection,
-                        views,
-                        all_views_chosen,
-                    )?;
+                    let t = bench::run_loop_trial(&cfg, &config, seed, selection, views)?;
                     let last = t.errors.last().copied().unwrap_or((0, f64::NAN, f64::NAN));
                     // Every view count's error, so medians over any subset of seeds can be
                     // taken from one run.

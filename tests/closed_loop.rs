@@ -263,49 +263,6 @@ fn assert_every_command_safe_accepted_only(cell: &Cell) {
 }
 
 #[test]
-fn start_view_that_only_initialises_is_recorded_but_left_out_of_the_result() {
-    let path = config_path("sim-xarm6.toml");
-    let mut cfg = quick(read_config(&path).unwrap(), 2);
-    cfg.calibration.min_views = 2;
-    let cell = Cell::build(cfg.clone(), &path).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    let opts = RunOptions {
-        start_view_initialises_only: true,
-        ..RunOptions::default()
-    };
-    let outcome = run(&cell, &out, &opts).unwrap();
-    // Two chosen views counted and solved; the start frame is still on disk.
-    assert_eq!(outcome.result.views_used, vec![1, 2]);
-    let per_view: Vec<usize> = outcome.result.per_view.iter().map(|v| v.view).collect();
-    assert_eq!(per_view, vec![1, 2]);
-    assert_eq!(outcome.report.per_view_iou.len(), 2);
-    let counted: Vec<usize> = outcome.rounds.iter().map(|r| r.views).collect();
-    assert_eq!(counted, vec![0, 1, 2]);
-    assert_eq!(load_run(&out).unwrap().views.len(), 3);
-    assert_eq!(
-        assert_every_command_safe(&cell),
-        2,
-        "one move per chosen view"
-    );
-    let (r, t) = truth_error(&cell, &outcome);
-    assert!(r < 0.3 && t < 3.0, "error {r:.4} deg {t:.3} mm");
-    // A dry run plans every counted view, the first one included.
-    let dry_cell = Cell::build(cfg, &path).unwrap();
-    let dry = run(
-        &dry_cell,
-        &dir.path().join("dry"),
-        &RunOptions {
-            dry_run: true,
-            ..opts
-        },
-    )
-    .unwrap();
-    assert_eq!(dry.planned.len(), 2);
-    assert!(dry_cell.sim.arm.as_ref().unwrap().commands().is_empty());
-}
-
-#[test]
 fn dry_run_plans_checked_poses_and_never_moves() {
     let path = config_path("sim-xarm6.toml");
     let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();

@@ -144,49 +144,6 @@ fn recorded_views(daemon: &Daemon, id: &str, camera: &Camera) -> Result<Vec<(Fra
         .collect()
 }
 
-/// A context-aware segmenter's (`builtin`) mask of `frame`, segmented together with the
-/// active calibration's `recorded` frames (less those taken at the check's own joints, which
-/// show the robot where the new frame does and so lend it no background), each with the
-/// robot rendered under `pose` as its prior and the loop's tightest band: a wider one lets the hard cases (a light robot on a
-/// light wall, distractors touching it) spread the mask, and a knocked camera still moves the
-/// robot off the render by more than this, so its mask no longer matches that render, exactly
-/// as with a per-frame segmenter.
-fn segment_with_recorded(
-    cell: &crate::cell::Cell,
-    camera: &Camera,
-    frame: Frame,
-    joints: &[f64],
-    recorded: Vec<(Frame, Vec<f64>)>,
-    pose: &Isometry3<f64>,
-) -> Result<Mask> {
-    let (mut frames, mut all_joints): (Vec<Frame>, Vec<Vec<f64>>) = recorded
-        .into_iter()
-        .filter(|(_, q)| {
-            q.iter()
-                .zip(joints)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max)
-                > 0.05
-        })
-        .unzip();
-    frames.push(frame);
-    all_joints.push(joints.to_vec());
-    let robots: Vec<PosedRobot> = all_joints
-        .iter()
-        .map(|q| PosedRobot::new(&cell.robot, q))
-        .collect();
-    let priors = crate::segment::refine::priors(&CpuRenderer, camera, &robots, pose);
-    let bands_px = vec![cell.config.segmenter.min_band_px(); frames.len()];
-    crate::segment::refine::segment_frames(
-        cell.segmenter.as_ref(),
-        &frames,
-        Some(&priors),
-        &bands_px,
-    )?
-    .pop()
-    .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))
-}
-
 /// Moves to `check_pose` if configured, captures, segments and compares.
 async fn measure(
     daemon: &Arc<Daemon>,
@@ -240,7 +197,18 @@ async fn measure(
         }
         let mask = if cell.segmenter.uses_context() {
             let recorded = recorded_views(&daemon, &id, &camera)?;
-            segment_with_recorded(&cell, &camera, frame, &q, recorded, &pose)?
+            crate::pipeline::segment_solve::segment_among_recorded(
+                &CpuRenderer,
+                cell.segmenter.as_ref(),
+                &cell.robot,
+                &camera,
+                frame,
+                &q,
+                recorded,
+                &pose,
+                cell.config.segmenter.min_band_px(),
+            )?
+            .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))?
         } else {
             cell.segmenter.segment(&frame)?
         };

@@ -27,11 +27,12 @@ use nalgebra::Isometry3;
 use serde::Serialize;
 use tokio::sync::{broadcast, watch};
 
-use crate::calibrate::{calibrate, rfc3339, Progress, RunOptions};
+use crate::calibrate::{calibrate, Progress, RunOptions};
 use crate::cell::Cell;
 use crate::error::{Error, Result};
 use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use crate::run::ResultFile;
+use crate::time::rfc3339;
 
 use crate::config::DaemonSettings;
 use store::{CalibrationRecord, Recovery, State, Store, TruthError};

@@ -190,7 +190,7 @@ pub fn run_figures(run_dir: &Path, renderer: &dyn Backend) -> Result<RunFigures>
         .collect();
     let config = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
     let segmenter = crate::segment::build(&config, &run_dir.join("run.json"))?;
-    let settled = crate::segment::refine::segment_and_solve(
+    let settled = crate::pipeline::segment_solve::segment_and_solve(
         renderer,
         &images.camera,
         segmenter.as_ref(),

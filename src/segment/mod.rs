@@ -9,7 +9,6 @@
 #[cfg(feature = "sim")]
 pub mod bench;
 pub mod builtin;
-pub mod refine;
 #[cfg(feature = "sim")]
 mod sim_truth;
 
@@ -49,7 +48,7 @@ pub trait Segmenter: Send + Sync {
 
     /// Per-pixel log-odds for robot from the images alone (no prior), one per frame, when the
     /// segmenter has such evidence: it lets a caller fit each view's joints to its image where
-    /// the recorded ones are wrong ([`refine::search_view_pairs`]). None by default.
+    /// the recorded ones are wrong ([`crate::pipeline::segment_solve::search_view_pairs`]). None by default.
     fn evidence(&self, _frames: &[&Frame]) -> Result<Option<Vec<Vec<f32>>>> {
         Ok(None)
     }

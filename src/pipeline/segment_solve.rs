@@ -428,3 +428,103 @@ pub fn refit_joints(
     }
     best_q
 }
+
+/// Prior band (pixels) around the silhouette under the initial guess: a guess several
+/// degrees and centimetres off moves the outline by tens of pixels.
+pub const GUESS_BAND_PX: f32 = 80.0;
+
+/// The closed loop's frames for a context-aware segmenter: every frame so far, segmented
+/// together (background plate) under the current estimate each time one is added, so earlier
+/// masks improve as the estimate does.
+pub struct LiveFrames {
+    /// Every frame captured so far, in view order.
+    pub frames: Vec<Frame>,
+    /// The narrowest band while views are still being added (`[segmenter] min_band_px`).
+    pub min_band_px: f32,
+    /// The narrowest band of the last re-segmentation (`[segmenter] final_band_px`).
+    pub final_band_px: f32,
+}
+
+impl LiveFrames {
+    /// Segments every frame with priors under `estimate` (bands from `report` when there is
+    /// one, at least `band_floor_px`; the guess band before any solve), calls `changed` for
+    /// each earlier view whose mask changed (the recorder rewrites it), and rebuilds `views`
+    /// to match the frames.
+    #[allow(clippy::too_many_arguments)]
+    pub fn resegment(
+        &self,
+        renderer: &dyn Backend,
+        segmenter: &dyn Segmenter,
+        robot: &RobotModel,
+        camera: &Camera,
+        band_floor_px: f32,
+        taken: &[Vec<f64>],
+        estimate: Option<&Isometry3<f64>>,
+        report: Option<&SolveReport>,
+        views: &mut Vec<View>,
+        mut changed: impl FnMut(usize, &Mask) -> Result<()>,
+    ) -> Result<Vec<Mask>> {
+        let robots: Vec<PosedRobot> = taken.iter().map(|q| PosedRobot::new(robot, q)).collect();
+        let priors = estimate.map(|pose| priors(renderer, camera, &robots, pose));
+        let bands = match (report, &priors) {
+            (Some(r), Some(p)) => bands_px(camera, r, p, 0, band_floor_px),
+            _ => vec![GUESS_BAND_PX; robots.len()],
+        };
+        let masks = segment_frames(segmenter, &self.frames, priors.as_deref(), &bands)?;
+        for (i, m) in masks.iter().enumerate().take(views.len()) {
+            let observed = camera.undistort_mask(m);
+            if observed != views[i].observed {
+                changed(i, m)?;
+                views[i].observed = observed;
+            }
+        }
+        views.truncate(masks.len());
+        for (m, r) in masks.iter().zip(robots).skip(views.len()) {
+            views.push(View {
+                robot: r,
+                observed: camera.undistort_mask(m),
+            });
+        }
+        Ok(masks)
+    }
+}
+
+/// A context-aware segmenter's (`builtin`) mask of `frame` at `joints`, segmented together
+/// with `recorded` frames of a calibration (less those taken at the same joints, which show
+/// the robot where the new frame does and so lend it no background), each with the robot
+/// rendered under `pose` as its prior and band `band_px` (the bump check uses the loop's
+/// tightest: a wider one lets the hard cases, a light robot on a light wall or distractors
+/// touching it, spread the mask, and a knocked camera still moves the robot off the render by
+/// more than this).
+#[allow(clippy::too_many_arguments)]
+pub fn segment_among_recorded(
+    renderer: &dyn SilhouetteRenderer,
+    segmenter: &dyn Segmenter,
+    robot: &RobotModel,
+    camera: &Camera,
+    frame: Frame,
+    joints: &[f64],
+    recorded: Vec<(Frame, Vec<f64>)>,
+    pose: &Isometry3<f64>,
+    band_px: f32,
+) -> Result<Option<Mask>> {
+    let (mut frames, mut all_joints): (Vec<Frame>, Vec<Vec<f64>>) = recorded
+        .into_iter()
+        .filter(|(_, q)| {
+            q.iter()
+                .zip(joints)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+                > 0.05
+        })
+        .unzip();
+    frames.push(frame);
+    all_joints.push(joints.to_vec());
+    let robots: Vec<PosedRobot> = all_joints
+        .iter()
+        .map(|q| PosedRobot::new(robot, q))
+        .collect();
+    let priors = priors(renderer, camera, &robots, pose);
+    let bands = vec![band_px; frames.len()];
+    Ok(segment_frames(segmenter, &frames, Some(&priors), &bands)?.pop())
+}

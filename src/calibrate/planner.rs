@@ -1,0 +1,579 @@
+//! The planner: where the arm goes next. It draws joint samples, keeps the statically safe
+//! ones that show the robot under the current estimate, and ranks them by what a view there
+//! would tell (`[calibration] score`), or at random for the baseline selection. A ranked pose
+//! still has to pass the path check ([`choose_reachable`]) before the arm may move.
+
+use nalgebra::{Isometry3, Matrix6};
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use super::PlannedPose;
+use crate::backend::Backend;
+use crate::camera::Camera;
+use crate::cell::Cell;
+use crate::config::{CalibrationSettings, ScoreSetting, SelectionSetting, SourceSetting};
+use crate::explore::{
+    camera_candidates, cost_reduction, view_terms, CandidateSource, ExploreOptions, ViewTerms,
+};
+use crate::render::{CoarseRobot, PosedRobot};
+use crate::safety::CheckedMove;
+use crate::solve::SolveReport;
+
+/// Fraction of the robot's (decimated) surface points that land inside the image.
+pub fn in_image_fraction(
+    robot: &PosedRobot,
+    camera: &Camera,
+    camera_from_base: &Isometry3<f64>,
+) -> f64 {
+    if robot.vertices_base.is_empty() {
+        return 0.0;
+    }
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let inside = robot
+        .vertices_base
+        .iter()
+        .filter(|p| {
+            let c = camera_from_base * **p;
+            if c.z <= 0.05 {
+                return false;
+            }
+            let x = camera.project(&c);
+            x[0] >= 0.0 && x[1] >= 0.0 && x[0] <= w - 1.0 && x[1] <= h - 1.0
+        })
+        .count();
+    inside as f64 / robot.vertices_base.len() as f64
+}
+
+/// A scored joint sample that passed the static checks.
+#[derive(Clone, Debug)]
+pub struct Ranked {
+    /// Joints.
+    pub joints: Vec<f64>,
+    /// Ranking score (higher is better; see [`ScoreSetting`]).
+    pub score: f64,
+    /// Variance of the camera candidates' masks at this pose (computed for the best only,
+    /// unless the variance ranked them all).
+    pub variance: Option<f64>,
+    /// In-image fraction under the estimate.
+    pub in_image: f64,
+}
+
+/// Statistics of one planning pass.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PlanStats {
+    /// Joint samples drawn.
+    pub sampled: usize,
+    /// Samples that passed limits/collision/workspace.
+    pub safe: usize,
+    /// …and the in-image rule (scored).
+    pub scored: usize,
+}
+
+/// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
+/// by the candidates' disagreement, best first.
+pub fn rank_poses(
+    renderer: &dyn Backend,
+    cell: &Cell,
+    camera: &Camera,
+    report: &SolveReport,
+    taken: &[Vec<f64>],
+    settings: &CalibrationSettings,
+    round: usize,
+) -> (Vec<Ranked>, PlanStats) {
+    let round_plan = RoundPlan::new(renderer, cell, camera, report, settings, round);
+    let samples = round_plan.draw_samples();
+    let t_start = std::time::Instant::now();
+    let safe = round_plan.statically_safe(samples);
+    let n_safe = safe.len();
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        eprintln!(
+            "rank_poses: static checks {:.2} s",
+            t_start.elapsed().as_secs_f64()
+        );
+    }
+    let t_checked = std::time::Instant::now();
+    let in_view = round_plan.in_view(safe);
+    let n_scored = in_view.len();
+    let mut ranked = match (settings.selection, settings.score) {
+        (SelectionSetting::Random, _) => round_plan.rank_random(in_view),
+        (SelectionSetting::Explore, ScoreSetting::Information) => {
+            round_plan.rank_by_information(in_view, taken)
+        }
+        (SelectionSetting::Explore, ScoreSetting::Variance) => {
+            round_plan.rank_by_variance(in_view, n_scored)
+        }
+    };
+    ranked.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
+    // The stop rule watches the candidates' disagreement at the best pose, whatever ranked it.
+    if let Some((best, posed)) = ranked.first_mut() {
+        if best.variance.is_none() {
+            best.variance = round_plan
+                .variances(&[&*posed], &round_plan.candidates)
+                .first()
+                .copied();
+        }
+    }
+    let ranked: Vec<Ranked> = ranked.into_iter().map(|r| r.0).collect();
+    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+        round_plan.debug_scoring(&ranked, t_checked);
+    }
+    let stats = PlanStats {
+        sampled: settings.joint_samples,
+        safe: n_safe,
+        scored: n_scored,
+    };
+    (ranked, stats)
+}
+
+/// A joint sample that passed the static checks, with its coarse posed robot.
+type Posed = (Vec<f64>, PosedRobot);
+/// A sample in view: its in-image fraction, joints and coarse posed robot.
+type InView = (f64, Vec<f64>, PosedRobot);
+/// A ranked sample with the posed robot it was scored on.
+type RankedPosed = (Ranked, PosedRobot);
+
+/// What one planning round shares between its steps: the scoring camera, the camera
+/// candidates drawn around the estimate, and how samples are posed coarsely.
+struct RoundPlan<'a> {
+    renderer: &'a dyn Backend,
+    cell: &'a Cell,
+    report: &'a SolveReport,
+    settings: &'a CalibrationSettings,
+    round: usize,
+    pinhole: Camera,
+    low: Camera,
+    cell_m: f64,
+    candidates: Vec<Isometry3<f64>>,
+    coarse: CoarseRobot,
+    estimate: Isometry3<f64>,
+}
+
+impl<'a> RoundPlan<'a> {
+    fn new(
+        renderer: &'a dyn Backend,
+        cell: &'a Cell,
+        camera: &Camera,
+        report: &'a SolveReport,
+        settings: &'a CalibrationSettings,
+        round: usize,
+    ) -> Self {
+        let pinhole = camera.undistorted();
+        let low = pinhole.downsampled(settings.score_downsample);
+        // Vertex clustering at one scoring pixel (at 1 m): coarse masks need no finer mesh.
+        let cell_m = f64::from(settings.score_downsample) / pinhole.fx.max(pinhole.fy);
+        let candidates = camera_candidates(
+            &widened_posterior(report, &pinhole, settings.score_downsample),
+            &ExploreOptions {
+                candidates: settings.candidates,
+                source: match settings.candidate_source {
+                    SourceSetting::Posterior => CandidateSource::Posterior,
+                    SourceSetting::Trajectory => CandidateSource::Trajectory,
+                },
+                seed: settings.seed.wrapping_mul(7919) + round as u64,
+                ..ExploreOptions::default()
+            },
+        );
+        RoundPlan {
+            renderer,
+            cell,
+            report,
+            settings,
+            round,
+            low,
+            cell_m,
+            candidates,
+            coarse: CoarseRobot::new(&cell.robot, cell_m),
+            estimate: report.camera_from_base,
+            pinhole,
+        }
+    }
+
+    /// Uniform joint samples within the checker's limits, seeded per round.
+    fn draw_samples(&self) -> Vec<Vec<f64>> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            self.settings.seed.wrapping_mul(1000) + self.round as u64,
+        );
+        (0..self.settings.joint_samples)
+            .map(|_| {
+                self.cell
+                    .checker
+                    .limits()
+                    .iter()
+                    .map(|&(lo, hi)| rng.random_range(lo..=hi))
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The variance score only needs coarse masks: one decimation per robot (link frames),
+    /// posed per sample. The information score reads outline samples, which follow the posed
+    /// surface more faithfully when each pose is clustered in the base frame.
+    fn pose_coarse(&self, q: &[f64]) -> PosedRobot {
+        if self.settings.score == ScoreSetting::Information {
+            PosedRobot::new(&self.cell.robot, q).decimated(self.cell_m)
+        } else {
+            self.coarse.pose(&self.cell.robot, q)
+        }
+    }
+
+    /// The samples that pass limits, collision and workspace checks, posed coarsely.
+    fn statically_safe(&self, samples: Vec<Vec<f64>>) -> Vec<Posed> {
+        samples
+            .into_par_iter()
+            .filter(|q| self.cell.checker.check_pose(q).is_ok())
+            .map(|q| {
+                let posed = self.pose_coarse(&q);
+                (q, posed)
+            })
+            .collect()
+    }
+
+    /// The safe samples that show enough of the robot under the estimate.
+    fn in_view(&self, safe: Vec<Posed>) -> Vec<InView> {
+        safe.into_par_iter()
+            .filter_map(|(q, posed)| {
+                let in_image = in_image_fraction(&posed, &self.pinhole, &self.estimate);
+                (in_image >= self.cell.checker.min_in_image).then_some((in_image, q, posed))
+            })
+            .collect()
+    }
+
+    /// Batched through the renderer: a GPU backend scores the whole pool per submission.
+    fn variances(&self, pool: &[&PosedRobot], cands: &[Isometry3<f64>]) -> Vec<f64> {
+        self.renderer.disagreement_many(&self.low, pool, cands)
+    }
+
+    /// The baseline: a seeded random order (a hash of the joints, so it is repeatable).
+    fn rank_random(&self, in_view: Vec<InView>) -> Vec<RankedPosed> {
+        in_view
+            .into_iter()
+            .map(|(in_image, q, posed)| {
+                let mut h = rand_chacha::ChaCha8Rng::seed_from_u64(
+                    q.iter()
+                        .fold(self.settings.seed, |a, v| a.rotate_left(7) ^ v.to_bits()),
+                );
+                let r = Ranked {
+                    score: h.random::<f64>(),
+                    variance: None,
+                    joints: q,
+                    in_image,
+                };
+                (r, posed)
+            })
+            .collect()
+    }
+
+    /// What a view at `q` adds to the estimate's information (outline and joint terms).
+    fn terms(&self, posed: &PosedRobot, q: &[f64]) -> ViewTerms {
+        view_terms(
+            &self.low,
+            self.pinhole.fx,
+            posed,
+            &self.cell.robot.joint_motions(q),
+            &self.estimate,
+            self.report.outline_noise_px2,
+            self.settings.joint_noise_rad,
+        )
+    }
+
+    /// Ranks by how much each view lowers the predicted covariance, then climbs from the best
+    /// few: 2000 random samples leave the best view's information well short of what a few
+    /// steps of local search from the best of them reach.
+    fn rank_by_information(&self, in_view: Vec<InView>, taken: &[Vec<f64>]) -> Vec<RankedPosed> {
+        // What the views taken so far contribute, on the same footing as the candidates
+        // (a tiny ridge keeps a one-view outline matrix invertible).
+        let mut current: ViewTerms = taken
+            .par_iter()
+            .map(|q| self.terms(&self.pose_coarse(q), q))
+            .reduce(ViewTerms::zeros, |a, b| a + b);
+        current.outline_information += Matrix6::identity() * 1e-6;
+        let score = |posed: &PosedRobot, q: &[f64]| {
+            cost_reduction(&current, &self.terms(posed, q), &self.estimate)
+        };
+        let mut scored: Vec<RankedPosed> = in_view
+            .into_par_iter()
+            .map(|(in_image, q, posed)| {
+                let r = Ranked {
+                    score: score(&posed, &q),
+                    variance: None,
+                    joints: q,
+                    in_image,
+                };
+                (r, posed)
+            })
+            .collect();
+        if self.settings.climb_steps > 0 {
+            let climbed = self.climb_from_best(&mut scored, &score);
+            scored.extend(climbed);
+        }
+        scored
+    }
+
+    /// Hill climbs from the [`CLIMB_STARTS`] best-scored samples (sorts `scored`).
+    fn climb_from_best(
+        &self,
+        scored: &mut [RankedPosed],
+        score: &(dyn Fn(&PosedRobot, &[f64]) -> f64 + Sync),
+    ) -> Vec<RankedPosed> {
+        scored.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
+        let starts: Vec<Ranked> = scored
+            .iter()
+            .take(CLIMB_STARTS)
+            .map(|r| r.0.clone())
+            .collect();
+        let checker = &self.cell.checker;
+        starts
+            .into_par_iter()
+            .enumerate()
+            .filter_map(|(i, start)| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+                    self.settings.seed.wrapping_mul(31337) + (self.round * 64 + i) as u64,
+                );
+                climb(
+                    start,
+                    self.settings.climb_steps,
+                    checker.limits(),
+                    &mut rng,
+                    |q| {
+                        if checker.check_pose(q).is_err() {
+                            return None;
+                        }
+                        let posed = self.pose_coarse(q);
+                        let in_image = in_image_fraction(&posed, &self.pinhole, &self.estimate);
+                        (in_image >= checker.min_in_image)
+                            .then(|| (score(&posed, q), in_image, posed))
+                    },
+                )
+            })
+            .collect()
+    }
+
+    /// The paper's score in two passes: every sample against the first fifth of the
+    /// candidates, then the best quarter against all of them (the argmax is almost always in
+    /// that quarter; this halves the planning time).
+    fn rank_by_variance(&self, in_view: Vec<InView>, n_scored: usize) -> Vec<RankedPosed> {
+        let candidates = &self.candidates;
+        let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
+        let pool: Vec<&PosedRobot> = in_view.iter().map(|(_, _, p)| p).collect();
+        let quick_scores = self.variances(&pool, quick);
+        let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = in_view
+            .into_iter()
+            .zip(quick_scores)
+            .map(|((in_image, q, posed), v)| (v, in_image, q, posed))
+            .collect();
+        first.sort_by(|a, b| b.0.total_cmp(&a.0));
+        first.truncate((n_scored / 4).max(64.min(n_scored)));
+        let pool: Vec<&PosedRobot> = first.iter().map(|(_, _, _, p)| p).collect();
+        let full = self.variances(&pool, candidates);
+        first
+            .into_iter()
+            .zip(full)
+            .map(|((_, in_image, q, posed), v)| {
+                let r = Ranked {
+                    score: v,
+                    variance: Some(v),
+                    joints: q,
+                    in_image,
+                };
+                (r, posed)
+            })
+            .collect()
+    }
+
+    /// `EASYHEC_DEBUG`: the scoring time and the coarse robot's size.
+    fn debug_scoring(&self, ranked: &[Ranked], t_checked: std::time::Instant) {
+        eprintln!(
+            "rank_poses: scoring {:.2} s, {} scored, {} triangles per coarse robot",
+            t_checked.elapsed().as_secs_f64(),
+            ranked.len(),
+            PosedRobot::new(
+                &self.cell.robot,
+                &ranked.first().map(|r| r.joints.clone()).unwrap_or_default()
+            )
+            .decimated(self.cell_m)
+            .topology
+            .triangles
+            .len()
+        );
+    }
+}
+
+/// The variance of binary masks only measures disagreement once the hypotheses' outlines
+/// differ by whole scoring pixels; a converged posterior moves them by a fraction of one,
+/// which leaves the score as quantisation noise. In the linear regime the ranking of views
+/// does not depend on the covariance's scale, so the samples come from the posterior
+/// inflated until its typical outline displacement is about two scoring pixels.
+fn widened_posterior(report: &SolveReport, pinhole: &Camera, score_downsample: u32) -> SolveReport {
+    let mut widened = report.clone();
+    let u = &report.uncertainty;
+    let rot_rad = u
+        .rotation_deg
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
+        .to_radians();
+    let trans_m = u.translation_mm.iter().map(|v| v * v).sum::<f64>().sqrt() * 1e-3;
+    let depth = report.camera_from_base.translation.vector.norm().max(0.1);
+    let typical_px = pinhole.fx * (rot_rad + trans_m / depth);
+    let wanted_px = 2.0 * f64::from(score_downsample);
+    if typical_px.is_finite() && typical_px > 0.0 && typical_px < wanted_px {
+        let k = wanted_px / typical_px;
+        widened.covariance *= k * k;
+    }
+    widened
+}
+
+/// Best-scored samples each hill climb starts from.
+const CLIMB_STARTS: usize = 8;
+
+/// How far inside its joint limits a climbed target stays, radians.
+const LIMIT_MARGIN_RAD: f64 = 0.02;
+
+/// Stochastic hill climb in joint space from `start`: Gaussian steps of every joint
+/// (0.3 rad, shrunk by 15% per failed step), a step kept when `evaluate` passes the pose
+/// (static safety checks, robot in view) and it scores higher. `None` when no step improved
+/// on `start`. The climbed pose still goes through the path check before any move.
+fn climb(
+    start: Ranked,
+    steps: usize,
+    limits: &[(f64, f64)],
+    rng: &mut rand_chacha::ChaCha8Rng,
+    evaluate: impl Fn(&[f64]) -> Option<(f64, f64, PosedRobot)>,
+) -> Option<(Ranked, PosedRobot)> {
+    let mut best = start;
+    let mut best_posed = None;
+    let mut sigma = 0.3;
+    for _ in 0..steps {
+        let q: Vec<f64> = best
+            .joints
+            .iter()
+            .zip(limits)
+            .map(|(&v, &(lo, hi))| {
+                let z: f64 = StandardNormal.sample(rng);
+                // A target on a limit would leave the next read, encoder noise and all,
+                // outside it, and no path could start there.
+                let m = LIMIT_MARGIN_RAD.min(0.25 * (hi - lo));
+                (v + sigma * z).clamp(lo + m, hi - m)
+            })
+            .collect();
+        match evaluate(&q) {
+            Some((score, in_image, posed)) if score > best.score => {
+                best = Ranked {
+                    joints: q,
+                    score,
+                    variance: None,
+                    in_image,
+                };
+                best_posed = Some(posed);
+            }
+            _ => sigma = (sigma * 0.85).max(0.02),
+        }
+    }
+    best_posed.map(|p| (best, p))
+}
+
+/// Picks the best-ranked pose whose path from `from` passes the full move check.
+pub fn choose_reachable(
+    cell: &Cell,
+    ranked: &[Ranked],
+    from: &[f64],
+    speed_rad_s: f64,
+    skip: impl Fn(&[f64]) -> bool,
+    events: &mut Vec<String>,
+) -> Option<(PlannedPose, CheckedMove)> {
+    let mut rejected = 0;
+    for r in ranked.iter().filter(|r| !skip(&r.joints)).take(64) {
+        match cell.checker.check_move(from, &r.joints, speed_rad_s) {
+            Ok(mv) => {
+                if rejected > 0 {
+                    events.push(format!("{rejected} better-scored poses had unsafe paths"));
+                }
+                return Some((
+                    PlannedPose {
+                        joints: r.joints.clone(),
+                        score: r.score,
+                        variance: r.variance,
+                        in_image: r.in_image,
+                        clearance: mv.clearance,
+                        path_samples: mv.samples,
+                    },
+                    mv,
+                ));
+            }
+            Err(_) => rejected += 1,
+        }
+    }
+    events.push(format!("{rejected} candidate paths rejected"));
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The climb only carries the posed robot through; an empty one will do.
+    fn posed() -> PosedRobot {
+        PosedRobot {
+            vertices_base: Vec::new(),
+            topology: std::sync::Arc::new(crate::mesh::TriMesh::default()),
+            vertex_link: std::sync::Arc::new(Vec::new()),
+        }
+    }
+
+    #[test]
+    fn the_climb_improves_its_start_and_keeps_off_the_limits() {
+        // The score peaks outside the limits, at joint 0 = 2.5 (limit 2.0): the climb must
+        // walk towards it and stop a margin short of the limit.
+        let limits = [(-2.0, 2.0), (-1.0, 1.0)];
+        let score = |q: &[f64]| -(q[0] - 2.5).powi(2) - q[1].powi(2);
+        let start = Ranked {
+            joints: vec![-1.0, 0.8],
+            score: score(&[-1.0, 0.8]),
+            variance: None,
+            in_image: 1.0,
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (best, _) = climb(start.clone(), 300, &limits, &mut rng, |q| {
+            Some((score(q), 1.0, posed()))
+        })
+        .expect("a better pose");
+        assert!(best.score > start.score + 5.0, "{best:?}");
+        assert!(
+            best.joints[0] <= 2.0 - LIMIT_MARGIN_RAD + 1e-12 && best.joints[0] > 1.8,
+            "{best:?}"
+        );
+        assert!(best.joints[1].abs() < 0.2, "{best:?}");
+    }
+
+    #[test]
+    fn the_climb_never_keeps_a_pose_the_checks_refuse() {
+        // Everything with joint 0 above zero is "unsafe"; the best allowed pose is at 0.
+        let limits = [(-2.0, 2.0)];
+        let start = Ranked {
+            joints: vec![-1.5],
+            score: -1.5,
+            variance: None,
+            in_image: 1.0,
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (best, _) = climb(start, 200, &limits, &mut rng, |q| {
+            (q[0] <= 0.0).then(|| (q[0], 1.0, posed()))
+        })
+        .expect("a better pose");
+        assert!(best.joints[0] <= 0.0 && best.joints[0] > -0.2, "{best:?}");
+        // No step can improve on the optimum: nothing is returned.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let top = Ranked {
+            joints: vec![0.0],
+            score: 0.0,
+            variance: None,
+            in_image: 1.0,
+        };
+        assert!(climb(top, 50, &limits, &mut rng, |q| {
+            (q[0] <= 0.0).then(|| (q[0], 1.0, posed()))
+        })
+        .is_none());
+    }
+}

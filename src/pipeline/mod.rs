@@ -1,0 +1,6 @@
+//! Pipelines: the library's end-to-end jobs, with typed inputs and outcomes, that the CLI, the
+//! daemon and the benchmarks call.
+//! - [`segment_solve`]: segment → solve → re-segment, the one place that alternates a
+//!   segmenter with the solver (offline runs, the closed loop's live frames, the bump check).
+
+pub mod segment_solve;
