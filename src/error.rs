@@ -25,6 +25,9 @@ pub enum Error {
         /// What failed.
         message: String,
     },
+    /// A command-line flag or argument is out of range or malformed.
+    #[error("{0}")]
+    Usage(String),
     /// A computation could not produce a trustworthy answer.
     #[error("{0}")]
     Solve(String),

@@ -6,8 +6,6 @@
 //! Per-frame segmenters implement [`Segmenter::segment`] only; segmenters that gain from
 //! context also override [`Segmenter::segment_views`] and [`Segmenter::uses_context`].
 
-#[cfg(feature = "sim")]
-pub mod bench;
 pub mod builtin;
 #[cfg(feature = "sim")]
 mod sim_truth;

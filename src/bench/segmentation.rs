@@ -2,12 +2,15 @@
 //! the RGB-only closed-loop calibration error on seeded cells, and its figures on the Panda
 //! photographs (masks withheld) against the provided masks. Nothing here asserts.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
+use super::{median, seeded_sim_cell, Report};
+use crate::backend::open_renderer;
 use crate::backend::Backend;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::SegmenterConfig;
+use crate::config::{read_config, RendererChoice, ScenePreset};
 use crate::config::{CellConfig, SelectionSetting};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
@@ -221,4 +224,96 @@ pub fn run_figures(run_dir: &Path, renderer: &dyn Backend) -> Result<RunFigures>
         ),
         rounds: settled.rounds,
     })
+}
+
+/// The builtin segmenter: mask IoU and RGB-only calibration error on seeded simulated
+/// cells, and (with --run) its figures on a recorded run whose masks are the reference.
+#[derive(clap::Args, Clone, Debug)]
+pub struct SegmentBench {
+    /// Base cell config (seeded variants move the camera, start pose and guess).
+    #[arg(long, default_value = "config/sim-xarm6.toml")]
+    pub config: PathBuf,
+    /// Number of simulated cells (seeds 0..N-1; 0 skips them).
+    #[arg(long, default_value_t = 20)]
+    pub scenes: u64,
+    /// Views per calibration (no early stop).
+    #[arg(long, default_value_t = 5)]
+    pub views: usize,
+    /// A run directory with images, masks and an initial guess (e.g. the imported Panda
+    /// example): its masks are withheld from the segmenter and used as the reference.
+    #[arg(long)]
+    pub run: Option<PathBuf>,
+    /// Frame dressing of the simulated cells: hard (clutter, light robot on light walls,
+    /// shadows, exposure changes, moving boxes) or easy.
+    #[arg(long, default_value = "hard")]
+    pub frames: String,
+    /// Renderer: cpu, wgpu or auto.
+    #[arg(long, default_value = "auto")]
+    pub renderer: RendererChoice,
+}
+
+impl SegmentBench {
+    /// Runs the benchmark: per-seed lines go to `log`, the summary into the report.
+    pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
+        let mut report = Report::default();
+        let SegmentBench {
+            config,
+            scenes,
+            views,
+            run,
+            frames,
+            renderer,
+        } = self.clone();
+        let preset: ScenePreset = frames
+            .parse()
+            .map_err(|e: String| Error::Usage(format!("--frames: {e}")))?;
+        if scenes > 0 {
+            let mut base = read_config(&config)?;
+            base.calibration.renderer = renderer;
+            let mut trials = Vec::new();
+            for seed in 0..scenes {
+                let cfg = seeded_sim_cell(&base, &config, seed)?;
+                let t = cell_trial(&cfg, &config, seed, views, preset)?;
+                log(&format!(
+                    "seed {seed}: IoU {:?}; {:.4} deg {:.3} mm",
+                    t.ious
+                        .iter()
+                        .map(|x| (x * 1000.0).round() / 1000.0)
+                        .collect::<Vec<_>>(),
+                    t.rotation_deg,
+                    t.translation_mm
+                ));
+                trials.push(t);
+            }
+            let ious: Vec<f64> = trials.iter().flat_map(|t| t.ious.clone()).collect();
+            let rot: Vec<f64> = trials.iter().map(|t| t.rotation_deg).collect();
+            let trans: Vec<f64> = trials.iter().map(|t| t.translation_mm).collect();
+            report.line(format!(
+                "builtin on {scenes} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
+                median(&ious),
+                ious.iter().sum::<f64>() / ious.len().max(1) as f64,
+                ious.iter().copied().fold(f64::INFINITY, f64::min),
+                median(&rot),
+                median(&trans),
+                rot.iter().copied().fold(0.0, f64::max),
+                trans.iter().copied().fold(0.0, f64::max),
+            ));
+        }
+        if let Some(run) = run {
+            let r = open_renderer(renderer, false)
+                .map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
+            let f = run_figures(&run, r.as_ref())?;
+            report.line(format!(
+                "builtin on {} ({} views, masks withheld): mean IoU {:.4} (per view {:?}); images-only vs recorded-mask calibration {:.4} deg / {:.3} mm after {} rounds",
+                run.display(),
+                f.ious.len(),
+                f.ious.iter().sum::<f64>() / f.ious.len().max(1) as f64,
+                f.ious.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
+                f.rotation_deg,
+                f.translation_mm,
+                f.rounds
+            ));
+        }
+        Ok(report)
+    }
 }

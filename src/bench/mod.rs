@@ -1,0 +1,182 @@
+//! Benchmarks behind `easyhec bench` (figures in docs/benchmarks.md, each with its command).
+//! Nothing here asserts timings: performance is measured here, never in tests. Each benchmark
+//! is an options struct (its flags) with a `run` that logs per-seed lines and returns the
+//! summary the CLI prints. Benchmark-only protocols live here, not in the product loop.
+//!
+//! - [`accuracy`]: pose error over seeded synthetic scenes by view count.
+//! - [`init`]: automatic initialisation over cameras anywhere on a hemisphere.
+//! - [`closed_loop`]: exploration against random selection on seeded simulated cells.
+//! - [`view_sets`]: how far choosing two views can go, against the score's model.
+//! - [`segmentation`]: the builtin segmenter's masks and RGB-only calibrations.
+//! - [`speed`]: solve time and memory, and one exploration round's scoring time.
+
+pub mod accuracy;
+pub mod closed_loop;
+pub mod init;
+pub mod segmentation;
+pub mod speed;
+pub mod view_sets;
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::render::PosedRobot;
+use crate::robot::RobotModel;
+use crate::solve::View;
+use crate::synth::Scene;
+
+pub use accuracy::AccuracyBench;
+pub use closed_loop::LoopBench;
+pub use init::InitBench;
+pub use segmentation::SegmentBench;
+pub use speed::{ExploreBench, SpeedBench};
+pub use view_sets::ViewSetsBench;
+
+/// The summary a benchmark prints on standard output, line by line.
+#[derive(Clone, Debug, Default)]
+pub struct Report {
+    text: String,
+}
+
+impl Report {
+    /// Adds one line (a newline follows it).
+    pub fn line(&mut self, line: impl AsRef<str>) {
+        self.text.push_str(line.as_ref());
+        self.text.push('\n');
+    }
+
+    /// Everything added, each line ending in a newline.
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+}
+
+/// Builds solver views from a synthetic scene.
+pub fn scene_views(robot: &RobotModel, scene: &Scene) -> Vec<View> {
+    scene
+        .masks
+        .par_iter()
+        .zip(&scene.recorded_joints)
+        .map(|(m, q)| View {
+            robot: PosedRobot::new(robot, q),
+            observed: scene.camera.undistort_mask(m),
+        })
+        .collect()
+}
+
+/// Median of a slice (NaN-free).
+pub fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Peak resident set size of this process, bytes (Linux `VmHWM`).
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// A seeded variant of a simulated cell config: true camera anywhere on a band of the
+/// hemisphere around the robot, a random safe visible start pose, a guess 2–6° / 2–8 cm off.
+pub fn seeded_sim_cell(
+    base: &crate::config::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+) -> Result<crate::config::CellConfig> {
+    use crate::cell::Cell;
+    use crate::config::InitialGuess;
+    use crate::config::{ArmConfig, CameraConfig, LookAt};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
+    let mut cfg = base.clone();
+    let distance = rng.random_range(1.1..1.6);
+    let azimuth: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+    let elevation: f64 = rng.random_range(15f64..45.0).to_radians();
+    let centre = [0.1 * azimuth.cos(), 0.1 * azimuth.sin(), 0.3];
+    let truth = LookAt {
+        eye: [
+            centre[0] + distance * elevation.cos() * azimuth.cos(),
+            centre[1] + distance * elevation.cos() * azimuth.sin(),
+            centre[2] + distance * elevation.sin(),
+        ],
+        look_at: [
+            centre[0] + rng.random_range(-0.05..0.05),
+            centre[1] + rng.random_range(-0.05..0.05),
+            centre[2] + rng.random_range(-0.05..0.05),
+        ],
+        roll_deg: rng.random_range(-5.0..5.0),
+    };
+    let pose = truth.camera_from_base();
+    let CameraConfig::Sim {
+        truth: t, scene, ..
+    } = &mut cfg.camera
+    else {
+        return Err(crate::Error::input(
+            config_path,
+            "camera.kind",
+            "the loop benchmark needs a simulated camera (kind = \"sim\")",
+        ));
+    };
+    *t = truth;
+    scene.seed = seed;
+    cfg.calibration.seed = seed;
+    cfg.calibration.initial_guess = Some(InitialGuess::Matrix {
+        camera_from_base: crate::geometry::to_rows(&crate::synth::perturb(
+            &mut rng,
+            &pose,
+            (2.0, 6.0),
+            (0.02, 0.08),
+        )),
+    });
+    if let crate::config::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
+        *s = seed;
+    }
+    // A start pose that is safe and shows the robot to the true camera.
+    let cell = Cell::build(cfg.clone(), config_path)?;
+    let camera = cfg
+        .camera
+        .camera()
+        .ok_or_else(|| crate::Error::input(config_path, "camera.kind", "needs a simulated camera"))?
+        .undistorted();
+    for _ in 0..10_000 {
+        let q = uniform_joints(cell.checker.limits(), &mut rng);
+        if cell.checker.check_pose(&q).is_err() {
+            continue;
+        }
+        let posed = PosedRobot::new(&cell.robot, &q).decimated(0.01);
+        if crate::calibrate::in_image_fraction(&posed, &camera, &pose) < 0.97 {
+            continue;
+        }
+        let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {
+            return Err(crate::Error::Solve(
+                "bench cells need [arm] kind = \"sim\"".into(),
+            ));
+        };
+        *start = q;
+        *s = seed;
+        return Ok(cfg);
+    }
+    Err(crate::Error::Solve(format!(
+        "seed {seed}: no safe start pose shows the robot"
+    )))
+}
+
+/// A joint vector drawn uniformly within `limits` (how the planner and the random selection
+/// draw their samples).
+pub(crate) fn uniform_joints(limits: &[(f64, f64)], rng: &mut impl rand::Rng) -> Vec<f64> {
+    limits
+        .iter()
+        .map(|&(lo, hi)| rng.random_range(lo..=hi))
+        .collect()
+}

@@ -1,0 +1,152 @@
+//! `easyhec calibrate`: the closed loop on a configured cell.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use clap::Args;
+use easyhec::calibrate::{calibrate, ConfirmMove, PlannedPose, RunOptions};
+use easyhec::cell::Cell;
+use easyhec::config::{read_config, RendererChoice};
+#[cfg(feature = "sim")]
+use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::time::rfc3339;
+use nalgebra::Isometry3;
+
+use super::fmt_joints;
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// Cell config (TOML), e.g. config/sim-xarm6.toml.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Run directory to record into (default: runs/<UTC time>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Plan and print the poses with their checks; never move.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Ask before each move.
+    #[arg(long)]
+    pub confirm: bool,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Renderer: cpu, wgpu or auto (overrides `[calibration] renderer`).
+    #[arg(long)]
+    pub renderer: Option<RendererChoice>,
+}
+
+/// Runs the closed loop on the configured cell and prints what it did.
+pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
+    let mut config = read_config(&a.config)?;
+    if let Some(r) = a.renderer {
+        config.calibration.renderer = r;
+    }
+    let cell = Cell::build(config, &a.config)?;
+    let out = a.out.unwrap_or_else(|| {
+        PathBuf::from("runs").join(rfc3339(std::time::SystemTime::now()).replace(':', "-"))
+    });
+    let confirm: Option<ConfirmMove> = if a.confirm {
+        Some(Arc::new(|p: &PlannedPose| {
+            eprint!(
+                "move to {} (score {:.1}, {:.0}% in image, clearance {:.1} mm self / {:.1} mm environment)? [y/N] ",
+                fmt_joints(&p.joints),
+                p.score,
+                p.in_image * 100.0,
+                p.clearance.self_m * 1e3,
+                p.clearance.environment_m * 1e3
+            );
+            let _ = std::io::stderr().flush();
+            let mut line = String::new();
+            std::io::stdin().read_line(&mut line).is_ok() && line.trim().eq_ignore_ascii_case("y")
+        }))
+    } else {
+        None
+    };
+    let opts = RunOptions {
+        dry_run: a.dry_run,
+        confirm,
+        progress: !a.quiet,
+        ..RunOptions::default()
+    };
+    let runtime = super::runtime()?;
+    let outcome = runtime.block_on(calibrate(&cell, &out, &opts))?;
+    let r = &outcome.result;
+    if a.dry_run {
+        println!(
+            "dry run: {} poses planned from the first view's estimate (nothing moved); speed {:.2} rad/s",
+            outcome.planned.len(),
+            cell.config.calibration.speed_rad_s
+        );
+        for (i, p) in outcome.planned.iter().enumerate() {
+            println!(
+                "  {}: {}  score {:.1}  in image {:.0}%  path {} poses checked, clearance {:.1} mm self / {:.1} mm environment",
+                i + 1,
+                fmt_joints(&p.joints),
+                p.score,
+                p.in_image * 100.0,
+                p.path_samples,
+                p.clearance.self_m * 1e3,
+                p.clearance.environment_m * 1e3
+            );
+        }
+        for (a, b, why) in &cell.checker.skipped_pairs {
+            if *why == "always in contact"
+                || *why == "allowed in config"
+                || *why == "disabled in SRDF"
+            {
+                println!("  not checked: {a} / {b} ({why})");
+            }
+        }
+        return Ok(());
+    }
+    let iou = outcome.report.mean_iou();
+    let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
+    eprintln!(
+        "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
+        r.views_used.len(),
+        t("total"),
+        t("solve"),
+        t("explore"),
+        t("motion"),
+        r.stop_reason,
+        iou,
+        outcome.run_dir.join("result.json").display()
+    );
+    if let Some(u) = &r.uncertainty {
+        eprintln!(
+            "1-sigma: rotation [{:.4}, {:.4}, {:.4}] deg, translation [{:.3}, {:.3}, {:.3}] mm",
+            u.rotation_deg[0],
+            u.rotation_deg[1],
+            u.rotation_deg[2],
+            u.translation_mm[0],
+            u.translation_mm[1],
+            u.translation_mm[2]
+        );
+    }
+    report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
+    Ok(())
+}
+
+/// On a simulated cell: writes `ground_truth.json` into the run and prints the error against
+/// the simulator's true pose.
+#[cfg(feature = "sim")]
+fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyhow::Result<()> {
+    let Some(truth) = cell.sim.camera_from_base else {
+        return Ok(());
+    };
+    let gt = easyhec::cell::sim::ground_truth(&cell.config, &truth);
+    easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &gt)?;
+    println!(
+        "error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
+        rotation_error_deg(estimate, &truth),
+        translation_error_mm(estimate, &truth)
+    );
+    Ok(())
+}
+
+#[cfg(not(feature = "sim"))]
+fn report_truth(_: &Cell, _: &Path, _: &Isometry3<f64>) -> anyhow::Result<()> {
+    Ok(())
+}

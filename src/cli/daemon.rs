@@ -1,0 +1,79 @@
+//! `easyhec daemon`: serve calibrations of a cell over HTTP until stopped.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use easyhec::daemon::{data_dir, resolve_token, serve, Daemon};
+
+#[derive(Args)]
+pub struct DaemonArgs {
+    /// Cell config (TOML) with an optional [daemon] table.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// HOST:PORT to listen on (default: [daemon] listen, else 127.0.0.1:8787; port 0 picks
+    /// a free one).
+    #[arg(long)]
+    pub listen: Option<String>,
+    /// Data folder (default: [daemon] data_dir relative to the config).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+}
+
+/// Serves the cell until ctrl-c or SIGTERM.
+pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
+    let cell = easyhec::cell::Cell::open(&a.config)?;
+    let token = resolve_token(&cell)?;
+    let listen = a
+        .listen
+        .clone()
+        .unwrap_or_else(|| cell.config.daemon.listen.clone());
+    let data = data_dir(&cell, a.data.as_deref());
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("easyhec-http")
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async move {
+        let daemon = Daemon::open(cell, &data, token)?;
+        for id in daemon.recovered() {
+            eprintln!("easyhec daemon: {id} was running when the daemon stopped: marked interrupted (its views are on disk)");
+        }
+        let listener = tokio::net::TcpListener::bind(&listen)
+            .await
+            .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
+        let addr = listener.local_addr().context("reading the bound address")?;
+        // Tests and supervisors read this line for the port.
+        eprintln!(
+            "easyhec daemon listening on http://{addr} (data {})",
+            data.display()
+        );
+        serve(daemon, listener, stop_signal()).await?;
+        eprintln!("easyhec daemon: stopped");
+        anyhow::Ok(())
+    })
+}
+
+/// Resolves on ctrl-c or SIGTERM.
+async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}

@@ -1,0 +1,36 @@
+//! `easyhec export`: a result in the form another tool reads.
+
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Context};
+use clap::Args;
+use easyhec::interop::{export, ExportFormat};
+use easyhec::run::ResultFile;
+
+#[derive(Args)]
+pub struct ExportArgs {
+    /// easyhec-result/1 file.
+    pub result: PathBuf,
+    /// opencv | ros | easy-handeye | urdf
+    #[arg(long)]
+    pub format: String,
+    /// Name of the camera optical frame in ROS/URDF forms.
+    #[arg(long, default_value = "camera_color_optical_frame")]
+    pub camera_frame: String,
+    /// Output file (default: standard output).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Writes a result in another tool's form.
+pub fn run(a: ExportArgs) -> anyhow::Result<()> {
+    let format: ExportFormat = a.format.parse().map_err(|e: String| anyhow!(e))?;
+    let result = ResultFile::read(&a.result)?;
+    let text = export(&result, format, &a.camera_frame);
+    match a.out {
+        Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
+            .with_context(|| format!("writing {}", p.display()))?,
+        None => print!("{text}"),
+    }
+    Ok(())
+}

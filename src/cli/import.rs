@@ -1,0 +1,72 @@
+//! `easyhec import`: another tool's recordings as a run directory.
+
+use std::path::PathBuf;
+
+use clap::Subcommand;
+use easyhec::interop::{import_easyhec, EasyHecImport};
+use easyhec::robot::RobotModel;
+
+use super::urdf_for_run;
+
+#[derive(Subcommand)]
+pub enum ImportCommand {
+    /// EasyHeC's offline folder: color/ mask/ qpos/ K.txt [initial_guess.txt].
+    Easyhec {
+        /// Source folder.
+        dir: PathBuf,
+        /// Output run directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// Robot URDF.
+        #[arg(long)]
+        urdf: PathBuf,
+        /// Actuated joints in qpos order (default: the URDF's movable, non-mimic joints).
+        #[arg(long, value_delimiter = ',')]
+        joints: Option<Vec<String>>,
+        /// Links the masks leave out (e.g. fingers).
+        #[arg(long, value_delimiter = ',')]
+        ignore_links: Vec<String>,
+    },
+}
+
+impl ImportCommand {
+    /// Runs the import.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            ImportCommand::Easyhec {
+                dir,
+                out,
+                urdf,
+                joints,
+                ignore_links,
+            } => easyhec(dir, out, urdf, joints, ignore_links),
+        }
+    }
+}
+
+/// Converts EasyHeC's offline folder into a run directory.
+pub fn easyhec(
+    dir: PathBuf,
+    out: PathBuf,
+    urdf: PathBuf,
+    joints: Option<Vec<String>>,
+    ignore_links: Vec<String>,
+) -> anyhow::Result<()> {
+    let joints = match joints {
+        Some(j) => j,
+        None => {
+            let robot = RobotModel::from_urdf(urdf.clone())?;
+            robot.joint_names().iter().map(|s| s.to_string()).collect()
+        }
+    };
+    let run = import_easyhec(&EasyHecImport {
+        source: dir,
+        out: out.clone(),
+        urdf: urdf_for_run(&urdf),
+        joints,
+        ignore_links,
+        initial_guess: None,
+    })?;
+    println!("imported {} views into {}", run.views.len(), out.display());
+    Ok(())
+}

@@ -1,0 +1,38 @@
+//! The subcommands, one file each: each parses its flags into the library's typed inputs,
+//! calls the library, and prints what came back. No computation lives here.
+
+pub mod bench;
+pub mod calibrate;
+pub mod daemon;
+pub mod export;
+pub mod import;
+pub mod solve;
+#[cfg(feature = "sim")]
+pub mod synth;
+
+use std::path::Path;
+
+use anyhow::Context;
+
+/// Joints as the operator reads them: signed, three decimals.
+pub fn fmt_joints(q: &[f64]) -> String {
+    let parts: Vec<String> = q.iter().map(|v| format!("{v:+.3}")).collect();
+    format!("[{}]", parts.join(", "))
+}
+
+/// The URDF path a run directory records: absolute, so the run stays valid wherever it is
+/// solved from.
+pub fn urdf_for_run(urdf: &Path) -> String {
+    let abs = std::fs::canonicalize(urdf).unwrap_or_else(|_| urdf.to_path_buf());
+    abs.display().to_string()
+}
+
+/// The async runtime the arm and camera drivers run on (two workers: the loop's planning and
+/// solving are CPU-bound and run on rayon).
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")
+}

@@ -1,0 +1,468 @@
+//! The offline solve of a recorded run directory (`easyhec solve`): load, segment the views
+//! that need masks, initialise when there is no guess, select views, leave out the views no
+//! pose agrees with, write the result and the overlays. The CLI prints what it returns; the
+//! daemon and tests call it directly.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::Isometry3;
+
+use crate::backend::{open_renderer, Backend};
+use crate::config::{RendererChoice, SegmenterConfig};
+use crate::consensus::{find_consensus, ConsensusOptions};
+use crate::error::{Error, Result};
+use crate::explore::{solve_selected, ExploreOptions, Selection, StopRule};
+use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use crate::init::{initialise, InitOptions};
+use crate::overlay::write_overlay;
+use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
+use crate::render::PosedRobot;
+use crate::run::{
+    load_run, load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile,
+    UncertaintyEntry,
+};
+use crate::solve::{Optimizer, SolveOptions, SolveReport, View};
+
+/// What to solve and how (`easyhec solve`'s flags).
+#[derive(Clone, Debug)]
+pub struct OfflineSolve {
+    /// Run directory (or its `run.json`).
+    pub run: PathBuf,
+    /// Views to use (default: all).
+    pub views: Option<usize>,
+    /// How views are chosen.
+    pub selection: Selection,
+    /// Seed of the selection's candidates.
+    pub seed: u64,
+    /// The optimiser.
+    pub optimizer: Optimizer,
+    /// Result path (default `RUN/result.json`).
+    pub out: Option<PathBuf>,
+    /// Folder for one agreement overlay per view.
+    pub overlays: Option<PathBuf>,
+    /// Renderer backend.
+    pub renderer: RendererChoice,
+    /// Keep views that fit no pose the others agree on.
+    pub keep_all_views: bool,
+    /// Segment views without masks with this segmenter.
+    pub segmenter: Option<SegmenterConfig>,
+    /// With a segmenter: segment every view's image, ignoring recorded masks.
+    pub ignore_masks: bool,
+    /// With a segmenter: where to write the masks it made.
+    pub masks_out: Option<PathBuf>,
+}
+
+/// What an offline solve produced.
+#[derive(Clone, Debug)]
+pub struct OfflineOutcome {
+    /// The result as written.
+    pub result: ResultFile,
+    /// Where it was written.
+    pub out: PathBuf,
+    /// The final solve.
+    pub report: SolveReport,
+    /// Views the result rests on.
+    pub views: usize,
+    /// Seconds of solving.
+    pub solve_s: f64,
+    /// Views that fit poorly (IoU < 0.8): the uncertainty does not cover a wrong model.
+    pub poor_views: Vec<usize>,
+    /// The error against `ground_truth.json` beside a synthetic run: (file, degrees, mm).
+    pub truth_error: Option<(PathBuf, f64, f64)>,
+}
+
+/// Solves a recorded run; `note` receives the one-line remarks a user should see as they
+/// happen (segmentation rounds, automatic initialisation, views left out).
+pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
+    let started = Instant::now();
+    let mut run = match (&req.segmenter, req.ignore_masks) {
+        (None, _) => load_run(&req.run)?,
+        (Some(_), true) => load_run_with(&req.run, MaskSource::Image)?,
+        (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
+    };
+    let renderer =
+        open_renderer(req.renderer, false).map_err(|e| Error::input(&req.run, "--renderer", e))?;
+    let renderer = renderer.as_ref();
+    let mut segment_s = None;
+    let mut settled = None;
+    if let Some(config) = &req.segmenter {
+        let t = Instant::now();
+        settled = segment_run(&mut run, config, renderer, req.masks_out.as_deref(), note)?;
+        segment_s = Some(t.elapsed().as_secs_f64());
+    }
+    let total = run.views.len();
+    let k = req.views.unwrap_or(total);
+    if k == 0 || k > total {
+        return Err(Error::input(
+            &req.run,
+            "--views",
+            format!("{k}: the run has {total} views"),
+        ));
+    }
+    // The pool: every recorded view (views beyond K are only candidates for explore/random).
+    let pool_size = if req.selection == Selection::First {
+        k
+    } else {
+        total
+    };
+    let pool: Vec<View> = run.views[..pool_size]
+        .iter()
+        .map(|v| View {
+            robot: PosedRobot::new(&run.robot, &v.joints),
+            observed: v.observed.clone(),
+        })
+        .collect();
+    let initial = match settled.or(run.initial_guess) {
+        Some(start) => start,
+        None => auto_initial(renderer, &run, &pool, note)?,
+    };
+    let solve_opts = SolveOptions {
+        optimizer: req.optimizer,
+        ..SolveOptions::default()
+    };
+    let selected = solve_selected(
+        renderer,
+        &run.camera,
+        &pool,
+        &initial,
+        k,
+        req.selection,
+        &solve_opts,
+        &ExploreOptions {
+            seed: req.seed,
+            ..ExploreOptions::default()
+        },
+        &StopRule::default(),
+    )?;
+    let solve_s = selected.solve_s;
+    let explore_s = selected.explore_s;
+    let (order, report, stop_reason) = if req.keep_all_views {
+        (selected.order, selected.report, selected.stop_reason)
+    } else {
+        consistent_views(renderer, &run, &pool, selected, &solve_opts, note)?
+    };
+    if !report
+        .camera_from_base
+        .to_homogeneous()
+        .iter()
+        .all(|v| v.is_finite())
+    {
+        return Err(Error::Solve(
+            "the solve diverged (non-finite pose): check the initial guess and the masks".into(),
+        ));
+    }
+    let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
+    result.views_used = order.clone();
+    result.per_view = order
+        .iter()
+        .zip(&report.per_view_iou)
+        .map(|(&v, &iou)| PerView { view: v, iou })
+        .collect();
+    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
+    result.stop_reason = match req.optimizer {
+        Optimizer::Lm => stop_reason,
+        Optimizer::Adam => format!(
+            "{}; adam: {} steps, best iterate",
+            stop_reason, report.iterations
+        ),
+    };
+    if let Some(dir) = &req.overlays {
+        write_overlays(renderer, &run, &pool, &order, &report, dir)?;
+    }
+    result.timings_s.insert("solve".into(), solve_s);
+    if let Some(t) = segment_s {
+        result.timings_s.insert("segment".into(), t);
+    }
+    if req.selection == Selection::Explore {
+        result.timings_s.insert("explore".into(), explore_s);
+    }
+    result
+        .timings_s
+        .insert("total".into(), started.elapsed().as_secs_f64());
+    let out = req
+        .out
+        .clone()
+        .unwrap_or_else(|| run.dir.join("result.json"));
+    crate::io::write_json_atomic(&out, &result)?;
+    let poor_views = order
+        .iter()
+        .zip(&report.per_view_iou)
+        .filter(|(_, &iou)| iou < 0.8)
+        .map(|(&v, _)| v)
+        .collect();
+    Ok(OfflineOutcome {
+        truth_error: truth_error(&run.dir, &report.camera_from_base),
+        views: order.len(),
+        result,
+        out,
+        report,
+        solve_s,
+        poor_views,
+    })
+}
+
+/// No guess: search for one (docs/method.md §6) over the first views.
+fn auto_initial(
+    renderer: &dyn Backend,
+    run: &LoadedRun,
+    pool: &[View],
+    note: &mut dyn FnMut(&str),
+) -> Result<Isometry3<f64>> {
+    let first = &pool[..pool.len().min(3)];
+    let found = initialise(
+        renderer,
+        &run.camera,
+        first,
+        &SolveOptions::default(),
+        &InitOptions::default(),
+    )
+    .map_err(|e| {
+        Error::Solve(format!(
+            "{}: initial_guess is absent: {e}",
+            run.dir.join("run.json").display()
+        ))
+    })?;
+    note(&format!(
+        "no initial_guess: automatic initialisation found a pose with mean IoU {:.3} over {} views",
+        found.mean_iou(),
+        first.len()
+    ));
+    Ok(found.camera_from_base)
+}
+
+/// Leaves out the selected views that fit no pose the others agree on (their joints do not
+/// describe their images), re-solving from the rest.
+fn consistent_views(
+    renderer: &dyn Backend,
+    run: &LoadedRun,
+    pool: &[View],
+    selected: crate::explore::Selected,
+    solve_opts: &SolveOptions,
+    note: &mut dyn FnMut(&str),
+) -> Result<(Vec<usize>, SolveReport, String)> {
+    let order = selected.order;
+    let used: Vec<View> = order.iter().map(|&i| pool[i].clone()).collect();
+    let Some(c) = find_consensus(
+        renderer,
+        &run.camera,
+        &used,
+        &selected.report,
+        solve_opts,
+        &ConsensusOptions::default(),
+    )?
+    else {
+        return Ok((order, selected.report, selected.stop_reason));
+    };
+    let rejected: Vec<String> = c
+        .rejected
+        .iter()
+        .map(|&(i, iou)| format!("{} (IoU {iou:.2})", order[i]))
+        .collect();
+    let kept: Vec<usize> = c.kept.iter().map(|&i| order[i]).collect();
+    note(&format!(
+        "warning: views {} fit no pose the other views agree on and are left out (their joints do not describe their images: check joint-read timing); the result uses views {kept:?} (--keep-all-views keeps them)",
+        rejected.join(", ")
+    ));
+    let stop_reason = format!(
+        "{}; left out {} inconsistent views",
+        selected.stop_reason,
+        c.rejected.len()
+    );
+    Ok((kept, c.report, stop_reason))
+}
+
+/// One agreement overlay PNG per used view (the colour image underneath when undistorted).
+fn write_overlays(
+    renderer: &dyn Backend,
+    run: &LoadedRun,
+    pool: &[View],
+    order: &[usize],
+    report: &SolveReport,
+    dir: &Path,
+) -> Result<()> {
+    let pinhole = run.camera.undistorted();
+    for &i in order {
+        let view = &pool[i];
+        let rendered = renderer
+            .render(&view.robot, &pinhole, &report.camera_from_base, None)
+            .mask;
+        let image = run.views[i]
+            .image
+            .as_deref()
+            .filter(|_| !run.camera.is_distorted());
+        write_overlay(
+            &dir.join(format!("{i:03}.overlay.png")),
+            &rendered,
+            &view.observed,
+            image,
+        )?;
+    }
+    Ok(())
+}
+
+/// Synthetic runs carry their truth beside run.json: the error against it.
+fn truth_error(dir: &Path, estimate: &Isometry3<f64>) -> Option<(PathBuf, f64, f64)> {
+    let path = dir.join("ground_truth.json");
+    let text = std::fs::read_to_string(&path).ok()?;
+    let truth: GroundTruth = serde_json::from_str(&text).ok()?;
+    let truth = from_rows(&truth.camera_from_base).ok()?;
+    Some((
+        path,
+        rotation_error_deg(estimate, &truth),
+        translation_error_mm(estimate, &truth),
+    ))
+}
+
+/// Fills the masks of views that need one: segment → solve → re-segment over those views
+/// until the masks settle (`pipeline::segment_solve`). Returns the settled pose when it fits
+/// (mean IoU ≥ 0.8): the solve that follows starts there, since masks drawn near that pose's
+/// render are what it must fit, and a start back at the guess can stop in another basin (hard
+/// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose).
+fn segment_run(
+    run: &mut LoadedRun,
+    config: &SegmenterConfig,
+    renderer: &dyn Backend,
+    masks_out: Option<&Path>,
+    note: &mut dyn FnMut(&str),
+) -> Result<Option<Isometry3<f64>>> {
+    let segmenter = crate::segment::build(config, &run.dir.join("run.json"))?;
+    let name = segmenter.name().to_string();
+    let need: Vec<usize> = (0..run.views.len())
+        .filter(|&i| run.views[i].needs_mask)
+        .collect();
+    if need.is_empty() {
+        return Ok(None);
+    }
+    let mut frames = Vec::with_capacity(need.len());
+    for &i in &need {
+        let path = run.views[i].image.clone().ok_or_else(|| {
+            Error::input(
+                run.dir.join("run.json"),
+                format!("views[{i}].image"),
+                "absent",
+            )
+        })?;
+        frames.push(crate::segment::read_frame(
+            &path,
+            run.camera.width,
+            run.camera.height,
+        )?);
+    }
+    let robots: Vec<PosedRobot> = need
+        .iter()
+        .map(|&i| PosedRobot::new(&run.robot, &run.views[i].joints))
+        .collect();
+    let guess = run.initial_guess;
+    let camera = run.camera.clone();
+    let start = |views: &[View]| -> Result<Isometry3<f64>> {
+        match guess {
+            Some(g) => Ok(g),
+            None => Ok(initialise(
+                renderer,
+                &camera,
+                &views[..views.len().min(3)],
+                &SolveOptions::default(),
+                &InitOptions::default(),
+            )?
+            .camera_from_base),
+        }
+    };
+    let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
+    let settled = segment_solve::segment_and_solve(
+        renderer,
+        &run.camera,
+        segmenter.as_ref(),
+        &frame_refs,
+        &robots,
+        &start,
+        guess.as_ref().map(|g| (g, segment_solve::GUESS_BAND_PX)),
+        config.min_band_px(),
+        config.final_band_px(),
+        &SolveOptions::default(),
+        4,
+    )?;
+    note(&format!(
+        "segmenter {name}: {} views segmented in {} segment-and-solve rounds (mean IoU {:.3} at the last solve)",
+        need.len(),
+        settled.rounds,
+        settled.report.mean_iou()
+    ));
+    let settled = if settled.report.mean_iou() < POOR_FIT_IOU && segmenter.uses_context() {
+        let joints: Vec<Vec<f64>> = need.iter().map(|&i| run.views[i].joints.clone()).collect();
+        let scene = PairScene {
+            renderer,
+            run,
+            segmenter: segmenter.as_ref(),
+            frames: &frame_refs,
+            joints: &joints,
+            need: &need,
+        };
+        scene.search(settled, &name, note)?
+    } else {
+        settled
+    };
+    for (&i, mask) in need.iter().zip(&settled.masks) {
+        if let Some(dir) = masks_out {
+            crate::io::write_atomic(&dir.join(format!("{i:03}.mask.png")), &mask.to_png_bytes())?;
+        }
+        run.views[i].observed = run.camera.undistort_mask(mask);
+        run.views[i].needs_mask = false;
+    }
+    Ok((settled.report.mean_iou() >= POOR_FIT_IOU).then_some(settled.report.camera_from_base))
+}
+
+/// What the view-pair search needs of the run being segmented.
+struct PairScene<'a> {
+    renderer: &'a dyn Backend,
+    run: &'a LoadedRun,
+    segmenter: &'a dyn crate::segment::Segmenter,
+    frames: &'a [&'a easyhec_drivers::Frame],
+    joints: &'a [Vec<f64>],
+    need: &'a [usize],
+}
+
+impl PairScene<'_> {
+    /// No pose fits the masks: some views' joints may not describe their images. Finds the
+    /// two views that agree on a pose, from the images alone; keeps `settled` when none do.
+    fn search(
+        &self,
+        settled: segment_solve::Settled,
+        name: &str,
+        note: &mut dyn FnMut(&str),
+    ) -> Result<segment_solve::Settled> {
+        let t = Instant::now();
+        let need = self.need;
+        let found = segment_solve::search_view_pairs(
+            self.renderer,
+            &self.run.camera,
+            self.segmenter,
+            self.frames,
+            &self.run.robot,
+            self.joints,
+            &settled.report.camera_from_base,
+            &SolveOptions::default(),
+            &PairSearchOptions::default(),
+        )?;
+        let Some(found) = found else {
+            note(&format!(
+                "segmenter {name}: the masks fit no pose and no pair of views agrees on one ({:.1} s)",
+                t.elapsed().as_secs_f64()
+            ));
+            return Ok(settled);
+        };
+        let (i, j) = found.pair;
+        let runner_up = found.runner_up.map_or(String::new(), |((a, b), s)| {
+            format!(", next views {} and {} at {s:.3}", need[a], need[b])
+        });
+        note(&format!(
+            "segmenter {name}: the masks fit no pose, so every pair of views was tried: views {} and {} agree best (IoU {:.3} on masks under their own pose{runner_up}; {:.1} s); masks redrawn around joints refitted to each image, the pair fits them at IoU {:.3}",
+            need[i],
+            need[j],
+            found.score,
+            t.elapsed().as_secs_f64(),
+            found.settled.report.mean_iou()
+        ));
+        Ok(found.settled)
+    }
+}
