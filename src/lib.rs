@@ -37,6 +37,7 @@ pub mod init;
 pub mod interop;
 pub mod io;
 pub mod mask;
+pub mod mask_noise;
 pub mod mesh;
 pub mod objective;
 pub mod overlay;

@@ -127,7 +127,7 @@ pub fn view_set_cell(
                     .render(&PosedRobot::new(robot, q), &camera, &truth, None)
                     .mask;
                 let observed = match &mask_noise {
-                    Some(n) => crate::synth::apply_mask_noise(rng, &exact, n),
+                    Some(n) => crate::mask_noise::apply_mask_noise(rng, &exact, n),
                     None => exact,
                 };
                 let reported: Vec<f64> = q.iter().map(|v| v + encoder_noise.sample(rng)).collect();

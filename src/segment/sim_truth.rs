@@ -71,7 +71,7 @@ impl Segmenter for SimTruth {
                     .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let mut rng =
                     rand_chacha::ChaCha8Rng::seed_from_u64(self.seed.wrapping_mul(1_000_003) + n);
-                crate::synth::apply_mask_noise(&mut rng, &mask, noise)
+                crate::mask_noise::apply_mask_noise(&mut rng, &mask, noise)
             }
         })
     }
