@@ -31,7 +31,8 @@
 //!   on their own last masks, by the region score of their render and by the IoU on a
 //!   re-segmentation with the first band.
 
-use easyhec::camera::Camera;
+use easyhec::camera::Intrinsics;
+use easyhec::camera::LensWarp;
 use easyhec::consensus::{find_consensus, ConsensusOptions};
 use easyhec::geometry::{exp_se3, rotation_error_deg, translation_error_mm, Twist};
 use easyhec::nalgebra::{Isometry3, Vector3};
@@ -397,7 +398,7 @@ fn main() {
         return;
     }
     // search: the camera pose by the region score, coarse to fine.
-    let levels: Vec<(Camera, Vec<Vec<f32>>, Vec<PosedRobot>)> = [16usize, 8, 4, 2]
+    let levels: Vec<(Intrinsics, Vec<Vec<f32>>, Vec<PosedRobot>)> = [16usize, 8, 4, 2]
         .iter()
         .map(|&f| {
             let low = cam.downsampled(f as u32);

@@ -11,7 +11,7 @@
 use nalgebra::Isometry3;
 
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::error::Result;
 use crate::render::SilhouetteRenderer;
 use crate::solve::{solve, SolveOptions, SolveReport, View};
@@ -54,7 +54,7 @@ pub struct Consensus {
 /// Mask IoU of every view at `camera_from_base`.
 pub fn ious_at(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     camera_from_base: &Isometry3<f64>,
 ) -> Vec<f64> {
@@ -82,7 +82,7 @@ fn best_n(ious: &[f64], n: usize) -> Vec<usize> {
 /// warns).
 pub fn find_consensus(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     report: &SolveReport,
     solve_opts: &SolveOptions,

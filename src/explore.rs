@@ -16,7 +16,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::geometry::{exp_se3, Twist};
 use crate::render::{PosedRobot, SilhouetteRenderer};
 use crate::robot::JointMotion;
@@ -130,7 +130,7 @@ impl std::ops::Add for ViewTerms {
 /// camera; `full_fx` is the full-resolution focal length the outline lengths and
 /// displacements are scaled to).
 pub fn view_terms(
-    camera: &Camera,
+    camera: &Intrinsics,
     full_fx: f64,
     robot: &PosedRobot,
     motions: &[JointMotion],
@@ -251,7 +251,7 @@ pub fn joint_twist_in_camera(motion: &JointMotion, camera_from_base: &Isometry3<
 /// an empty pool. Scoring is at `opts.downsample` resolution.
 pub fn choose_next(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     pool: &[&PosedRobot],
     candidates: &[Isometry3<f64>],
     opts: &ExploreOptions,
@@ -318,7 +318,7 @@ pub struct Selected {
 #[allow(clippy::too_many_arguments)]
 pub fn solve_selected(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     pool: &[crate::solve::View],
     initial: &Isometry3<f64>,
     max_views: usize,
@@ -497,7 +497,7 @@ mod tests {
         let robot = RobotModel::from_urdf(urdf).unwrap();
         let q = [0.3, -0.4, -0.5, 0.2, 0.9, 0.1];
         let posed = PosedRobot::new(&robot, &q).decimated(0.01);
-        let camera = Camera::pinhole(160, 120, 150.0, 150.0, 80.0, 60.0);
+        let camera = Intrinsics::pinhole(160, 120, 150.0, 150.0, 80.0, 60.0);
         let estimate = look_at_camera_from_base(
             &Vector3::new(1.3, 0.5, 0.8),
             &Vector3::new(0.1, 0.0, 0.3),

@@ -10,7 +10,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::geometry::look_at_camera_from_base;
 use crate::mask::Mask;
@@ -67,7 +67,7 @@ fn centre_of(robot: &PosedRobot) -> Vector3<f64> {
 /// at pixel `aim` (the observed robot's centroid) instead of the principal point.
 pub fn hypotheses(
     centre: &Vector3<f64>,
-    camera: &Camera,
+    camera: &Intrinsics,
     aim: [f64; 2],
     opts: &InitOptions,
 ) -> Vec<Isometry3<f64>> {
@@ -102,7 +102,7 @@ pub fn hypotheses(
 /// Finds `camera_from_base` with no initial guess, or says why it could not.
 pub fn initialise(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     solve_opts: &SolveOptions,
     opts: &InitOptions,

@@ -8,7 +8,7 @@
 
 use nalgebra::Isometry3;
 
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::geometry::Twist;
 use crate::mask::Mask;
 use crate::render::{render_coverage, PosedRobot, Silhouette};
@@ -25,7 +25,7 @@ pub fn mask_loss(rendered: &Mask, observed: &Mask) -> f64 {
 }
 
 /// Boundary-integral gradient of [`mask_loss`] for one view (not divided by the view count).
-pub fn loss_gradient(silhouette: &Silhouette, observed: &Mask, camera: &Camera) -> Twist {
+pub fn loss_gradient(silhouette: &Silhouette, observed: &Mask, camera: &Intrinsics) -> Twist {
     let pixels = f64::from(camera.width) * f64::from(camera.height);
     let mut g = Twist::zeros();
     for s in &silhouette.boundary {
@@ -45,7 +45,7 @@ pub fn loss_gradient(silhouette: &Silhouette, observed: &Mask, camera: &Camera) 
 /// `factor x factor` supersampling): `1/P * sum_p [cov_p (1 - 2 M_p) + M_p]`.
 pub fn supersampled_loss(
     robot: &PosedRobot,
-    camera: &Camera,
+    camera: &Intrinsics,
     camera_from_base: &Isometry3<f64>,
     observed: &Mask,
     factor: u32,

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Matrix2x6, Point3};
 use rayon::prelude::*;
 
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::mask::Mask;
 use crate::mesh::{TriMesh, NO_TRIANGLE};
 use crate::robot::RobotModel;
@@ -175,14 +175,14 @@ impl BoundarySample {
     /// 2x6 derivative of the sample's pixel position with respect to a left se(3) increment
     /// `(rho, phi)` of `camera_from_base` (see [`crate::geometry`]).
     #[inline]
-    pub fn pixel_jacobian(&self, camera: &Camera) -> Matrix2x6<f64> {
+    pub fn pixel_jacobian(&self, camera: &Intrinsics) -> Matrix2x6<f64> {
         pixel_jacobian(camera, &self.point_camera)
     }
 }
 
 /// 2x6 derivative of the projection of camera-frame point `p` under a left se(3) increment.
 #[inline]
-pub fn pixel_jacobian(camera: &Camera, p: &Point3<f64>) -> Matrix2x6<f64> {
+pub fn pixel_jacobian(camera: &Intrinsics, p: &Point3<f64>) -> Matrix2x6<f64> {
     let iz = 1.0 / p.z;
     let (x, y) = (p.x * iz, p.y * iz);
     let (fx, fy) = (camera.fx * iz, camera.fy * iz);
@@ -225,7 +225,7 @@ pub trait SilhouetteRenderer: Send + Sync {
     fn render(
         &self,
         robot: &PosedRobot,
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Silhouette;
@@ -234,7 +234,7 @@ pub trait SilhouetteRenderer: Send + Sync {
     fn render_many(
         &self,
         robots: &[&PosedRobot],
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Vec<Silhouette> {
@@ -323,7 +323,7 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
 /// Projects every vertex; vertices behind the near plane get NaN.
 pub fn project_vertices(
     vertices_base: &[Point3<f64>],
-    camera: &Camera,
+    camera: &Intrinsics,
     camera_from_base: &Isometry3<f64>,
 ) -> (Vec<[f64; 2]>, Vec<Point3<f64>>) {
     vertices_base
@@ -568,7 +568,7 @@ impl SilhouetteRenderer for CpuRenderer {
     fn render(
         &self,
         robot: &PosedRobot,
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Silhouette {
@@ -586,12 +586,12 @@ impl SilhouetteRenderer for CpuRenderer {
 /// `factor x factor` sub-pixels (a coverage reference for tests and the gradient check).
 pub fn render_coverage(
     robot: &PosedRobot,
-    camera: &Camera,
+    camera: &Intrinsics,
     camera_from_base: &Isometry3<f64>,
     factor: u32,
 ) -> Vec<f32> {
     let f = f64::from(factor);
-    let fine = Camera {
+    let fine = Intrinsics {
         width: camera.width * factor,
         height: camera.height * factor,
         fx: camera.fx * f,
@@ -634,7 +634,7 @@ mod tests {
 
     #[test]
     fn pixel_jacobian_matches_finite_difference() {
-        let cam = Camera::pinhole(640, 480, 600.0, 590.0, 320.0, 240.0);
+        let cam = Intrinsics::pinhole(640, 480, 600.0, 590.0, 320.0, 240.0);
         let p = Point3::new(0.2, -0.1, 1.3);
         let j = pixel_jacobian(&cam, &p);
         for k in 0..6 {

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::Camera;
+use crate::camera::{Intrinsics, LensWarp};
 use crate::error::{Error, Result};
 use crate::geometry::{from_rows, to_rows};
 use crate::mask::Mask;
@@ -89,7 +89,7 @@ pub struct CameraEntry {
 
 impl CameraEntry {
     /// The entry describing `camera` (distortion written as `plumb_bob` when present).
-    pub fn of(camera: &Camera) -> CameraEntry {
+    pub fn of(camera: &Intrinsics) -> CameraEntry {
         CameraEntry {
             width: camera.width,
             height: camera.height,
@@ -168,7 +168,7 @@ impl RunFile {
     }
 
     /// Camera model described by this run.
-    pub fn camera(&self, path: &Path) -> Result<Camera> {
+    pub fn camera(&self, path: &Path) -> Result<Intrinsics> {
         let c = &self.camera;
         for (name, v) in [("fx", c.fx), ("fy", c.fy)] {
             if !(v.is_finite() && v > 0.0) {
@@ -216,7 +216,7 @@ impl RunFile {
             }
             (Some(_), None) => None,
         };
-        Ok(Camera {
+        Ok(Intrinsics {
             width: c.width,
             height: c.height,
             fx: c.fx,
@@ -235,7 +235,7 @@ pub struct LoadedView {
     pub index: usize,
     /// Joint vector.
     pub joints: Vec<f64>,
-    /// Observed mask resampled into the pinhole image (see [`Camera::undistort_mask`]).
+    /// Observed mask resampled into the pinhole image (see [`Intrinsics::undistort_mask`]).
     pub observed: Mask,
     /// Colour frame path, when recorded.
     pub image: Option<PathBuf>,
@@ -254,7 +254,7 @@ pub struct LoadedRun {
     /// The robot model.
     pub robot: RobotModel,
     /// Camera (possibly distorted; masks in `views` are already undistorted).
-    pub camera: Camera,
+    pub camera: Intrinsics,
     /// Initial `camera_from_base`, when given.
     pub initial_guess: Option<Isometry3<f64>>,
     /// Views.

@@ -13,7 +13,7 @@ use nalgebra::{Isometry3, Matrix6, Vector3};
 use rayon::prelude::*;
 
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
 use crate::geometry::{exp_se3, skew, Twist};
 use crate::mask::Mask;
@@ -144,7 +144,7 @@ pub struct SolveReport {
 }
 
 struct Level {
-    camera: Camera,
+    camera: Intrinsics,
     /// Cauchy scale at this level, pixels.
     robust_scale_px: f64,
     views: Vec<ObservedLevel>,
@@ -198,7 +198,7 @@ fn scanline_residual(observed: &Mask, s: &BoundarySample, reach: i64) -> Option<
 
 impl Level {
     /// The observations of `views` at pyramid `factor` with Cauchy scale `robust_scale_px`.
-    fn new(camera: &Camera, views: &[View], factor: u32, robust_scale_px: f64) -> Level {
+    fn new(camera: &Intrinsics, views: &[View], factor: u32, robust_scale_px: f64) -> Level {
         Level {
             camera: camera.downsampled(factor),
             robust_scale_px,
@@ -441,7 +441,7 @@ fn total_cost(n: &Normal) -> f64 {
 /// Solves for `camera_from_base` from `views`, starting at `initial`.
 pub fn solve(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
@@ -488,7 +488,7 @@ const REFINE_BAND_PX: i64 = 8;
 
 /// Largest image displacement of any robot bounding-box corner, over all views and offsets.
 fn max_displacement_px(
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     centre: &Isometry3<f64>,
     offsets: &[Twist],
@@ -545,7 +545,7 @@ struct Band {
 impl Band {
     fn new(
         renderer: &dyn SilhouetteRenderer,
-        camera: &Camera,
+        camera: &Intrinsics,
         view: &View,
         centre: &Isometry3<f64>,
         radius: i64,
@@ -656,7 +656,7 @@ impl Band {
 /// On the benchmark it cuts the median translation error by ~40% (README).
 fn refine(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     report: SolveReport,
     opts: &SolveOptions,
@@ -770,7 +770,7 @@ impl SolveReport {
 /// to four views at 1/8 resolution with decimated meshes.
 pub fn coarse_search(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
@@ -831,7 +831,7 @@ pub fn coarse_search(
 
 fn solve_lm(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
@@ -930,7 +930,7 @@ fn solve_lm(
 
 fn solve_adam(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
@@ -970,7 +970,7 @@ fn solve_adam(
 
 fn finish(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     views: &[View],
     pose: Isometry3<f64>,
     iterations: usize,

@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
-use crate::camera::Camera;
+use crate::camera::{Intrinsics, LensWarp};
 use crate::config::{NoiseModel, SceneSettings};
 use crate::error::{Error, Result};
 use crate::geometry::{look_at_camera_from_base, to_rows};
@@ -111,7 +111,7 @@ impl Default for SynthOptions {
 #[derive(Clone, Debug)]
 pub struct Scene {
     /// Camera (possibly distorted: masks are in its image).
-    pub camera: Camera,
+    pub camera: Intrinsics,
     /// True pose.
     pub camera_from_base: Isometry3<f64>,
     /// Initial guess, when requested.
@@ -185,7 +185,7 @@ fn random_joints(rng: &mut impl Rng, robot: &RobotModel) -> Vec<f64> {
 /// Generates a scene in memory.
 pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let camera = Camera {
+    let camera = Intrinsics {
         width: opts.width,
         height: opts.height,
         fx: opts.focal_px,

@@ -402,7 +402,7 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
         "background standard deviation {sd} (flat with sensor noise: about 2.5)"
     );
     // The lens is distorted: the mask is the pinhole silhouette warped, not the pinhole one.
-    let cam = easyhec::camera::Camera {
+    let cam = easyhec::camera::Intrinsics {
         width: a.width,
         height: a.height,
         fx: 610.0,

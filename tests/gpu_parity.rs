@@ -5,7 +5,7 @@
 
 mod common;
 
-use easyhec::camera::Camera;
+use easyhec::camera::Intrinsics;
 use easyhec::explore::{camera_candidates, ExploreOptions};
 use easyhec::geometry::{
     exp_se3, look_at_camera_from_base, rotation_error_deg, translation_error_mm, Twist,
@@ -59,7 +59,7 @@ fn random_view(
 #[test]
 fn masks_agree_with_the_cpu_on_all_four_robots() {
     let Some(gpu) = gpu() else { return };
-    let cam = Camera::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
+    let cam = Intrinsics::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
     for name in ["xarm6", "xarm7", "ur5e", "panda"] {
         let robot = common::load_robot(name);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
@@ -95,7 +95,7 @@ fn masks_agree_with_the_cpu_on_all_four_robots() {
 #[test]
 fn batched_views_match_single_views() {
     let Some(gpu) = gpu() else { return };
-    let cam = Camera::pinhole(320, 240, 280.0, 280.0, 159.5, 119.5);
+    let cam = Intrinsics::pinhole(320, 240, 280.0, 280.0, 159.5, 119.5);
     let robot = common::load_robot("ur5e");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let (_, a, pose) = random_view(&robot, &mut rng);
@@ -111,7 +111,7 @@ fn batched_views_match_single_views() {
 #[test]
 fn gradients_agree_with_the_cpu_within_two_percent() {
     let Some(gpu) = gpu() else { return };
-    let cam = Camera::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
+    let cam = Intrinsics::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
     for name in ["xarm6", "xarm7", "ur5e", "panda"] {
         let robot = common::load_robot(name);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -221,7 +221,7 @@ fn an_exploration_round_scores_alike_and_picks_the_same_sample() {
 
 fn exploration_scores_agree(
     gpu: &WgpuRenderer,
-    low: &Camera,
+    low: &Intrinsics,
     pool: &[PosedRobot],
     candidates: &[nalgebra::Isometry3<f64>],
 ) {
@@ -258,7 +258,7 @@ fn exploration_scores_agree(
 #[test]
 fn band_mismatch_counts_agree_with_the_cpu() {
     let Some(gpu) = gpu() else { return };
-    let cam = Camera::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
+    let cam = Intrinsics::pinhole(640, 480, 560.0, 560.0, 319.5, 239.5);
     let robot = common::load_robot("xarm6");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let views: Vec<_> = (0..3).map(|_| random_view(&robot, &mut rng)).collect();

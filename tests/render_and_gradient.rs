@@ -3,7 +3,7 @@
 
 mod common;
 
-use easyhec::camera::Camera;
+use easyhec::camera::Intrinsics;
 use easyhec::geometry::{exp_se3, look_at_camera_from_base, Twist};
 use easyhec::mask::Mask;
 use easyhec::objective::{loss_gradient, supersampled_loss};
@@ -39,14 +39,14 @@ fn random_view(
 }
 
 /// A typical calibration view: 1280x720 (a common RGB-D colour mode), robot ~1.1 m away.
-fn camera() -> Camera {
-    Camera::pinhole(1280, 720, 900.0, 900.0, 639.5, 359.5)
+fn camera() -> Intrinsics {
+    Intrinsics::pinhole(1280, 720, 900.0, 900.0, 639.5, 359.5)
 }
 
 /// A smaller, zoomed view for the (costly) 16x-supersampled finite differences; the robot is
 /// often cut by the image border, which the gradient must handle too.
-fn gradient_camera() -> Camera {
-    Camera::pinhole(320, 240, 420.0, 420.0, 159.5, 119.5)
+fn gradient_camera() -> Intrinsics {
+    Intrinsics::pinhole(320, 240, 420.0, 420.0, 159.5, 119.5)
 }
 
 #[test]

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use easyhec::camera::Camera;
+use easyhec::camera::Intrinsics;
 use easyhec::config::LookAt;
 use easyhec::config::NoiseModel;
 use easyhec::config::{
@@ -28,14 +28,14 @@ fn xarm6() -> Arc<RobotModel> {
 }
 
 /// The README cell's camera and start pose.
-fn camera() -> (Camera, Isometry3<f64>) {
+fn camera() -> (Intrinsics, Isometry3<f64>) {
     let truth = LookAt {
         eye: [1.25, 0.55, 0.75],
         look_at: [0.15, 0.0, 0.3],
         roll_deg: 2.0,
     };
     (
-        Camera::pinhole(640, 480, 605.0, 604.0, 322.0, 243.0),
+        Intrinsics::pinhole(640, 480, 605.0, 604.0, 322.0, 243.0),
         truth.camera_from_base(),
     )
 }

@@ -6,7 +6,11 @@ use async_trait::async_trait;
 
 use crate::Result;
 
-/// Pinhole intrinsics with optional `plumb_bob` distortion (k1 k2 p1 p2 k3), pixels.
+use nalgebra::Point3;
+
+/// Pinhole intrinsics with optional `plumb_bob` distortion (k1 k2 p1 p2 k3), pixels; pixel
+/// centres sit at integer coordinates (the OpenCV and ROS convention). The one camera model of
+/// the whole project: drivers report it, and the solver, renderer and formats use it as is.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Intrinsics {
     /// Image width.
@@ -23,6 +27,88 @@ pub struct Intrinsics {
     pub cy: f64,
     /// `plumb_bob` coefficients, when the lens is modelled.
     pub distortion: Option<[f64; 5]>,
+}
+
+impl Intrinsics {
+    /// An ideal pinhole camera.
+    pub fn pinhole(width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64) -> Intrinsics {
+        Intrinsics {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            distortion: None,
+        }
+    }
+
+    /// Whether any distortion coefficient is non-zero.
+    pub fn is_distorted(&self) -> bool {
+        self.distortion.is_some_and(|d| d.iter().any(|&k| k != 0.0))
+    }
+
+    /// The same camera without distortion (the image the solver works in).
+    pub fn undistorted(&self) -> Intrinsics {
+        Intrinsics {
+            distortion: None,
+            ..self.clone()
+        }
+    }
+
+    /// Intrinsics for an image downsampled by `factor` (an image-pyramid level). Pixel centres
+    /// stay at integer coordinates: `c' = (c + 0.5) / f - 0.5`.
+    pub fn downsampled(&self, factor: u32) -> Intrinsics {
+        let f = f64::from(factor);
+        Intrinsics {
+            width: self.width.div_ceil(factor),
+            height: self.height.div_ceil(factor),
+            fx: self.fx / f,
+            fy: self.fy / f,
+            cx: (self.cx + 0.5) / f - 0.5,
+            cy: (self.cy + 0.5) / f - 0.5,
+            distortion: self.distortion,
+        }
+    }
+
+    /// Pinhole projection of a camera-frame point (ignores distortion).
+    #[inline]
+    pub fn project(&self, p: &Point3<f64>) -> [f64; 2] {
+        [self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy]
+    }
+
+    /// Applies distortion to normalised coordinates `(x/z, y/z)`.
+    pub fn distort_normalized(&self, x: f64, y: f64) -> (f64, f64) {
+        let Some([k1, k2, p1, p2, k3]) = self.distortion else {
+            return (x, y);
+        };
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        (
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
+    }
+
+    /// Inverts [`Intrinsics::distort_normalized`] by fixed-point iteration (as OpenCV does).
+    pub fn undistort_normalized(&self, xd: f64, yd: f64) -> (f64, f64) {
+        if self.distortion.is_none() {
+            return (xd, yd);
+        }
+        let (mut x, mut y) = (xd, yd);
+        for _ in 0..20 {
+            let (dx, dy) = self.distort_normalized(x, y);
+            x += xd - dx;
+            y += yd - dy;
+        }
+        (x, y)
+    }
+
+    /// Full projection of a camera-frame point including distortion.
+    pub fn project_distorted(&self, p: &Point3<f64>) -> [f64; 2] {
+        let (x, y) = self.distort_normalized(p.x / p.z, p.y / p.z);
+        [self.fx * x + self.cx, self.fy * y + self.cy]
+    }
 }
 
 /// One captured colour frame.

@@ -19,6 +19,7 @@ pub mod view_sets;
 
 use rayon::prelude::*;
 
+use crate::camera::LensWarp;
 use crate::error::Result;
 use crate::render::PosedRobot;
 use crate::robot::RobotModel;

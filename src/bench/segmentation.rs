@@ -8,6 +8,7 @@ use super::{median, seeded_sim_cell, Report};
 use crate::backend::open_renderer;
 use crate::backend::Backend;
 use crate::calibrate::{calibrate, RunOptions};
+use crate::camera::LensWarp;
 use crate::cell::Cell;
 use crate::config::SegmenterConfig;
 use crate::config::{read_config, RendererChoice, ScenePreset};

@@ -17,7 +17,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 use crate::backend::{open_renderer, Backend};
-use crate::camera::Camera;
+use crate::camera::{Intrinsics, LensWarp};
 use crate::cell::Cell;
 use crate::config::CalibrationSettings;
 use crate::error::{Error, Result};
@@ -213,7 +213,7 @@ struct Session<'a> {
     cell: &'a Cell,
     opts: &'a RunOptions,
     settings: CalibrationSettings,
-    camera: Camera,
+    camera: Intrinsics,
     rec: Recorder,
     pb: indicatif::ProgressBar,
     renderer: Arc<dyn Backend>,
@@ -240,7 +240,7 @@ impl<'a> Session<'a> {
     /// Checks the run's settings, opens the renderer and starts the run directory.
     fn start(cell: &'a Cell, out: &Path, opts: &'a RunOptions) -> Result<Session<'a>> {
         let settings = run_settings(cell, opts)?;
-        let camera = Camera::from_intrinsics(cell.camera.intrinsics());
+        let camera = cell.camera.intrinsics().clone();
         let guess = initial_guess(cell, opts, &settings)?;
         let rec = Recorder::create(out, robot_entry(cell), CameraEntry::of(&camera), guess)?;
         let pb = progress_bar(opts, settings.max_views);

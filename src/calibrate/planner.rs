@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::PlannedPose;
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::cell::Cell;
 use crate::config::{CalibrationSettings, ScoreSetting, SelectionSetting, SourceSetting};
 use crate::explore::{
@@ -23,7 +23,7 @@ use crate::solve::SolveReport;
 /// Fraction of the robot's (decimated) surface points that land inside the image.
 pub fn in_image_fraction(
     robot: &PosedRobot,
-    camera: &Camera,
+    camera: &Intrinsics,
     camera_from_base: &Isometry3<f64>,
 ) -> f64 {
     if robot.vertices_base.is_empty() {
@@ -75,7 +75,7 @@ pub struct PlanStats {
 pub fn rank_poses(
     renderer: &dyn Backend,
     cell: &Cell,
-    camera: &Camera,
+    camera: &Intrinsics,
     report: &SolveReport,
     taken: &[Vec<f64>],
     settings: &CalibrationSettings,
@@ -141,8 +141,8 @@ struct RoundPlan<'a> {
     report: &'a SolveReport,
     settings: &'a CalibrationSettings,
     round: usize,
-    pinhole: Camera,
-    low: Camera,
+    pinhole: Intrinsics,
+    low: Intrinsics,
     cell_m: f64,
     candidates: Vec<Isometry3<f64>>,
     coarse: CoarseRobot,
@@ -153,7 +153,7 @@ impl<'a> RoundPlan<'a> {
     fn new(
         renderer: &'a dyn Backend,
         cell: &'a Cell,
-        camera: &Camera,
+        camera: &Intrinsics,
         report: &'a SolveReport,
         settings: &'a CalibrationSettings,
         round: usize,
@@ -404,7 +404,11 @@ impl<'a> RoundPlan<'a> {
 /// which leaves the score as quantisation noise. In the linear regime the ranking of views
 /// does not depend on the covariance's scale, so the samples come from the posterior
 /// inflated until its typical outline displacement is about two scoring pixels.
-fn widened_posterior(report: &SolveReport, pinhole: &Camera, score_downsample: u32) -> SolveReport {
+fn widened_posterior(
+    report: &SolveReport,
+    pinhole: &Intrinsics,
+    score_downsample: u32,
+) -> SolveReport {
     let mut widened = report.clone();
     let u = &report.uncertainty;
     let rot_rad = u

@@ -12,7 +12,6 @@ use serde::{Deserialize, Serialize};
 
 use super::scene::SceneSettings;
 use super::seconds;
-use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::look_at_camera_from_base;
 
@@ -159,7 +158,7 @@ pub enum JointsFrom {
 impl CameraConfig {
     /// The camera model written in the config itself: a simulated camera's. Hardware cameras
     /// (`None` here) take theirs from their calibration file ([`CameraConfig::calibration`]).
-    pub fn camera(&self) -> Option<Camera> {
+    pub fn camera(&self) -> Option<Intrinsics> {
         Some(match self {
             CameraConfig::Sim {
                 width,
@@ -170,7 +169,7 @@ impl CameraConfig {
                 cy,
                 distortion,
                 ..
-            } => Camera {
+            } => Intrinsics {
                 width: *width,
                 height: *height,
                 fx: *fx,

@@ -19,7 +19,7 @@ use tokio::sync::broadcast;
 
 use super::store::State as RunState;
 use super::{bump, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
-use crate::camera::Camera;
+use crate::camera::LensWarp;
 use crate::geometry::from_rows;
 use crate::mask::Mask;
 use crate::overlay::overlay_image;
@@ -271,7 +271,7 @@ async fn overlay(
     let pose = from_rows(&rows).map_err(Refusal::Internal)?;
     let cell = d.cell().clone();
     let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Refusal> {
-        let camera = Camera::from_intrinsics(cell.camera.intrinsics());
+        let camera = cell.camera.intrinsics().clone();
         let mask_rel = view
             .mask
             .ok_or_else(|| Refusal::NotFound(format!("view {n} has no mask")))?;

@@ -17,7 +17,7 @@ use nalgebra::Isometry3;
 
 use super::store::CheckRecord;
 use super::{now, Busy, Daemon, Refusal, StartOptions};
-use crate::camera::Camera;
+use crate::camera::{Intrinsics, LensWarp};
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
@@ -123,7 +123,11 @@ pub async fn check(
 
 /// Frames and joints of calibration `id`'s recorded views: a context-aware segmenter
 /// (`builtin`) needs views where the robot stood elsewhere to see the background behind it.
-fn recorded_views(daemon: &Daemon, id: &str, camera: &Camera) -> Result<Vec<(Frame, Vec<f64>)>> {
+fn recorded_views(
+    daemon: &Daemon,
+    id: &str,
+    camera: &Intrinsics,
+) -> Result<Vec<(Frame, Vec<f64>)>> {
     let store = daemon.store();
     let record = store.record(id).ok_or_else(|| {
         Error::Solve(format!(
@@ -188,7 +192,7 @@ async fn measure(
     let q = joints.clone();
     let (daemon, id) = (daemon.clone(), id.to_string());
     let agreement = tokio::task::spawn_blocking(move || -> Result<Agreement> {
-        let camera = Camera::from_intrinsics(cell.camera.intrinsics());
+        let camera = cell.camera.intrinsics().clone();
         if frame.width != camera.width || frame.height != camera.height {
             return Err(Error::Hardware(format!(
                 "camera returned a {}x{} frame; its intrinsics say {}x{}",

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
 use super::{WgpuRenderer, BITS_WORKGROUP, EXPLORE_BATCH_BYTES};
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::render::PosedRobot;
 
 impl WgpuRenderer {
@@ -22,7 +22,7 @@ impl WgpuRenderer {
     /// on the CPU. Public so that the parity tests can tell the two paths apart.
     pub fn band_mismatches_on_gpu(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         robots: &[&PosedRobot],
         band: &[&[u8]],
         observed: &[&[u8]],

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
 use super::{WgpuRenderer, BITS_WORKGROUP};
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::render::PosedRobot;
 
 /// A batch of meshes uploaded for the bit rasteriser.
@@ -74,7 +74,7 @@ impl WgpuRenderer {
     /// `None` when a mesh has more triangles than one dispatch row holds.
     pub(super) fn upload_pool(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         group: &[&PosedRobot],
         candidates: u32,
         words: u32,

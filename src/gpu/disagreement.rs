@@ -9,7 +9,7 @@ use std::sync::Arc;
 use nalgebra::Isometry3;
 
 use super::{WgpuRenderer, BITS_WORKGROUP, EXPLORE_BATCH_BYTES};
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::render::PosedRobot;
 
 impl WgpuRenderer {
@@ -17,7 +17,7 @@ impl WgpuRenderer {
     /// [`crate::scoring::cpu::disagreement`]), on the GPU, in batches.
     pub(super) fn disagreement_gpu(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         pool: &[&PosedRobot],
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64> {

@@ -49,7 +49,7 @@ use std::sync::Mutex;
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::mask::Mask;
 use crate::render::{outline_samples, PosedRobot, Silhouette, SilhouetteRenderer};
 use crate::scoring::BatchScoring;
@@ -137,7 +137,7 @@ impl SilhouetteRenderer for WgpuRenderer {
     fn render(
         &self,
         robot: &PosedRobot,
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Silhouette {
@@ -152,7 +152,7 @@ impl SilhouetteRenderer for WgpuRenderer {
     fn render_many(
         &self,
         robots: &[&PosedRobot],
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Vec<Silhouette> {
@@ -188,7 +188,7 @@ impl SilhouetteRenderer for WgpuRenderer {
 impl BatchScoring for WgpuRenderer {
     fn disagreement_many(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         pool: &[&PosedRobot],
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64> {
@@ -200,7 +200,7 @@ impl BatchScoring for WgpuRenderer {
 
     fn band_mismatches(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         robots: &[&PosedRobot],
         band: &[&[u8]],
         observed: &[&[u8]],

@@ -11,7 +11,7 @@ use nalgebra::Isometry3;
 use wgpu::util::DeviceExt;
 
 use super::WgpuRenderer;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::mask::Mask;
 use crate::mesh::TriMesh;
 use crate::render::{project_vertices, PosedRobot};
@@ -129,7 +129,7 @@ impl WgpuRenderer {
     pub(super) fn masks(
         &self,
         robots: &[&PosedRobot],
-        camera: &Camera,
+        camera: &Intrinsics,
         camera_from_base: &Isometry3<f64>,
         with_points: bool,
     ) -> Vec<(Mask, Projected)> {

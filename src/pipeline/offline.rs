@@ -9,6 +9,7 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::backend::{open_renderer, Backend};
+use crate::camera::LensWarp;
 use crate::config::{RendererChoice, SegmenterConfig};
 use crate::consensus::{find_consensus, ConsensusOptions};
 use crate::error::{Error, Result};

@@ -6,7 +6,7 @@ use easyhec_drivers::Frame;
 use nalgebra::Isometry3;
 
 use crate::backend::Backend;
-use crate::camera::Camera;
+use crate::camera::{Intrinsics, LensWarp};
 use crate::error::Result;
 use crate::mask::Mask;
 use crate::render::{PosedRobot, SilhouetteRenderer};
@@ -20,7 +20,7 @@ use rayon::prelude::*;
 /// the prior a context-aware segmenter bounds its search with.
 pub fn priors(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     robots: &[PosedRobot],
     camera_from_base: &Isometry3<f64>,
 ) -> Vec<Mask> {
@@ -61,7 +61,7 @@ pub fn segment_frames<F: std::borrow::Borrow<Frame>>(
 /// `report`'s per-view fits belong to `rendered[first_view..]`; frames it did not solve get
 /// its mean fit.
 pub fn bands_px(
-    camera: &Camera,
+    camera: &Intrinsics,
     report: &SolveReport,
     rendered: &[Mask],
     first_view: usize,
@@ -123,7 +123,7 @@ pub const POOR_FIT_IOU: f64 = 0.8;
 #[allow(clippy::too_many_arguments)]
 pub fn segment_and_solve(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     segmenter: &dyn Segmenter,
     frames: &[&Frame],
     robots: &[PosedRobot],
@@ -277,7 +277,7 @@ pub struct PairFound {
 #[allow(clippy::too_many_arguments)]
 pub fn search_view_pairs(
     renderer: &dyn Backend,
-    camera: &Camera,
+    camera: &Intrinsics,
     segmenter: &dyn Segmenter,
     frames: &[&Frame],
     robot: &RobotModel,
@@ -380,7 +380,7 @@ pub fn search_view_pairs(
 /// the recorded joints, so a refitted view still has to agree with the others to be used.
 pub fn refit_joints(
     renderer: &dyn SilhouetteRenderer,
-    camera: &Camera,
+    camera: &Intrinsics,
     robot: &RobotModel,
     joints: &[Vec<f64>],
     k: usize,
@@ -456,7 +456,7 @@ impl LiveFrames {
         renderer: &dyn Backend,
         segmenter: &dyn Segmenter,
         robot: &RobotModel,
-        camera: &Camera,
+        camera: &Intrinsics,
         band_floor_px: f32,
         taken: &[Vec<f64>],
         estimate: Option<&Isometry3<f64>>,
@@ -501,7 +501,7 @@ pub fn segment_among_recorded(
     renderer: &dyn SilhouetteRenderer,
     segmenter: &dyn Segmenter,
     robot: &RobotModel,
-    camera: &Camera,
+    camera: &Intrinsics,
     frame: Frame,
     joints: &[f64],
     recorded: Vec<(Frame, Vec<f64>)>,

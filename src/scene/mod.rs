@@ -41,7 +41,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use crate::camera::Camera;
+use crate::camera::LensWarp;
 use crate::config::scene::{SceneEffects, SceneSettings};
 use crate::mask::Mask;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
@@ -140,7 +140,7 @@ pub struct SimFrame {
 /// A simulated camera's view of the cell from a fixed, true pose.
 pub struct SimScene {
     robot: Arc<RobotModel>,
-    camera: Camera,
+    camera: Intrinsics,
     /// Behind a lock so tests can bump the camera ([`SimScene::set_camera_from_base`]).
     camera_from_base: RwLock<Isometry3<f64>>,
     intrinsics: Intrinsics,
@@ -174,11 +174,11 @@ impl SimScene {
     /// A scene seen by `camera` (possibly distorted) from `camera_from_base`.
     pub fn new(
         robot: Arc<RobotModel>,
-        camera: Camera,
+        camera: Intrinsics,
         camera_from_base: Isometry3<f64>,
         settings: SceneSettings,
     ) -> SimScene {
-        let intrinsics = camera.intrinsics();
+        let intrinsics = camera.clone();
         let effects = settings.effects();
         SimScene {
             robot,

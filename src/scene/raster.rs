@@ -4,7 +4,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 
 /// Calls `f(x, y, [w0, w1, w2])` for every pixel centre of a `width` x `height` grid inside the
 /// 2-D triangle `p` (barycentric weights of `p[0]`, `p[1]`, `p[2]`).
@@ -65,7 +65,7 @@ impl TriangleBuffer {
 
     /// Z-buffers camera-frame triangles (pinhole `cam`); triangle `k` is stored as index `k`.
     /// Triangles reaching closer than 5 cm to the camera are skipped, as the mask renderer does.
-    pub fn draw(&mut self, cam: &Camera, triangles_in_camera: &[[Point3<f64>; 3]]) {
+    pub fn draw(&mut self, cam: &Intrinsics, triangles_in_camera: &[[Point3<f64>; 3]]) {
         let (w, h) = (cam.width as usize, cam.height as usize);
         for (k, tri) in triangles_in_camera.iter().enumerate() {
             let [a, b, c] = tri;
@@ -305,7 +305,7 @@ mod tests {
 
     #[test]
     fn the_nearest_triangle_wins_each_pixel() {
-        let cam = Camera::pinhole(40, 30, 30.0, 30.0, 20.0, 15.0);
+        let cam = Intrinsics::pinhole(40, 30, 30.0, 30.0, 20.0, 15.0);
         let far = [
             Point3::new(-1.0, -1.0, 2.0),
             Point3::new(1.0, -1.0, 2.0),

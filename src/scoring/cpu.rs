@@ -10,7 +10,7 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use super::BatchScoring;
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::mask::Mask;
 use crate::render::{fill_triangle, CpuRenderer, PosedRobot, NEAR_PLANE_M};
 
@@ -18,7 +18,7 @@ use crate::render::{fill_triangle, CpuRenderer, PosedRobot, NEAR_PLANE_M};
 /// CPU renderer's pixel rule; `pixels` holds the projected vertices (resized as needed, so a
 /// caller's loop reuses it).
 fn rasterize_at(
-    camera: &Camera,
+    camera: &Intrinsics,
     robot: &PosedRobot,
     pose: &Isometry3<f64>,
     pixels: &mut Vec<[f64; 2]>,
@@ -45,7 +45,7 @@ fn rasterize_at(
 /// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the
 /// scoring image: `V = sum_p c_p (K - c_p) / K^2`, `c_p` the candidates covering pixel `p`
 /// (method.md §5). Single-threaded: callers score many pool entries in parallel.
-pub fn disagreement(camera: &Camera, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {
+pub fn disagreement(camera: &Intrinsics, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {
     let k = candidates.len() as f64;
     let mut counts = vec![0u16; (camera.width * camera.height) as usize];
     let mut mask = Mask::new(camera.width, camera.height);
@@ -66,7 +66,7 @@ pub fn disagreement(camera: &Camera, robot: &PosedRobot, candidates: &[Isometry3
 /// [`BatchScoring::disagreement_many`] on the CPU: one single-threaded [`disagreement`] per
 /// pool entry, pool entries in parallel.
 pub fn disagreement_many(
-    camera: &Camera,
+    camera: &Intrinsics,
     pool: &[&PosedRobot],
     candidates: &[Isometry3<f64>],
 ) -> Vec<f64> {
@@ -80,7 +80,7 @@ pub fn disagreement_many(
 struct BandWindow {
     /// `camera` with its principal point shifted so that window pixel (0, 0) is the band's
     /// top-left image pixel; pixel centres stay put.
-    window: Camera,
+    window: Intrinsics,
     /// Band pixels as indices into the window, with whether the observation covers them.
     pixels: Vec<(u32, bool)>,
 }
@@ -88,7 +88,7 @@ struct BandWindow {
 impl BandWindow {
     /// The window of `band` (its bounding box; a 1x1 window when the band is empty) over an
     /// image of `camera`'s size.
-    fn new(camera: &Camera, band: &[u8], observed: &[u8]) -> BandWindow {
+    fn new(camera: &Intrinsics, band: &[u8], observed: &[u8]) -> BandWindow {
         let (w, h) = (i64::from(camera.width), i64::from(camera.height));
         let (mut x0, mut y0, mut x1, mut y1) = (w, h, -1, -1);
         for v in 0..h {
@@ -106,7 +106,7 @@ impl BandWindow {
         if x1 < x0 {
             (x0, y0, x1, y1) = (0, 0, 0, 0);
         }
-        let window = Camera {
+        let window = Intrinsics {
             width: (x1 - x0 + 1) as u32,
             height: (y1 - y0 + 1) as u32,
             cx: camera.cx - x0 as f64,
@@ -140,7 +140,7 @@ impl BandWindow {
 /// [`BatchScoring::band_mismatches`] on the CPU: each view's band cut to its window once, then
 /// every (pose, view) rendered in that window on one thread, poses in parallel.
 pub fn band_mismatches(
-    camera: &Camera,
+    camera: &Intrinsics,
     robots: &[&PosedRobot],
     band: &[&[u8]],
     observed: &[&[u8]],
@@ -171,7 +171,7 @@ pub fn band_mismatches(
 impl BatchScoring for CpuRenderer {
     fn disagreement_many(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         pool: &[&PosedRobot],
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64> {
@@ -180,7 +180,7 @@ impl BatchScoring for CpuRenderer {
 
     fn band_mismatches(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         robots: &[&PosedRobot],
         band: &[&[u8]],
         observed: &[&[u8]],
@@ -198,11 +198,11 @@ mod tests {
     use crate::robot::RobotModel;
     use nalgebra::Vector3;
 
-    fn scene() -> (Camera, PosedRobot, Isometry3<f64>) {
+    fn scene() -> (Intrinsics, PosedRobot, Isometry3<f64>) {
         let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
         let robot = RobotModel::from_urdf(urdf).unwrap();
         let posed = PosedRobot::new(&robot, &[0.3, -0.4, -0.5, 0.2, 0.9, 0.1]);
-        let camera = Camera::pinhole(160, 120, 150.0, 150.0, 79.5, 59.5);
+        let camera = Intrinsics::pinhole(160, 120, 150.0, 150.0, 79.5, 59.5);
         let pose = look_at_camera_from_base(
             &Vector3::new(1.3, 0.5, 0.8),
             &Vector3::new(0.1, 0.0, 0.3),

@@ -16,7 +16,7 @@
 
 use nalgebra::Isometry3;
 
-use crate::camera::Camera;
+use crate::camera::Intrinsics;
 use crate::render::PosedRobot;
 
 pub mod cpu;
@@ -30,7 +30,7 @@ pub trait BatchScoring: Send + Sync {
     /// variance ([`cpu::disagreement`]) at `camera`'s (scoring) resolution, in pool order.
     fn disagreement_many(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         pool: &[&PosedRobot],
         candidates: &[Isometry3<f64>],
     ) -> Vec<f64>;
@@ -42,7 +42,7 @@ pub trait BatchScoring: Send + Sync {
     /// [`Mask`](crate::mask::Mask); `band` and `observed` hold one mask per robot.
     fn band_mismatches(
         &self,
-        camera: &Camera,
+        camera: &Intrinsics,
         robots: &[&PosedRobot],
         band: &[&[u8]],
         observed: &[&[u8]],
