@@ -1,4 +1,4 @@
-//! Consistency-based view selection (method.md §5): the next view is the one where the camera
+//! Consistency-based view selection (docs/method.md §5): the next view is the one where the camera
 //! poses that still fit the data disagree most about the robot's silhouette.
 //!
 //! Candidates are drawn from the solver's Gaussian posterior (default) or taken from its
@@ -266,7 +266,7 @@ pub fn choose_next(
         .max_by(|a, b| a.1.total_cmp(&b.1))
 }
 
-/// How `easyhec solve` picks views from a recorded run (formats.md).
+/// How `easyhec solve` picks views from a recorded run (docs/formats.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Selection {
     /// Views `0..K-1`.

@@ -51,12 +51,12 @@ pub fn log_se3(pose: &Isometry3<f64>) -> Twist {
     Twist::new(rho.x, rho.y, rho.z, phi.x, phi.y, phi.z)
 }
 
-/// Geodesic rotation angle between two poses, degrees (method.md §7).
+/// Geodesic rotation angle between two poses, degrees (docs/method.md §7).
 pub fn rotation_error_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
     a.rotation.angle_to(&b.rotation).to_degrees()
 }
 
-/// Norm of the difference of the translation parts, millimetres (method.md §7).
+/// Norm of the difference of the translation parts, millimetres (docs/method.md §7).
 pub fn translation_error_mm(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
     (a.translation.vector - b.translation.vector).norm() * 1000.0
 }

@@ -1,4 +1,4 @@
-//! Automatic initial pose (method.md §6): no trained network, no hand-tuned guess.
+//! Automatic initial pose (docs/method.md §6): no trained network, no hand-tuned guess.
 //!
 //! Camera hypotheses are placed on shells around the robot (0.6–2.5 m, every 15° of azimuth,
 //! six elevations, three rolls), each looking at the robot's centre, and scored by mask IoU at

@@ -2,7 +2,7 @@
 //!
 //! `L = 1/(V P) * sum_views sum_pixels (R - M)^2` with hard masks (V views, P pixels each).
 //! Its gradient with respect to a left se(3) increment is the boundary integral of
-//! method.md §3: `dL/dxi = 1/(V P) * sum ∮ (1 - 2 M(x)) n(x)·(dx/dxi) ds` — expanding into
+//! docs/method.md §3: `dL/dxi = 1/(V P) * sum ∮ (1 - 2 M(x)) n(x)·(dx/dxi) ds` — expanding into
 //! background costs, expanding into observed robot pays. [`supersampled_loss`] is the
 //! continuous-coverage version of the same loss that the gradient is checked against.
 

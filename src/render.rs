@@ -4,7 +4,7 @@
 //! a mesh silhouette edge (an edge between a front- and a back-facing triangle, or an open
 //! border) that lies on the outer boundary of the union silhouette, with its 3D point, outward
 //! image normal and the outline length it stands for. The boundary-integral gradient
-//! (method.md §3) and the solver's sub-pixel residuals are sums over these samples.
+//! (docs/method.md §3) and the solver's sub-pixel residuals are sums over these samples.
 //!
 //! [`SilhouetteRenderer`] is the seam for other backends (wgpu): the solver only sees
 //! [`Silhouette`]s. This module only renders: scoring many poses in a batch belongs to the
@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use crate::camera::Intrinsics;
 use crate::mask::Mask;
-use crate::mesh::{TriMesh, NO_TRIANGLE};
+use crate::mesh::{Edge, TriMesh, NO_TRIANGLE};
 use crate::robot::RobotModel;
 
 /// Points closer to the camera than this (metres) are not rendered.
@@ -404,7 +404,31 @@ pub fn outline_samples(
     mask: &Mask,
     step_px: f64,
 ) -> Vec<BoundarySample> {
-    let facing: Vec<i8> = topology
+    let facing = triangle_facing(topology, pixels);
+    let mut crossings: Vec<Crossing> = topology
+        .edges
+        .par_iter()
+        .flat_map_iter(|e| {
+            match silhouette_edge(e, topology, pixels, &facing) {
+                Some(edge) => edge_crossings(e, edge, points_camera, mask, step_px),
+                None => Vec::new(),
+            }
+            .into_iter()
+        })
+        .collect();
+    crossings.par_sort_unstable_by(|a, b| {
+        a.slot
+            .cmp(&b.slot)
+            .then(a.to_outside.total_cmp(&b.to_outside))
+    });
+    crossings.dedup_by_key(|c| c.slot);
+    crossings.into_iter().map(|c| c.sample).collect()
+}
+
+/// Sign of each projected triangle's area (`i8::MIN` when a vertex is behind the camera): an
+/// edge between opposite signs, or an open border, is a silhouette edge.
+fn triangle_facing(topology: &TriMesh, pixels: &[[f64; 2]]) -> Vec<i8> {
+    topology
         .triangles
         .par_iter()
         .map(|t| {
@@ -420,144 +444,161 @@ pub fn outline_samples(
                 area.signum() as i8
             }
         })
-        .collect();
+        .collect()
+}
+
+/// A silhouette edge in the image: endpoints, direction `d = pb - pa`, unit normal toward
+/// its outer side, and whether it is an open border (whose side is unknown).
+#[derive(Clone, Copy)]
+struct SilhouetteEdge {
+    pa: [f64; 2],
+    pb: [f64; 2],
+    d: [f64; 2],
+    n: [f64; 2],
+    open: bool,
+}
+
+/// `e` as a [`SilhouetteEdge`], or `None` when it is not one (both triangles facing the same
+/// way, a vertex behind the camera, or a degenerate projection).
+fn silhouette_edge(
+    e: &Edge,
+    topology: &TriMesh,
+    pixels: &[[f64; 2]],
+    facing: &[i8],
+) -> Option<SilhouetteEdge> {
+    let f0 = facing[e.t0 as usize];
+    if f0 == i8::MIN {
+        return None;
+    }
+    let open = e.t1 == NO_TRIANGLE;
+    if !open {
+        let f1 = facing[e.t1 as usize];
+        if f1 == i8::MIN || f1 == f0 {
+            return None;
+        }
+    }
+    let (pa, pb) = (pixels[e.a as usize], pixels[e.b as usize]);
+    let d = [pb[0] - pa[0], pb[1] - pa[1]];
+    let len = d[0].hypot(d[1]);
+    if len < 1e-12 {
+        return None;
+    }
+    let mut n = [d[1] / len, -d[0] / len];
+    // Both triangles of a silhouette edge project to its inner side.
+    let tri = topology.triangles[e.t0 as usize];
+    let k = tri.iter().position(|&v| v != e.a && v != e.b).unwrap_or(0);
+    let pc = pixels[tri[k] as usize];
+    if n[0] * (pc[0] - pa[0]) + n[1] * (pc[1] - pa[1]) > 0.0 {
+        n = [-n[0], -n[1]];
+    }
+    Some(SilhouetteEdge { pa, pb, d, n, open })
+}
+
+/// The crossings of one silhouette edge with the pixel-centre rows and columns where the mask
+/// changes (see [`outline_samples`]), thinned to every `step_px`-th scan line.
+fn edge_crossings(
+    e: &Edge,
+    edge: SilhouetteEdge,
+    points_camera: &[Point3<f64>],
+    mask: &Mask,
+    step_px: f64,
+) -> Vec<Crossing> {
+    let SilhouetteEdge { pa, pb, d, n, open } = edge;
     let (w, h) = (i64::from(mask.width), i64::from(mask.height));
     let row_slots = (h * (w - 1)).max(0);
-    let mut crossings: Vec<Crossing> = topology
-        .edges
-        .par_iter()
-        .flat_map_iter(|e| {
-            let mut out: Vec<Crossing> = Vec::new();
-            let f0 = facing[e.t0 as usize];
-            if f0 == i8::MIN {
-                return out.into_iter();
+    let mut out: Vec<Crossing> = Vec::new();
+    let (qa, qb) = (points_camera[e.a as usize], points_camera[e.b as usize]);
+    let ds = 1.0 / (n[0].abs() + n[1].abs());
+    let stride = step_px.round().max(1.0) as i64;
+    let mut emit =
+        |t: f64, x: [f64; 2], outside: (i64, i64), slot: i64, normal: [f64; 2], axis: u8| {
+            // Perspective-correct parameter along the 3D edge.
+            let s = t * qa.z / ((1.0 - t) * qb.z + t * qa.z);
+            let p = qa + (qb - qa) * s;
+            let to_outside = (x[0] - outside.0 as f64).abs() + (x[1] - outside.1 as f64).abs();
+            out.push(Crossing {
+                slot: slot as u32,
+                to_outside,
+                sample: BoundarySample {
+                    pixel: x,
+                    point_camera: p,
+                    normal,
+                    length_px: ds * stride as f64,
+                    axis,
+                    vertex: e.a,
+                },
+            });
+        };
+    // Row crossings (pixel-centre rows y = k, crossing along x), then column crossings.
+    let thin = |i: i64| i % stride == 0;
+    for axis in [ROW_CROSSING, COLUMN_CROSSING] {
+        // `along`: the coordinate the crossing varies in; `fixed`: the scan line's.
+        let (along, fixed, along_len, fixed_len) = if axis == ROW_CROSSING {
+            (0, 1, w, h)
+        } else {
+            (1, 0, h, w)
+        };
+        if d[fixed].abs() <= 1e-12 {
+            continue;
+        }
+        let k0 = pa[fixed].min(pb[fixed]).ceil().max(0.0) as i64;
+        let k1 = pa[fixed].max(pb[fixed]).floor().min((fixed_len - 1) as f64) as i64;
+        for k in k0..=k1 {
+            if !thin(k) {
+                continue;
             }
-            let open = e.t1 == NO_TRIANGLE;
-            if !open {
-                let f1 = facing[e.t1 as usize];
-                if f1 == i8::MIN || f1 == f0 {
-                    return out.into_iter();
-                }
+            let t = (k as f64 - pa[fixed]) / d[fixed];
+            if !(0.0..=1.0).contains(&t) {
+                continue;
             }
-            let (pa, pb) = (pixels[e.a as usize], pixels[e.b as usize]);
-            let d = [pb[0] - pa[0], pb[1] - pa[1]];
-            let len = d[0].hypot(d[1]);
-            if len < 1e-12 {
-                return out.into_iter();
+            let c = pa[along] + t * d[along];
+            let i = c.floor() as i64;
+            if i < 0 || i + 1 >= along_len {
+                continue;
             }
-            let mut n = [d[1] / len, -d[0] / len];
-            // Both triangles of a silhouette edge project to its inner side.
-            let tri = topology.triangles[e.t0 as usize];
-            let k = tri.iter().position(|&v| v != e.a && v != e.b).unwrap_or(0);
-            let pc = pixels[tri[k] as usize];
-            if n[0] * (pc[0] - pa[0]) + n[1] * (pc[1] - pa[1]) > 0.0 {
-                n = [-n[0], -n[1]];
-            }
-            let (qa, qb) = (points_camera[e.a as usize], points_camera[e.b as usize]);
-            let ds = 1.0 / (n[0].abs() + n[1].abs());
-            let stride = step_px.round().max(1.0) as i64;
-            let mut emit = |t: f64,
-                            x: [f64; 2],
-                            outside: (i64, i64),
-                            slot: i64,
-                            normal: [f64; 2],
-                            axis: u8| {
-                // Perspective-correct parameter along the 3D edge.
-                let s = t * qa.z / ((1.0 - t) * qb.z + t * qa.z);
-                let p = qa + (qb - qa) * s;
-                let to_outside = (x[0] - outside.0 as f64).abs() + (x[1] - outside.1 as f64).abs();
-                out.push(Crossing {
-                    slot: slot as u32,
-                    to_outside,
-                    sample: BoundarySample {
-                        pixel: x,
-                        point_camera: p,
-                        normal,
-                        length_px: ds * stride as f64,
-                        axis,
-                        vertex: e.a,
-                    },
-                });
-            };
-            // Row crossings (pixel-centre rows y = k, crossing along x), then column crossings.
-            let thin = |i: i64| i % stride == 0;
-            for axis in [ROW_CROSSING, COLUMN_CROSSING] {
-                // `along`: the coordinate the crossing varies in; `fixed`: the scan line's.
-                let (along, fixed, along_len, fixed_len) = if axis == ROW_CROSSING {
-                    (0, 1, w, h)
+            let at = |j: i64| {
+                if axis == ROW_CROSSING {
+                    mask.get(j, k)
                 } else {
-                    (1, 0, h, w)
-                };
-                if d[fixed].abs() <= 1e-12 {
-                    continue;
+                    mask.get(k, j)
                 }
-                let k0 = pa[fixed].min(pb[fixed]).ceil().max(0.0) as i64;
-                let k1 = pa[fixed].max(pb[fixed]).floor().min((fixed_len - 1) as f64) as i64;
-                for k in k0..=k1 {
-                    if !thin(k) {
-                        continue;
-                    }
-                    let t = (k as f64 - pa[fixed]) / d[fixed];
-                    if !(0.0..=1.0).contains(&t) {
-                        continue;
-                    }
-                    let c = pa[along] + t * d[along];
-                    let i = c.floor() as i64;
-                    if i < 0 || i + 1 >= along_len {
-                        continue;
-                    }
-                    let at = |j: i64| {
-                        if axis == ROW_CROSSING {
-                            mask.get(j, k)
-                        } else {
-                            mask.get(k, j)
-                        }
-                    };
-                    let (first, second) = (at(i), at(i + 1));
-                    if first == second {
-                        continue;
-                    }
-                    let (inside, outside) = if first { (i, i + 1) } else { (i + 1, i) };
-                    let toward = (outside - inside) as f64;
-                    let normal = if open && n[along] * toward < 0.0 {
-                        [-n[0], -n[1]]
-                    } else {
-                        n
-                    };
-                    if normal[along] * toward <= 0.0 {
-                        continue;
-                    }
-                    if axis == ROW_CROSSING {
-                        emit(
-                            t,
-                            [c, k as f64],
-                            (outside, k),
-                            k * (w - 1) + i,
-                            normal,
-                            axis,
-                        );
-                    } else {
-                        emit(
-                            t,
-                            [k as f64, c],
-                            (k, outside),
-                            row_slots + i * w + k,
-                            normal,
-                            axis,
-                        );
-                    }
-                }
+            };
+            let (first, second) = (at(i), at(i + 1));
+            if first == second {
+                continue;
             }
-            out.into_iter()
-        })
-        .collect();
-    crossings.par_sort_unstable_by(|a, b| {
-        a.slot
-            .cmp(&b.slot)
-            .then(a.to_outside.total_cmp(&b.to_outside))
-    });
-    crossings.dedup_by_key(|c| c.slot);
-    crossings.into_iter().map(|c| c.sample).collect()
+            let (inside, outside) = if first { (i, i + 1) } else { (i + 1, i) };
+            let toward = (outside - inside) as f64;
+            let normal = if open && n[along] * toward < 0.0 {
+                [-n[0], -n[1]]
+            } else {
+                n
+            };
+            if normal[along] * toward <= 0.0 {
+                continue;
+            }
+            if axis == ROW_CROSSING {
+                emit(
+                    t,
+                    [c, k as f64],
+                    (outside, k),
+                    k * (w - 1) + i,
+                    normal,
+                    axis,
+                );
+            } else {
+                emit(
+                    t,
+                    [k as f64, c],
+                    (k, outside),
+                    row_slots + i * w + k,
+                    normal,
+                    axis,
+                );
+            }
+        }
+    }
+    out
 }
 
 impl SilhouetteRenderer for CpuRenderer {

@@ -241,122 +241,18 @@ impl RobotModel {
         if links.is_empty() {
             return Err(Error::input(urdf_path, "robot", "URDF has no <link>"));
         }
-        let mut joints = Vec::with_capacity(urdf.joints.len());
-        for j in &urdf.joints {
-            let parent = *link_index.get(j.parent.link.as_str()).ok_or_else(|| {
-                Error::input(
-                    urdf_path,
-                    format!("joint '{}' parent", j.name),
-                    format!("unknown link '{}'", j.parent.link),
-                )
-            })?;
-            let child = *link_index.get(j.child.link.as_str()).ok_or_else(|| {
-                Error::input(
-                    urdf_path,
-                    format!("joint '{}' child", j.name),
-                    format!("unknown link '{}'", j.child.link),
-                )
-            })?;
-            let kind = match j.joint_type {
-                urdf_rs::JointType::Revolute => JointKind::Revolute,
-                urdf_rs::JointType::Continuous => JointKind::Continuous,
-                urdf_rs::JointType::Prismatic => JointKind::Prismatic,
-                urdf_rs::JointType::Fixed => JointKind::Fixed,
-                ref other => {
-                    return Err(Error::input(
-                        urdf_path,
-                        format!("joint '{}' type", j.name),
-                        format!("{other:?} joints are not supported"),
-                    ))
-                }
-            };
-            let axis = Vector3::from(j.axis.xyz.0);
-            let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| {
-                Error::input(
-                    urdf_path,
-                    format!("joint '{}' axis", j.name),
-                    "axis has zero length",
-                )
-            });
-            let axis = match (kind, axis) {
-                (JointKind::Fixed, _) => Vector3::x_axis(),
-                (_, a) => a?,
-            };
-            let (mut lower, mut upper) = (j.limit.lower, j.limit.upper);
-            if kind == JointKind::Continuous
-                || (lower == 0.0 && upper == 0.0 && kind != JointKind::Fixed)
-            {
-                lower = -std::f64::consts::PI * 2.0;
-                upper = std::f64::consts::PI * 2.0;
-            }
-            joints.push(Joint {
-                name: j.name.clone(),
-                kind,
-                parent,
-                child,
-                parent_from_joint: from_xyz_rpy(j.origin.xyz.0, j.origin.rpy.0),
-                axis,
-                lower,
-                upper,
-                velocity: j.limit.velocity,
-                mimic: None,
-            });
-        }
+        let mut joints = urdf
+            .joints
+            .iter()
+            .map(|j| convert_joint(j, &link_index, urdf_path))
+            .collect::<Result<Vec<_>>>()?;
         let joint_index: HashMap<String, usize> = joints
             .iter()
             .enumerate()
             .map(|(i, j)| (j.name.clone(), i))
             .collect();
-        for (i, j) in urdf.joints.iter().enumerate() {
-            if let Some(m) = &j.mimic {
-                let leader = *joint_index.get(&m.joint).ok_or_else(|| {
-                    Error::input(
-                        urdf_path,
-                        format!("joint '{}' mimic", j.name),
-                        format!("unknown leader joint '{}'", m.joint),
-                    )
-                })?;
-                joints[i].mimic =
-                    Some((leader, m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0)));
-            }
-        }
-        // Tree structure: every link has at most one parent joint; exactly one root.
-        let mut parent_joint: Vec<Option<usize>> = vec![None; links.len()];
-        for (i, j) in joints.iter().enumerate() {
-            if parent_joint[j.child].is_some() {
-                return Err(Error::input(
-                    urdf_path,
-                    format!("link '{}'", links[j.child]),
-                    "link has two parent joints",
-                ));
-            }
-            parent_joint[j.child] = Some(i);
-        }
-        let roots: Vec<usize> = (0..links.len())
-            .filter(|&l| parent_joint[l].is_none())
-            .collect();
-        if roots.len() != 1 {
-            let names: Vec<&str> = roots.iter().map(|&r| links[r].as_str()).collect();
-            return Err(Error::input(
-                urdf_path,
-                "robot",
-                format!("URDF must have exactly one root link, found {names:?}"),
-            ));
-        }
-        let root = roots[0];
-        let mut order = Vec::with_capacity(joints.len());
-        let mut stack = vec![root];
-        while let Some(l) = stack.pop() {
-            for (i, j) in joints.iter().enumerate() {
-                if j.parent == l {
-                    order.push(i);
-                    stack.push(j.child);
-                }
-            }
-        }
-        if order.len() != joints.len() {
-            return Err(Error::input(urdf_path, "robot", "joint graph has a cycle"));
-        }
+        link_mimics(&urdf.joints, &mut joints, &joint_index, urdf_path)?;
+        let (root, order) = tree_order(&joints, &links, urdf_path)?;
         let base = match &src.base_link {
             Some(name) => *link_index.get(name.as_str()).ok_or_else(|| {
                 Error::input(
@@ -367,40 +263,7 @@ impl RobotModel {
             })?,
             None => root,
         };
-        let actuated = match &src.joints {
-            Some(names) => names
-                .iter()
-                .map(|n| {
-                    let i = *joint_index.get(n).ok_or_else(|| {
-                        Error::input(
-                            urdf_path,
-                            "robot.joints",
-                            format!("no joint named '{n}' in the URDF"),
-                        )
-                    })?;
-                    if joints[i].mimic.is_some() {
-                        return Err(Error::input(
-                            urdf_path,
-                            "robot.joints",
-                            format!("joint '{n}' mimics another joint: list its leader instead"),
-                        ));
-                    }
-                    if joints[i].kind == JointKind::Fixed {
-                        return Err(Error::input(
-                            urdf_path,
-                            "robot.joints",
-                            format!("joint '{n}' is fixed and cannot be actuated"),
-                        ));
-                    }
-                    Ok(i)
-                })
-                .collect::<Result<Vec<_>>>()?,
-            None => order
-                .iter()
-                .copied()
-                .filter(|&i| joints[i].kind != JointKind::Fixed && joints[i].mimic.is_none())
-                .collect(),
-        };
+        let actuated = actuated_joints(src, &joints, &joint_index, &order, urdf_path)?;
         for name in &src.ignore_links {
             if !link_index.contains_key(name.as_str()) {
                 return Err(Error::input(
@@ -411,29 +274,7 @@ impl RobotModel {
             }
         }
 
-        // Visual geometry.
-        let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();
-        let mut visual = TriMesh::default();
-        let mut vertex_link = Vec::new();
-        for (li, link) in urdf.links.iter().enumerate() {
-            if src.ignore_links.iter().any(|n| n == &link.name) {
-                continue;
-            }
-            for (vi, v) in link.visual.iter().enumerate() {
-                let field = format!("link '{}' visual {vi}", link.name);
-                let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
-                let (mesh, scale) = element_mesh(
-                    &v.geometry,
-                    &field,
-                    urdf_path,
-                    &src.package_dirs,
-                    &mut cache,
-                )?;
-                let placed = mesh.transformed(scale, &origin);
-                vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
-                visual.append(&placed);
-            }
-        }
+        let (visual, vertex_link) = merged_visuals(&urdf.links, src)?;
         Ok(RobotModel {
             name: urdf.name.clone(),
             links,
@@ -574,6 +415,210 @@ impl RobotModel {
             .map(|(v, &l)| poses[l as usize] * v)
             .collect()
     }
+}
+
+/// One URDF joint as FK needs it: link indices, kind, unit axis and limits (continuous and
+/// limitless joints get ±2π); mimics are linked afterwards, once every joint has an index.
+fn convert_joint(
+    j: &urdf_rs::Joint,
+    link_index: &HashMap<&str, usize>,
+    urdf_path: &Path,
+) -> Result<Joint> {
+    let parent = *link_index.get(j.parent.link.as_str()).ok_or_else(|| {
+        Error::input(
+            urdf_path,
+            format!("joint '{}' parent", j.name),
+            format!("unknown link '{}'", j.parent.link),
+        )
+    })?;
+    let child = *link_index.get(j.child.link.as_str()).ok_or_else(|| {
+        Error::input(
+            urdf_path,
+            format!("joint '{}' child", j.name),
+            format!("unknown link '{}'", j.child.link),
+        )
+    })?;
+    let kind = match j.joint_type {
+        urdf_rs::JointType::Revolute => JointKind::Revolute,
+        urdf_rs::JointType::Continuous => JointKind::Continuous,
+        urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+        urdf_rs::JointType::Fixed => JointKind::Fixed,
+        ref other => {
+            return Err(Error::input(
+                urdf_path,
+                format!("joint '{}' type", j.name),
+                format!("{other:?} joints are not supported"),
+            ))
+        }
+    };
+    let axis = Vector3::from(j.axis.xyz.0);
+    let axis = Unit::try_new(axis, 1e-12).ok_or_else(|| {
+        Error::input(
+            urdf_path,
+            format!("joint '{}' axis", j.name),
+            "axis has zero length",
+        )
+    });
+    let axis = match (kind, axis) {
+        (JointKind::Fixed, _) => Vector3::x_axis(),
+        (_, a) => a?,
+    };
+    let (mut lower, mut upper) = (j.limit.lower, j.limit.upper);
+    if kind == JointKind::Continuous || (lower == 0.0 && upper == 0.0 && kind != JointKind::Fixed) {
+        lower = -std::f64::consts::PI * 2.0;
+        upper = std::f64::consts::PI * 2.0;
+    }
+    Ok(Joint {
+        name: j.name.clone(),
+        kind,
+        parent,
+        child,
+        parent_from_joint: from_xyz_rpy(j.origin.xyz.0, j.origin.rpy.0),
+        axis,
+        lower,
+        upper,
+        velocity: j.limit.velocity,
+        mimic: None,
+    })
+}
+
+/// Points each mimic joint at its leader (by index); an unknown leader is an input error.
+fn link_mimics(
+    urdf_joints: &[urdf_rs::Joint],
+    joints: &mut [Joint],
+    joint_index: &HashMap<String, usize>,
+    urdf_path: &Path,
+) -> Result<()> {
+    for (i, j) in urdf_joints.iter().enumerate() {
+        if let Some(m) = &j.mimic {
+            let leader = *joint_index.get(&m.joint).ok_or_else(|| {
+                Error::input(
+                    urdf_path,
+                    format!("joint '{}' mimic", j.name),
+                    format!("unknown leader joint '{}'", m.joint),
+                )
+            })?;
+            joints[i].mimic = Some((leader, m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0)));
+        }
+    }
+    Ok(())
+}
+
+/// Checks the joints form one tree and returns its root link and the joints in
+/// parent-before-child order (what FK walks).
+fn tree_order(joints: &[Joint], links: &[String], urdf_path: &Path) -> Result<(usize, Vec<usize>)> {
+    // Tree structure: every link has at most one parent joint; exactly one root.
+    let mut parent_joint: Vec<Option<usize>> = vec![None; links.len()];
+    for (i, j) in joints.iter().enumerate() {
+        if parent_joint[j.child].is_some() {
+            return Err(Error::input(
+                urdf_path,
+                format!("link '{}'", links[j.child]),
+                "link has two parent joints",
+            ));
+        }
+        parent_joint[j.child] = Some(i);
+    }
+    let roots: Vec<usize> = (0..links.len())
+        .filter(|&l| parent_joint[l].is_none())
+        .collect();
+    if roots.len() != 1 {
+        let names: Vec<&str> = roots.iter().map(|&r| links[r].as_str()).collect();
+        return Err(Error::input(
+            urdf_path,
+            "robot",
+            format!("URDF must have exactly one root link, found {names:?}"),
+        ));
+    }
+    let root = roots[0];
+    let mut order = Vec::with_capacity(joints.len());
+    let mut stack = vec![root];
+    while let Some(l) = stack.pop() {
+        for (i, j) in joints.iter().enumerate() {
+            if j.parent == l {
+                order.push(i);
+                stack.push(j.child);
+            }
+        }
+    }
+    if order.len() != joints.len() {
+        return Err(Error::input(urdf_path, "robot", "joint graph has a cycle"));
+    }
+    Ok((root, order))
+}
+
+/// Actuated joints in joint-vector order: the configured list (validated: known, not mimic,
+/// not fixed) or, by default, every movable non-mimic joint in tree order.
+fn actuated_joints(
+    src: &RobotSource,
+    joints: &[Joint],
+    joint_index: &HashMap<String, usize>,
+    order: &[usize],
+    urdf_path: &Path,
+) -> Result<Vec<usize>> {
+    Ok(match &src.joints {
+        Some(names) => names
+            .iter()
+            .map(|n| {
+                let i = *joint_index.get(n).ok_or_else(|| {
+                    Error::input(
+                        urdf_path,
+                        "robot.joints",
+                        format!("no joint named '{n}' in the URDF"),
+                    )
+                })?;
+                if joints[i].mimic.is_some() {
+                    return Err(Error::input(
+                        urdf_path,
+                        "robot.joints",
+                        format!("joint '{n}' mimics another joint: list its leader instead"),
+                    ));
+                }
+                if joints[i].kind == JointKind::Fixed {
+                    return Err(Error::input(
+                        urdf_path,
+                        "robot.joints",
+                        format!("joint '{n}' is fixed and cannot be actuated"),
+                    ));
+                }
+                Ok(i)
+            })
+            .collect::<Result<Vec<_>>>()?,
+        None => order
+            .iter()
+            .copied()
+            .filter(|&i| joints[i].kind != JointKind::Fixed && joints[i].mimic.is_none())
+            .collect(),
+    })
+}
+
+/// Every rendered link's visuals placed in its frame and merged into one mesh, with each
+/// vertex's link index (so posing the robot is a per-vertex transform).
+fn merged_visuals(urdf_links: &[urdf_rs::Link], src: &RobotSource) -> Result<(TriMesh, Vec<u32>)> {
+    let urdf_path = &src.urdf;
+    let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();
+    let mut visual = TriMesh::default();
+    let mut vertex_link = Vec::new();
+    for (li, link) in urdf_links.iter().enumerate() {
+        if src.ignore_links.iter().any(|n| n == &link.name) {
+            continue;
+        }
+        for (vi, v) in link.visual.iter().enumerate() {
+            let field = format!("link '{}' visual {vi}", link.name);
+            let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
+            let (mesh, scale) = element_mesh(
+                &v.geometry,
+                &field,
+                urdf_path,
+                &src.package_dirs,
+                &mut cache,
+            )?;
+            let placed = mesh.transformed(scale, &origin);
+            vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
+            visual.append(&placed);
+        }
+    }
+    Ok((visual, vertex_link))
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! The `easyhec-run/1` run directory and the `easyhec-result/1` result (docs: formats.md).
+//! The `easyhec-run/1` run directory and the `easyhec-result/1` result (docs: docs/formats.md).
 //!
 //! Readers accept exactly the documented fields and ignore unknown ones; every validation
 //! failure names the file and the field.

@@ -20,7 +20,7 @@ use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 
 /// Rotation bound for one seeded calibration. The 0.05° is a median over cells; over
-/// 80 seeded 5-view cells (README, closed loop; code of 2026-11-23) 8 lie above it, the 95th
+/// 80 seeded 5-view cells (docs/benchmarks.md, closed loop; code of 2026-11-23) 8 lie above it, the 95th
 /// percentile is 0.060° and the worst 0.083°. A single draw held to the median would fail
 /// about one change in ten for no fault; a failed recalibration is off by the knock (~1°).
 const SINGLE_DRAW_MAX_DEG: f64 = 0.08;
@@ -728,7 +728,7 @@ fn protect_reads_puts_the_read_only_routes_behind_the_token_too() {
 /// calibration's recorded frames. An untouched camera passes, a knocked one is caught. One
 /// builtin mask of the hard scene agrees with the render less well than the simulator's
 /// truth does (measured: IoU 0.83, 3.1 px untouched; 0.73, 4.5 px knocked), so the cell sets
-/// thresholds for its segmenter, as a real cell would (README, bump checks).
+/// thresholds for its segmenter, as a real cell would (docs/daemon.md, bump checks).
 #[test]
 fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
     use easyhec::config::CameraConfig;

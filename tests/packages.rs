@@ -87,7 +87,7 @@ fn package_dirs_take_precedence() {
     let p = run.join("run.json");
     let mut v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-    // Relative to the run folder, as formats.md says.
+    // Relative to the run folder, as docs/formats.md says.
     v["robot"]["package_dirs"] =
         serde_json::json!({ "xarm_description": "../ws/src/xarm_ros/xarm_description" });
     std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();

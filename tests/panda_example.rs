@@ -1,5 +1,5 @@
 //! The real Panda example (`../shared/datasets/easyhec_franka_offline_example`): most of its
-//! recorded joint vectors do not describe the arm in their image (README, "The Panda example").
+//! recorded joint vectors do not describe the arm in their image (docs/benchmarks.md, "The Panda example").
 //! The solve must find the views that agree, say which it left out, and land on the same pose
 //! with and without the example's `initial_guess.txt`.
 

@@ -128,7 +128,7 @@ fn boundary_gradient_matches_finite_differences() {
         "gradient relative error: median {:.4}, worst {:.4}",
         errors[10], errors[19]
     );
-    // Acceptance asks for <= 5% at every pose; Panda poses reach ~7% (see README), so the
+    // Acceptance asks for <= 5% at every pose; Panda poses reach ~7% (see docs/benchmarks.md), so the
     // per-pose bound is 10% and the median must meet 5%.
     assert!(
         errors[10] <= 0.05,

@@ -27,7 +27,7 @@ fn xarm6() -> Arc<RobotModel> {
     Arc::new(RobotModel::from_urdf(repo("robots/xarm6/robot.urdf")).unwrap())
 }
 
-/// The README cell's camera and start pose.
+/// The demo cell's camera and start pose (config/sim-xarm6.toml).
 fn camera() -> (Intrinsics, Isometry3<f64>) {
     let truth = LookAt {
         eye: [1.25, 0.55, 0.75],
@@ -416,7 +416,7 @@ fn a_hard_640x480_frame_renders_in_well_under_half_a_second() {
     }
     let per_frame = start.elapsed().as_secs_f64() / frames as f64;
     println!("hard 640x480 frame: {:.1} ms", per_frame * 1e3);
-    // Generous: the build machine is shared; the figure measured alone is in the README.
+    // Generous: the build machine is shared; the figure measured alone is in docs/benchmarks.md.
     assert!(per_frame < 1.5, "{per_frame:.3} s per frame");
 }
 

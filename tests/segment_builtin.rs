@@ -159,7 +159,7 @@ fn builtin_needs_context_and_uses_the_plate() {
 
 /// The evidence the builtin segmenter exposes (change and colour log-odds, no prior) scores
 /// the true silhouette above the same silhouette moved 25 px: the region score that chooses a
-/// view's joints when its recorded ones do not describe its image (README, the Panda example).
+/// view's joints when its recorded ones do not describe its image (docs/benchmarks.md, the Panda example).
 /// Default frames: on the hard preset (seed 4) one of the twenty moved silhouettes outscores
 /// the truth, so evidence without a prior is a selector among candidates, not a segmentation.
 #[test]

@@ -1,4 +1,4 @@
-//! `AravisCamera` against Aravis's in-process Fake camera (`Fake_1`, protocols.md §5.3): a
+//! `AravisCamera` against Aravis's in-process Fake camera (`Fake_1`, docs/protocols.md §5.3): a
 //! 512×512 sensor region drawing a diagonal ramp at 25 fps. Needs the `aravis` feature
 //! (libaravis 0.8).
 #![cfg(feature = "aravis")]

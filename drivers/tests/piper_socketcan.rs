@@ -1,5 +1,5 @@
 //! The SocketCAN backend on a real `vcan0`, when the kernel has one (`modprobe vcan; ip link
-//! add vcan0 type vcan; ip link set vcan0 up`). CI kernels have no vcan (protocols.md §4.5):
+//! add vcan0 type vcan; ip link set vcan0 up`). CI kernels have no vcan (docs/protocols.md §4.5):
 //! there the test prints a SKIPPED line and passes; the in-process bus tests in
 //! easyhec-mocks cover the driver.
 

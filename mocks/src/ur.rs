@@ -2,7 +2,7 @@
 //! dashboard protocol (29999) and accepting URScript on the real-time port (30003), so the
 //! vendor's own `ur_rtde` library (and our driver built on it) run unmodified.
 //!
-//! What it models (protocols.md §2): RTDE protocol negotiation, the controller version
+//! What it models (docs/protocols.md §2): RTDE protocol negotiation, the controller version
 //! (5.11.1 by default), output recipes streamed at the requested frequency (≤ 500 Hz), input
 //! recipes with ids handed out 1, 2, 3, … per connection (ur_rtde hard-codes them); the
 //! dashboard commands clients use (modes, remote control, power, brakes, protective-stop

@@ -1,5 +1,5 @@
 //! A mock UFACTORY controller on loopback, speaking the private protocol byte for byte
-//! (protocols.md §1.10), so the real driver and the vendor's own SDK can be tested without
+//! (docs/protocols.md §1.10), so the real driver and the vendor's own SDK can be tested without
 //! an arm.
 //!
 //! It listens on a command port (502 on a real controller) and on report ports (30001

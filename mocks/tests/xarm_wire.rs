@@ -32,7 +32,7 @@ async fn replays_the_documented_vectors_byte_for_byte() {
     cfg.speedup = 100.0;
     let mock = MockXArm::spawn(cfg).await.unwrap();
     let mut s = TcpStream::connect(mock.command_addr()).await.unwrap();
-    // protocols.md §1.3, in an order a fresh controller answers exactly as printed.
+    // docs/protocols.md §1.3, in an order a fresh controller answers exactly as printed.
     let vectors = [
         ("00 01 00 02 00 03 0B 08 01", "00 01 00 02 00 02 0B 10"),
         ("00 01 00 02 00 02 0C 00", "00 01 00 02 00 02 0C 00"),

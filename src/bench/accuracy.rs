@@ -148,7 +148,7 @@ impl AccuracyBench {
                 ))
                 },
             )?;
-            report.line(format!("{}", summarize(&name, &trials, &views)));
+            report.line(summarize(&name, &trials, &views));
         }
         Ok(report)
     }

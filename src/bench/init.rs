@@ -43,7 +43,11 @@ impl InitBench {
         let model = RobotModel::from_urdf(robot)?;
         let (lo, hi) = match distance.as_slice() {
             [lo, hi] => (*lo, *hi),
-            _ => return Err(Error::Usage(format!("--distance takes MIN,MAX in metres"))),
+            _ => {
+                return Err(Error::Usage(
+                    "--distance takes MIN,MAX in metres".to_string(),
+                ))
+            }
         };
         let (mut ok, mut rot, mut trans, mut secs) = (0usize, Vec::new(), Vec::new(), Vec::new());
         for seed in 0..scenes {

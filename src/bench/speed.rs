@@ -174,7 +174,7 @@ impl SpeedBench {
     }
 }
 /// One exploration round on the renderer: N joint samples x K camera candidates scored by
-/// silhouette variance (method.md §5), with its posing/decimation time separate.
+/// silhouette variance (docs/method.md §5), with its posing/decimation time separate.
 #[derive(clap::Args, Clone, Debug)]
 pub struct ExploreBench {
     /// Robot URDF.

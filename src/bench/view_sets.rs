@@ -4,11 +4,20 @@
 
 use std::path::PathBuf;
 
+use nalgebra::Isometry3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
 use super::{median, seeded_sim_cell, uniform_joints, Report};
-use crate::config::read_config;
+use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses};
+use crate::camera::Intrinsics;
+use crate::cell::Cell;
+use crate::config::{read_config, ArmConfig, NoiseModel, SelectionSetting};
 use crate::error::{Error, Result};
+use crate::explore::{estimate_covariance, view_terms, ViewTerms};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
-use crate::render::{CpuRenderer, PosedRobot};
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::solve::{solve, SolveOptions, View};
 
 /// One set of views of a [`ViewSetCell`]: what the selection score's model predicts for its
@@ -73,188 +82,259 @@ pub fn view_set_cell(
     random_pairs: usize,
     trials: usize,
 ) -> Result<ViewSetCell> {
-    use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses};
-    use crate::cell::Cell;
-    use crate::config::{ArmConfig, SelectionSetting};
-    use crate::explore::{estimate_covariance, view_terms, ViewTerms};
-    use crate::render::SilhouetteRenderer;
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, Normal};
-    let bad = |why: &str| crate::Error::Solve(format!("seed {seed}: {why}"));
-    let mut cfg = cfg.clone();
-    cfg.calibration.selection = SelectionSetting::Explore;
-    let ArmConfig::Sim {
-        start,
-        encoder_noise_rad,
-        ..
-    } = &cfg.arm
-    else {
-        return Err(bad("view sets need [arm] kind = \"sim\""));
-    };
-    let (q0, encoder) = (start.clone(), *encoder_noise_rad);
-    let mask_noise = match &cfg.segmenter {
-        crate::config::SegmenterConfig::SimTruth { noise, .. } => noise.clone(),
-        _ => return Err(bad("view sets need [segmenter] kind = \"sim-truth\"")),
-    };
-    let guess = cfg
-        .calibration
-        .initial_guess
-        .as_ref()
-        .ok_or_else(|| bad("no initial guess"))?
-        .camera_from_base()
-        .map_err(|e| bad(&e))?;
-    let cell = Cell::build(cfg, config_path)?;
-    let settings = &cell.config.calibration;
-    let truth = cell
-        .sim
-        .camera_from_base
-        .ok_or_else(|| bad("view sets need a simulated camera"))?;
-    let camera = cell
-        .config
-        .camera
-        .camera()
-        .ok_or_else(|| bad("view sets need a simulated camera"))?
-        .undistorted();
-    let robot = &cell.robot;
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed.wrapping_mul(7717) + 3);
-    let encoder_noise = Normal::new(0.0, encoder.max(0.0)).map_err(|e| bad(&e.to_string()))?;
-    // One noisy capture of each of `qs`: the true mask with segmentation noise, the joints
-    // as the encoders report them.
-    let capture = |qs: &[Vec<f64>], rng: &mut rand_chacha::ChaCha8Rng| -> Vec<View> {
+    let trial_cell = TrialCell::new(cfg, config_path, seed)?;
+    // One stream for everything, in this order: the explored pair's captures, the random
+    // pairs' draws, then every set's trials.
+    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(7717) + 3);
+    // The explored pair, planned as the loop plans it.
+    let (taken, noise_px2) = trial_cell.explored_set(&mut rng)?;
+    let mut sets = vec![("explore".to_string(), taken)];
+    trial_cell.add_random_pairs(&mut sets, random_pairs, &mut rng)?;
+    let mut out = Vec::new();
+    for (name, joints) in sets {
+        out.push(trial_cell.measure_set(name, joints, noise_px2, trials, &mut rng)?);
+    }
+    Ok(ViewSetCell { seed, sets: out })
+}
+
+/// A view-set failure, naming the cell seed that produced it.
+fn bad(seed: u64, why: &str) -> Error {
+    Error::Solve(format!("seed {seed}: {why}"))
+}
+
+/// One seeded cell set up for view-set trials (see [`view_set_cell`]): the built cell, its
+/// undistorted camera, the true and guessed poses, and the noise every capture draws.
+struct TrialCell {
+    seed: u64,
+    cell: Cell,
+    camera: Intrinsics,
+    truth: Isometry3<f64>,
+    guess: Isometry3<f64>,
+    /// The start pose, view 0 of every set.
+    q0: Vec<f64>,
+    encoder_noise: Normal<f64>,
+    mask_noise: Option<NoiseModel>,
+    opts: SolveOptions,
+}
+
+impl TrialCell {
+    /// Builds the cell of `cfg` with explore selection; view sets need a sim arm, a sim-truth
+    /// segmenter, a simulated camera and an initial guess.
+    fn new(
+        cfg: &crate::config::CellConfig,
+        config_path: &std::path::Path,
+        seed: u64,
+    ) -> Result<TrialCell> {
+        let bad = |why: &str| bad(seed, why);
+        let mut cfg = cfg.clone();
+        cfg.calibration.selection = SelectionSetting::Explore;
+        let ArmConfig::Sim {
+            start,
+            encoder_noise_rad,
+            ..
+        } = &cfg.arm
+        else {
+            return Err(bad("view sets need [arm] kind = \"sim\""));
+        };
+        let (q0, encoder) = (start.clone(), *encoder_noise_rad);
+        let mask_noise = match &cfg.segmenter {
+            crate::config::SegmenterConfig::SimTruth { noise, .. } => noise.clone(),
+            _ => return Err(bad("view sets need [segmenter] kind = \"sim-truth\"")),
+        };
+        let guess = cfg
+            .calibration
+            .initial_guess
+            .as_ref()
+            .ok_or_else(|| bad("no initial guess"))?
+            .camera_from_base()
+            .map_err(|e| bad(&e))?;
+        let cell = Cell::build(cfg, config_path)?;
+        let truth = cell
+            .sim
+            .camera_from_base
+            .ok_or_else(|| bad("view sets need a simulated camera"))?;
+        let camera = cell
+            .config
+            .camera
+            .camera()
+            .ok_or_else(|| bad("view sets need a simulated camera"))?
+            .undistorted();
+        let encoder_noise = Normal::new(0.0, encoder.max(0.0)).map_err(|e| bad(&e.to_string()))?;
+        Ok(TrialCell {
+            seed,
+            cell,
+            camera,
+            truth,
+            guess,
+            q0,
+            encoder_noise,
+            mask_noise,
+            opts: SolveOptions::default(),
+        })
+    }
+
+    /// One noisy capture of each of `qs`: the true mask with segmentation noise, the joints
+    /// as the encoders report them.
+    fn capture(&self, qs: &[Vec<f64>], rng: &mut ChaCha8Rng) -> Vec<View> {
+        let robot = &self.cell.robot;
         qs.iter()
             .map(|q| {
                 let exact = CpuRenderer
-                    .render(&PosedRobot::new(robot, q), &camera, &truth, None)
+                    .render(&PosedRobot::new(robot, q), &self.camera, &self.truth, None)
                     .mask;
-                let observed = match &mask_noise {
+                let observed = match &self.mask_noise {
                     Some(n) => crate::mask_noise::apply_mask_noise(rng, &exact, n),
                     None => exact,
                 };
-                let reported: Vec<f64> = q.iter().map(|v| v + encoder_noise.sample(rng)).collect();
+                let reported: Vec<f64> = q
+                    .iter()
+                    .map(|v| v + self.encoder_noise.sample(rng))
+                    .collect();
                 View {
                     robot: PosedRobot::new(robot, &reported),
                     observed,
                 }
             })
             .collect()
-    };
-    let opts = SolveOptions::default();
-    // The explored pair, planned as the loop plans it.
-    let mut taken = vec![q0.clone()];
-    let mut report = solve(
-        &CpuRenderer,
-        &camera,
-        &capture(&taken, &mut rng),
-        &guess,
-        &opts,
-    )?;
-    let noise_px2 = report.outline_noise_px2;
-    for round in 0..2 {
-        let (ranked, _) = rank_poses(
+    }
+
+    /// The start pose plus the two poses the loop's planner picks, each from a noisy solve of
+    /// the views before; also the first solve's outline noise (the score's model uses it).
+    fn explored_set(&self, rng: &mut ChaCha8Rng) -> Result<(Vec<Vec<f64>>, f64)> {
+        let (cell, camera, opts) = (&self.cell, &self.camera, &self.opts);
+        let settings = &cell.config.calibration;
+        let mut taken = vec![self.q0.clone()];
+        let mut report = solve(
             &CpuRenderer,
-            &cell,
-            &camera,
-            &report,
-            &taken,
-            settings,
-            round,
-        );
-        let from = taken.last().expect("view 0").clone();
-        let (next, _) = choose_reachable(
-            &cell,
-            &ranked,
-            &from,
-            settings.speed_rad_s,
-            |_| false,
-            &mut Vec::new(),
-        )
-        .ok_or_else(|| bad("the planner found no reachable pose"))?;
-        taken.push(next.joints);
-        let views = capture(&taken, &mut rng);
-        report = solve(
-            &CpuRenderer,
-            &camera,
-            &views,
-            &report.camera_from_base,
-            &opts,
+            camera,
+            &self.capture(&taken, rng),
+            &self.guess,
+            opts,
         )?;
-    }
-    let mut sets = vec![("explore".to_string(), taken)];
-    // Random pairs, drawn as the random selection draws its poses.
-    let visible = |q: &[f64]| {
-        cell.checker.check_pose(q).is_ok()
-            && in_image_fraction(&PosedRobot::new(robot, q).decimated(0.01), &camera, &truth)
-                >= cell.checker.min_in_image
-    };
-    let reachable =
-        |a: &[f64], b: &[f64]| cell.checker.check_move(a, b, settings.speed_rad_s).is_ok();
-    let mut draws = 0usize;
-    while sets.len() < random_pairs + 1 {
-        let mut pair: Vec<Vec<f64>> = Vec::new();
-        while pair.len() < 2 {
-            draws += 1;
-            if draws > 200_000 {
-                return Err(bad("no random pair of safe, visible, reachable poses"));
-            }
-            let q = uniform_joints(cell.checker.limits(), &mut rng);
-            let from = pair.last().unwrap_or(&q0);
-            if visible(&q) && reachable(from, &q) {
-                pair.push(q);
-            }
+        let noise_px2 = report.outline_noise_px2;
+        for round in 0..2 {
+            let (ranked, _) =
+                rank_poses(&CpuRenderer, cell, camera, &report, &taken, settings, round);
+            let from = taken.last().expect("view 0").clone();
+            let (next, _) = choose_reachable(
+                cell,
+                &ranked,
+                &from,
+                settings.speed_rad_s,
+                |_| false,
+                &mut Vec::new(),
+            )
+            .ok_or_else(|| bad(self.seed, "the planner found no reachable pose"))?;
+            taken.push(next.joints);
+            let views = self.capture(&taken, rng);
+            report = solve(&CpuRenderer, camera, &views, &report.camera_from_base, opts)?;
         }
-        let mut joints = vec![q0.clone()];
-        joints.extend(pair);
-        sets.push((format!("random {}", sets.len()), joints));
+        Ok((taken, noise_px2))
     }
-    // The score's model of each set, at the truth, at the planner's scoring resolution.
-    let low = camera.downsampled(settings.score_downsample.max(1));
-    let cell_m = f64::from(settings.score_downsample.max(1)) / camera.fx.max(camera.fy);
-    let terms = |q: &[f64]| {
-        view_terms(
-            &low,
-            camera.fx,
-            &PosedRobot::new(robot, q).decimated(cell_m),
-            &robot.joint_motions(q),
-            &truth,
-            noise_px2,
-            settings.joint_noise_rad,
-        )
-    };
-    let mut out = Vec::new();
-    for (name, joints) in sets {
+
+    /// Adds random pairs (after the start pose) to `sets` until it holds `random_pairs` of
+    /// them, drawn as the random selection draws its poses: safe, visible, path-checked.
+    fn add_random_pairs(
+        &self,
+        sets: &mut Vec<(String, Vec<Vec<f64>>)>,
+        random_pairs: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<()> {
+        let (cell, camera, truth, q0) = (&self.cell, &self.camera, &self.truth, &self.q0);
+        let (robot, settings) = (&cell.robot, &cell.config.calibration);
+        let visible = |q: &[f64]| {
+            cell.checker.check_pose(q).is_ok()
+                && in_image_fraction(&PosedRobot::new(robot, q).decimated(0.01), camera, truth)
+                    >= cell.checker.min_in_image
+        };
+        let reachable =
+            |a: &[f64], b: &[f64]| cell.checker.check_move(a, b, settings.speed_rad_s).is_ok();
+        let mut draws = 0usize;
+        while sets.len() < random_pairs + 1 {
+            let mut pair: Vec<Vec<f64>> = Vec::new();
+            while pair.len() < 2 {
+                draws += 1;
+                if draws > 200_000 {
+                    return Err(bad(
+                        self.seed,
+                        "no random pair of safe, visible, reachable poses",
+                    ));
+                }
+                let q = uniform_joints(cell.checker.limits(), rng);
+                let from = pair.last().unwrap_or(q0);
+                if visible(&q) && reachable(from, &q) {
+                    pair.push(q);
+                }
+            }
+            let mut joints = vec![q0.clone()];
+            joints.extend(pair);
+            sets.push((format!("random {}", sets.len()), joints));
+        }
+        Ok(())
+    }
+
+    /// The selection score's model of `joints` at the truth, at the planner's scoring
+    /// resolution: predicted RMS rotation (deg) and translation (mm) error.
+    fn predicted_errors(&self, joints: &[Vec<f64>], noise_px2: f64) -> Result<(f64, f64)> {
+        let (camera, truth) = (&self.camera, &self.truth);
+        let (robot, settings) = (&self.cell.robot, &self.cell.config.calibration);
+        let low = camera.downsampled(settings.score_downsample.max(1));
+        let cell_m = f64::from(settings.score_downsample.max(1)) / camera.fx.max(camera.fy);
+        let terms = |q: &[f64]| {
+            view_terms(
+                &low,
+                camera.fx,
+                &PosedRobot::new(robot, q).decimated(cell_m),
+                &robot.joint_motions(q),
+                truth,
+                noise_px2,
+                settings.joint_noise_rad,
+            )
+        };
         let total = joints
             .iter()
             .map(|q| terms(q))
             .fold(ViewTerms::zeros(), |a, b| a + b);
-        let cov =
-            estimate_covariance(&total).ok_or_else(|| bad("a set leaves the pose unpinned"))?;
+        let cov = estimate_covariance(&total)
+            .ok_or_else(|| bad(self.seed, "a set leaves the pose unpinned"))?;
         // RMS over the camera axes of the 1-sigma errors the covariance reports.
-        let u = crate::solve::uncertainty_of(&cov, &truth);
+        let u = crate::solve::uncertainty_of(&cov, truth);
         let norm = |v: [f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let (predicted_deg, predicted_mm) = (norm(u.rotation_deg), norm(u.translation_mm));
+        Ok((norm(u.rotation_deg), norm(u.translation_mm)))
+    }
+
+    /// One [`ViewSet`]: its predicted errors, then `trials` solves of fresh noisy captures.
+    fn measure_set(
+        &self,
+        name: String,
+        joints: Vec<Vec<f64>>,
+        noise_px2: f64,
+        trials: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<ViewSet> {
+        let (predicted_deg, predicted_mm) = self.predicted_errors(&joints, noise_px2)?;
         let mut errors = Vec::with_capacity(trials);
         for _ in 0..trials {
             let rep = solve(
                 &CpuRenderer,
-                &camera,
-                &capture(&joints, &mut rng),
-                &guess,
-                &opts,
+                &self.camera,
+                &self.capture(&joints, rng),
+                &self.guess,
+                &self.opts,
             )?;
             errors.push((
-                rotation_error_deg(&rep.camera_from_base, &truth),
-                translation_error_mm(&rep.camera_from_base, &truth),
+                rotation_error_deg(&rep.camera_from_base, &self.truth),
+                translation_error_mm(&rep.camera_from_base, &self.truth),
             ));
         }
-        out.push(ViewSet {
+        Ok(ViewSet {
             name,
             joints,
             predicted_deg,
             predicted_mm,
             errors,
-        });
+        })
     }
-    Ok(ViewSetCell { seed, sets: out })
 }
 
 /// Figures over [`ViewSetCell`]s, each per error (`[rotation, translation]`); ratios are
@@ -384,9 +464,9 @@ impl ViewSetsBench {
             trials,
         } = self.clone();
         if random_pairs < 3 || trials < 2 {
-            return Err(Error::Usage(format!(
-                "--random-pairs must be at least 3 and --trials at least 2"
-            )));
+            return Err(Error::Usage(
+                "--random-pairs must be at least 3 and --trials at least 2".to_string(),
+            ));
         }
         let base = read_config(&config)?;
         let mut results = Vec::new();
@@ -414,7 +494,7 @@ impl ViewSetsBench {
         let s = view_set_summary(&results)
             .ok_or_else(|| Error::Solve("no cell to summarise".into()))?;
         report.line(format!("| over {cells} cells, {random_pairs} random pairs, {trials} solves each | rotation | translation |"));
-        report.line(format!("|---|---|---|"));
+        report.line("|---|---|---|");
         let mut row = |name: &str, v: [f64; 2]| {
             report.line(format!("| {name} | {:.2}x | {:.2}x |", v[0], v[1]))
         };

@@ -16,7 +16,7 @@ pub struct CalibrationSettings {
     /// initialisation.
     #[serde(default)]
     pub initial_guess: Option<InitialGuess>,
-    /// `explore` (default: method.md §5) or `random` (a random safe pose; the baseline).
+    /// `explore` (default: docs/method.md §5) or `random` (a random safe pose; the baseline).
     #[serde(default)]
     pub selection: SelectionSetting,
     /// Views at most (the first is taken where the arm stands).
@@ -162,7 +162,7 @@ pub enum ScoreSetting {
     /// solver's estimate, joint errors included ([`crate::explore::cost_reduction`]).
     #[default]
     Information,
-    /// Variance of the camera candidates' masks (method.md §5, the paper's score).
+    /// Variance of the camera candidates' masks (docs/method.md §5, the paper's score).
     Variance,
 }
 

@@ -186,7 +186,7 @@ fn default_min_band_px() -> f32 {
 
 /// Narrower than [`default_min_band_px`]: once the pose is known to a fraction of a pixel, the
 /// render is better evidence near the outline than a light robot's colour against a light wall
-/// (README, segmentation: 0.948 -> 0.964 median mask IoU over 20 hard simulated cells). Not used
+/// (docs/benchmarks.md, segmentation: 0.948 -> 0.964 median mask IoU over 20 hard simulated cells). Not used
 /// while the estimate can still move: a narrow band then shapes the masks to a wrong render
 /// (offline synthetic seed 3 settled 5.9° off with 4 px from the start).
 fn default_final_band_px() -> f32 {

@@ -72,7 +72,7 @@ pub enum AdapterPolicy {
     Any,
 }
 
-/// What a chosen adapter is, for logs and the README's figures.
+/// What a chosen adapter is, for logs and the benchmark figures.
 #[derive(Clone, Debug)]
 pub struct AdapterSummary {
     /// Adapter name as the driver reports it.

@@ -266,7 +266,7 @@ pub struct PairFound {
 
 /// Every view pair, one segmentation under `start`; the best `finalists` re-segmented under
 /// their own pose; the best of those kept. For runs where no pose fits all views (recorded
-/// joints that do not describe their images, the README's Panda example) and the masks come
+/// joints that do not describe their images, the Panda example in docs/benchmarks.md) and the masks come
 /// from a context-aware segmenter: masks segmented around a wrong render fit no pose, the
 /// consistency check then has nothing to tell views apart with, and a solve of the right two
 /// views lands near the pose the provided masks give (0.45° / 4.5 mm on the Panda). The final

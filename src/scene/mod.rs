@@ -170,6 +170,53 @@ enum Seen {
     Distractor(u32),
 }
 
+/// One pinhole frame prepared for the colour pass (see [`SimScene::colour_pass`]).
+struct PinholeFrame {
+    cam: Intrinsics,
+    base_from_camera: Isometry3<f64>,
+    robot_cam: Vec<[Point3<f64>; 3]>,
+    distractor_cam: Vec<[Point3<f64>; 3]>,
+    distractor_colour: Vec<[f64; 3]>,
+    robot_buf: TriangleBuffer,
+    distractor_buf: TriangleBuffer,
+    /// The shadow map and its strength, when shadows are on.
+    shadow: Option<(ShadowMap, f64)>,
+    /// Unit direction to the light, camera frame.
+    light_cam: Vector3<f64>,
+    silhouette: Mask,
+    occludes: bool,
+}
+
+impl PinholeFrame {
+    /// Colour of a surface point `p_cam` on triangle `tri` (camera frame): ambient plus
+    /// diffuse and specular from the light, both dimmed where the shadow map says so.
+    fn shade(
+        &self,
+        tri: &[Point3<f64>; 3],
+        albedo: [f64; 3],
+        p_cam: Point3<f64>,
+        spec_k: f64,
+    ) -> [f64; 3] {
+        let light_cam = self.light_cam;
+        let [a, b, c] = tri;
+        let mut n = (b - a).cross(&(c - a));
+        n = n.try_normalize(1e-15).unwrap_or_else(Vector3::z);
+        if n.dot(&p_cam.coords) > 0.0 {
+            n = -n;
+        }
+        let lit = match &self.shadow {
+            Some((map, _)) => 1.0 - map.shadowed_fraction(&(self.base_from_camera * p_cam), 0.02),
+            None => 1.0,
+        };
+        let view = -p_cam.coords.try_normalize(1e-12).unwrap_or_else(Vector3::z);
+        let half = (light_cam + view).try_normalize(1e-12).unwrap_or(view);
+        let diffuse = n.dot(&light_cam).max(0.0) * lit;
+        let spec = n.dot(&half).max(0.0).powi(24) * spec_k * lit;
+        let k = 0.3 + 0.7 * diffuse;
+        albedo.map(|c| (c * k + spec).min(1.0))
+    }
+}
+
 impl SimScene {
     /// A scene seen by `camera` (possibly distorted) from `camera_from_base`.
     pub fn new(
@@ -432,21 +479,15 @@ impl SimScene {
     /// distractor mask and the hidden-robot mask.
     fn render_pinhole(&self, q: &[f64], frame_index: u64) -> (Vec<[f64; 3]>, Mask, Mask, Mask) {
         let cam = self.camera.undistorted();
-        let (w, h) = (cam.width as usize, cam.height as usize);
         // One pose for the whole frame, even if a test bumps the camera meanwhile.
         let camera_from_base = self.camera_from_base();
-        let base_from_camera = camera_from_base.inverse();
-        let eye = Point3::from(base_from_camera.translation.vector);
-        let rot = base_from_camera.rotation;
+        let frame = self.pinhole_frame(q, frame_index, cam, camera_from_base);
+        self.colour_pass(&frame)
+    }
 
-        // Geometry: robot and distractor triangles, base and camera frames.
-        let posed = self.robot.posed_vertices(q);
-        let mesh = &self.robot.visual;
-        let robot_base: Vec<[Point3<f64>; 3]> = mesh
-            .triangles
-            .iter()
-            .map(|t| t.map(|i| posed[i as usize]))
-            .collect();
+    /// The distractor triangles of a frame (boxes, then arms) in the base frame, with their
+    /// colours.
+    fn distractor_triangles(&self, frame_index: u64) -> (Vec<[Point3<f64>; 3]>, Vec<[f64; 3]>) {
         let boxes = self.distractor_boxes(frame_index);
         let mut distractor_base: Vec<[Point3<f64>; 3]> = Vec::new();
         let mut distractor_colour: Vec<[f64; 3]> = Vec::new();
@@ -462,6 +503,30 @@ impl SimScene {
                 distractor_colour.push(colour);
             }
         }
+        (distractor_base, distractor_colour)
+    }
+
+    /// Everything the colour pass reads: triangles in the camera frame and their depth
+    /// buffers, the shadow map and light, and the robot's silhouette.
+    fn pinhole_frame(
+        &self,
+        q: &[f64],
+        frame_index: u64,
+        cam: Intrinsics,
+        camera_from_base: Isometry3<f64>,
+    ) -> PinholeFrame {
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let base_from_camera = camera_from_base.inverse();
+
+        // Geometry: robot and distractor triangles, base and camera frames.
+        let posed = self.robot.posed_vertices(q);
+        let mesh = &self.robot.visual;
+        let robot_base: Vec<[Point3<f64>; 3]> = mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| posed[i as usize]))
+            .collect();
+        let (distractor_base, distractor_colour) = self.distractor_triangles(frame_index);
         let to_camera = |tris: &[[Point3<f64>; 3]]| -> Vec<[Point3<f64>; 3]> {
             tris.iter()
                 .map(|t| t.map(|p| camera_from_base * p))
@@ -503,30 +568,36 @@ impl SimScene {
             .distractors
             .as_ref()
             .is_some_and(|d| d.occludes_robot);
+        PinholeFrame {
+            cam,
+            base_from_camera,
+            robot_cam,
+            distractor_cam,
+            distractor_colour,
+            robot_buf,
+            distractor_buf,
+            shadow,
+            light_cam,
+            silhouette,
+            occludes,
+        }
+    }
+
+    /// Per pixel, what is seen (distractor, robot or background, by depth and the occlusion
+    /// setting) and its shaded colour; also the visible-robot, distractor and hidden masks.
+    fn colour_pass(&self, frame: &PinholeFrame) -> (Vec<[f64; 3]>, Mask, Mask, Mask) {
+        let cam = &frame.cam;
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let eye = Point3::from(frame.base_from_camera.translation.vector);
+        let rot = frame.base_from_camera.rotation;
+        let mesh = &self.robot.visual;
+        let (robot_buf, distractor_buf) = (&frame.robot_buf, &frame.distractor_buf);
+        let (silhouette, occludes, shadow) = (&frame.silhouette, frame.occludes, &frame.shadow);
         let mut truth = silhouette.clone();
         let mut distractor_mask = Mask::new(cam.width, cam.height);
         let mut occluded_mask = Mask::new(cam.width, cam.height);
 
         let palette = &self.effects.palette.robot_colours;
-        let shade = |tri: &[Point3<f64>; 3], albedo: [f64; 3], p_cam: Point3<f64>, spec_k: f64| {
-            let [a, b, c] = tri;
-            let mut n = (b - a).cross(&(c - a));
-            n = n.try_normalize(1e-15).unwrap_or_else(Vector3::z);
-            if n.dot(&p_cam.coords) > 0.0 {
-                n = -n;
-            }
-            let lit = match &shadow {
-                Some((map, _)) => 1.0 - map.shadowed_fraction(&(base_from_camera * p_cam), 0.02),
-                None => 1.0,
-            };
-            let view = -p_cam.coords.try_normalize(1e-12).unwrap_or_else(Vector3::z);
-            let half = (light_cam + view).try_normalize(1e-12).unwrap_or(view);
-            let diffuse = n.dot(&light_cam).max(0.0) * lit;
-            let spec = n.dot(&half).max(0.0).powi(24) * spec_k * lit;
-            let k = 0.3 + 0.7 * diffuse;
-            albedo.map(|c| (c * k + spec).min(1.0))
-        };
-
         let mut rgb: Vec<[f64; 3]> = Vec::with_capacity(w * h);
         for v in 0..h {
             for u in 0..w {
@@ -556,8 +627,8 @@ impl SimScene {
                         let first = mesh.triangles[k as usize][0] as usize;
                         let link = self.robot.vertex_link.get(first).copied().unwrap_or(0);
                         let albedo = palette[link as usize % palette.len()];
-                        shade(
-                            &robot_cam[k as usize],
+                        frame.shade(
+                            &frame.robot_cam[k as usize],
                             albedo,
                             Point3::from(ray_cam * robot_z),
                             0.25,
@@ -565,9 +636,9 @@ impl SimScene {
                     }
                     Seen::Distractor(k) => {
                         distractor_mask.data[i] = 1;
-                        let albedo = distractor_colour[k as usize];
-                        shade(
-                            &distractor_cam[k as usize],
+                        let albedo = frame.distractor_colour[k as usize];
+                        frame.shade(
+                            &frame.distractor_cam[k as usize],
                             albedo,
                             Point3::from(ray_cam * distractor_z),
                             0.03,
@@ -575,7 +646,7 @@ impl SimScene {
                     }
                     Seen::Background => {
                         let (colour, ground) = self.background(&(rot * ray_cam), &eye);
-                        match (&shadow, ground) {
+                        match (shadow, ground) {
                             (Some((map, strength)), Some(p)) => {
                                 let dark = 1.0 - strength * map.shadowed_fraction(&p, 0.01);
                                 colour.map(|c| c * dark)

@@ -44,7 +44,7 @@ fn rasterize_at(
 
 /// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the
 /// scoring image: `V = sum_p c_p (K - c_p) / K^2`, `c_p` the candidates covering pixel `p`
-/// (method.md §5). Single-threaded: callers score many pool entries in parallel.
+/// (docs/method.md §5). Single-threaded: callers score many pool entries in parallel.
 pub fn disagreement(camera: &Intrinsics, robot: &PosedRobot, candidates: &[Isometry3<f64>]) -> f64 {
     let k = candidates.len() as f64;
     let mut counts = vec![0u16; (camera.width * camera.height) as usize];

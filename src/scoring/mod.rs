@@ -2,7 +2,7 @@
 //! and keeps only a number per pose, never the silhouettes.
 //!
 //! - **Exploration** ([`BatchScoring::disagreement_many`]): per joint sample of a pool, the
-//!   per-pixel variance of the candidate camera poses' silhouettes (method.md §5).
+//!   per-pixel variance of the candidate camera poses' silhouettes (docs/method.md §5).
 //! - **Posterior refinement** ([`BatchScoring::band_mismatches`]): per sampled pose and view,
 //!   the band pixels whose coverage differs from the observation.
 //!

@@ -78,7 +78,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
     cfg.calibration.max_views = 8;
     // Another noise/exploration draw of the shipped cell, whose fixed camera is a hard one for
     // this loop: with the code of 2026-11-22 the daemon's 8-view result was 0.067° / 0.71 mm
-    // on seed 1 (the README demo's), 0.0499° / 0.24 mm on seed 2 and 0.024° / 0.67 mm on
+    // on seed 1 (the demo cell's), 0.0499° / 0.24 mm on seed 2 and 0.024° / 0.67 mm on
     // seed 3; with the hill climb of 2026-11-23 seed 3's recalibration after the knock is
     // 0.053° / 0.08 mm. The tests bound one draw by `SINGLE_DRAW_MAX_DEG` (tests/daemon.rs),
     // not by the median; the draw is named here, not hidden.

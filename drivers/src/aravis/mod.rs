@@ -337,7 +337,7 @@ mod tests {
             assert_eq!(f.genicam_name(), name);
             assert_eq!(PixelFormat::from_pfnc(f.pfnc()), Some(f));
         }
-        // Codes from protocols.md §5.2.
+        // Codes from docs/protocols.md §5.2.
         assert_eq!(
             "bayerrg8".parse::<PixelFormat>().unwrap().pfnc(),
             0x01080009

@@ -1,5 +1,5 @@
 //! Serial-bus servo arms: ROBOTIS Dynamixel (Protocol 2.0, X series) and Feetech STS
-//! (SO-100/101), written from protocols.md §3.
+//! (SO-100/101), written from docs/protocols.md §3.
 //!
 //! Layout: [`packet`] (framing of both protocols: headers, Dynamixel byte stuffing and CRC-16,
 //! the Feetech checksum, parameter layouts), [`table`] (control tables, value encodings,

@@ -1,4 +1,4 @@
-//! Packet framing of the two serial servo protocols (protocols.md §3.1, §3.2, §3.5).
+//! Packet framing of the two serial servo protocols (docs/protocols.md §3.1, §3.2, §3.5).
 //!
 //! Dynamixel Protocol 2.0: `FF FF FD 00`, id, u16 LE length, instruction (or `0x55` + error),
 //! parameters with byte stuffing, CRC-16 (poly 0x8005) LE. Feetech STS/SCS (Dynamixel 1.0
@@ -412,7 +412,7 @@ mod tests {
         assert_eq!(crc16(b"123456789"), 0xFEE8);
     }
 
-    /// Every Dynamixel vector of protocols.md §3.2: our encoder produces the bytes and our
+    /// Every Dynamixel vector of docs/protocols.md §3.2: our encoder produces the bytes and our
     /// parser reads them back.
     #[test]
     fn dynamixel_vectors() {

@@ -1,5 +1,5 @@
 //! The two servo families' control tables, value encodings, units and error bits
-//! (protocols.md §3.3, §3.5): everything the arm driver and the mock bus need to agree on.
+//! (docs/protocols.md §3.3, §3.5): everything the arm driver and the mock bus need to agree on.
 
 use std::f64::consts::PI;
 
@@ -146,7 +146,7 @@ impl Family {
     }
 
     /// Radians per second of one profile-velocity unit. Dynamixel: 0.229 rev/min.
-    /// Feetech STS: one step per second (STS3215 manual; not in protocols.md, unverified).
+    /// Feetech STS: one step per second (STS3215 manual; not in docs/protocols.md, unverified).
     pub fn velocity_unit_rad_s(self, ticks_per_rev: u32) -> f64 {
         match self {
             Family::Dynamixel => 0.229 * 2.0 * PI / 60.0,
@@ -155,7 +155,7 @@ impl Family {
     }
 
     /// Radians per second² of one acceleration unit. Dynamixel: 214.577 rev/min².
-    /// Feetech STS: 100 steps/s² (STS3215 manual; not in protocols.md, unverified).
+    /// Feetech STS: 100 steps/s² (STS3215 manual; not in docs/protocols.md, unverified).
     pub fn accel_unit_rad_s2(self, ticks_per_rev: u32) -> f64 {
         match self {
             Family::Dynamixel => 214.577 * 2.0 * PI / 3600.0,
@@ -209,7 +209,7 @@ impl Family {
 }
 
 /// Dynamixel X-series Hardware Error Status (address 70) bits as a sentence. The bit
-/// meanings are the X-series e-manual's (protocols.md lists only the address).
+/// meanings are the X-series e-manual's (docs/protocols.md lists only the address).
 pub fn describe_dynamixel_hardware_error(bits: u8) -> String {
     const NAMES: [(u8, &str); 5] = [
         (0x01, "input voltage out of range"),
@@ -221,7 +221,7 @@ pub fn describe_dynamixel_hardware_error(bits: u8) -> String {
     join_bits(bits, &NAMES)
 }
 
-/// Feetech status error bits (protocols.md §3.5) as a sentence.
+/// Feetech status error bits (docs/protocols.md §3.5) as a sentence.
 pub fn describe_feetech_conditions(bits: u8) -> String {
     const NAMES: [(u8, &str); 5] = [
         (0x01, "input voltage out of range"),

@@ -28,7 +28,7 @@ use super::frame::{
 };
 use crate::{Arm, ArmStatus, DriverError, JointLimit, Motion, Result};
 
-/// The SDK's joint limits (protocols.md §4.3), radians. J2's upper limit is the SDK's
+/// The SDK's joint limits (docs/protocols.md §4.3), radians. J2's upper limit is the SDK's
 /// 3.14, not π.
 #[allow(clippy::approx_constant)]
 pub const PIPER_LIMITS_RAD: [(f64, f64); 6] = [
@@ -52,7 +52,7 @@ pub struct PiperConfig {
     /// Joint speed at 100 % on the 0x151 speed byte, rad/s. Not documented by AgileX; the
     /// default (π rad/s) is an assumption to measure on the real arm.
     pub full_speed_rad_s: f64,
-    /// Motor number of the enable frame: 7, as the SDK's `EnableArm` (protocols.md §4.2).
+    /// Motor number of the enable frame: 7, as the SDK's `EnableArm` (docs/protocols.md §4.2).
     pub enable_motor: u8,
     /// Limit for all six drivers to report enabled.
     pub enable_timeout: Duration,

@@ -1,5 +1,5 @@
 //! CAN transport behind a small object-safe trait, so the Piper driver runs on SocketCAN on
-//! hardware and on an in-process bus in CI (no `vcan` there, protocols.md §4.5).
+//! hardware and on an in-process bus in CI (no `vcan` there, docs/protocols.md §4.5).
 
 use async_trait::async_trait;
 use tokio::sync::{broadcast, Mutex};

@@ -1,4 +1,4 @@
-//! Classic CAN frames of the AgileX Piper (protocols.md §4.2–4.4): 11-bit ids, 8 data
+//! Classic CAN frames of the AgileX Piper (docs/protocols.md §4.2–4.4): 11-bit ids, 8 data
 //! bytes, every multi-byte field big-endian, joints in 0.001° as i32.
 
 /// CAN ids this crate speaks.
@@ -304,7 +304,7 @@ pub fn driver_state_frame(joint: usize, enabled: bool) -> CanFrame {
 mod tests {
     use super::*;
 
-    /// The frames protocols.md §4.3 verified against piper_sdk's encoder and decoder.
+    /// The frames docs/protocols.md §4.3 verified against piper_sdk's encoder and decoder.
     #[test]
     fn sdk_verified_vectors() {
         let t = joint_target_frames(&[10_000, -20_000, 0, 0, 0, 0]);

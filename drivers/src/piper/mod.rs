@@ -1,4 +1,4 @@
-//! AgileX Piper over CAN (protocols.md §4), written from the protocol description.
+//! AgileX Piper over CAN (docs/protocols.md §4), written from the protocol description.
 //!
 //! Layout: [`frame`] (the frame codec: ids, enable, mode, joint targets and feedback in
 //! 0.001° i32 BE, status 0x2A1, driver-enable bits), [`CanBus`] (the transport trait) with

@@ -1,5 +1,5 @@
 //! What every Universal Robots component here agrees on, without the SDK: the UR5e's joint
-//! limits, the controller's mode codes (protocols.md §2.2) and the default ports. The mock
+//! limits, the controller's mode codes (docs/protocols.md §2.2) and the default ports. The mock
 //! controller in `easyhec-mocks` uses the same tables, so the driver and the mock cannot drift
 //! apart on what "out of limits" or "protective stop" means.
 

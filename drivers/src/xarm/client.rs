@@ -6,7 +6,7 @@
 //! It connects lazily (building a cell never touches the network) and enables motion only
 //! before the first move, so planning and `--dry-run` never arm the robot.
 //!
-//! Completion is detected by polling GET_STATE (protocols.md §1.5, method A: it works on
+//! Completion is detected by polling GET_STATE (docs/protocols.md §1.5, method A: it works on
 //! every firmware), then confirmed by reading the joints back: a controller that goes idle
 //! short of the target is a failed motion, not an arrival.
 

@@ -1,5 +1,5 @@
 //! Controller error, warning and state codes as sentences an operator can act on
-//! (protocols.md §1.4, §1.8).
+//! (docs/protocols.md §1.4, §1.8).
 
 /// What a controller error code means, with the code in the text.
 pub fn describe_error(code: u8) -> String {

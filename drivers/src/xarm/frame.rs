@@ -1,4 +1,4 @@
-//! Frames of the private protocol on the command port (protocols.md §1.2, §1.3).
+//! Frames of the private protocol on the command port (docs/protocols.md §1.2, §1.3).
 //!
 //! A frame is a Modbus-TCP-like header (transaction id, protocol id, length; all u16
 //! big-endian) followed by `length` bytes: the register (command id), then the parameters
@@ -27,7 +27,7 @@ pub mod protocol {
     pub const PRIVATE_KEEPALIVE: u16 = 3;
 }
 
-/// Register numbers (command ids) this crate speaks (protocols.md §1.3).
+/// Register numbers (command ids) this crate speaks (docs/protocols.md §1.3).
 pub mod reg {
     /// Version string (40 bytes ASCII).
     pub const GET_VERSION: u8 = 0x01;
@@ -371,7 +371,7 @@ impl Version {
 mod tests {
     use super::*;
 
-    /// Parses a hex line as printed in protocols.md (`00 01 0B …`).
+    /// Parses a hex line as printed in docs/protocols.md (`00 01 0B …`).
     pub(crate) fn hex(s: &str) -> Vec<u8> {
         s.split_whitespace()
             .map(|b| u8::from_str_radix(b, 16).unwrap())

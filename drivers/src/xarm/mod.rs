@@ -1,5 +1,5 @@
 //! UFACTORY xArm 5/6/7, Lite 6 and UF850 over the controller's private TCP protocol
-//! (protocols.md §1), written from the protocol description.
+//! (docs/protocols.md §1), written from the protocol description.
 //!
 //! Layout: [`frame`] (command-port framing, registers, status bits, parameter encodings),
 //! [`report`] (push reports of ports 30001/30003), [`codes`] (error, warning and state codes

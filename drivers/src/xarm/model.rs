@@ -1,4 +1,4 @@
-//! UFACTORY arm models and the joint limits their controllers enforce (protocols.md §1.9).
+//! UFACTORY arm models and the joint limits their controllers enforce (docs/protocols.md §1.9).
 
 use std::f64::consts::{PI, TAU};
 use std::fmt;

@@ -1,4 +1,4 @@
-//! Push reports from the controller's report ports (protocols.md §1.6): port 30003 "real"
+//! Push reports from the controller's report ports (docs/protocols.md §1.6): port 30003 "real"
 //! (87 bytes, 100 Hz) and port 30001 "normal" (145 bytes, 5 Hz; 133 on old firmware).
 //!
 //! Every frame starts with its own length as u32 big-endian, the 4 length bytes included.

@@ -1,7 +1,7 @@
 //! The simulated UR controller behind the mock's three ports: the arm (linear joint-space
 //! motion at the commanded speed), the robot/safety/runtime state machine the dashboard
 //! drives, the RTDE registers, and an emulation of what ur_rtde's uploaded control script
-//! does with them (protocols.md §2.5, point 4), so `RTDEControlInterface` runs unmodified.
+//! does with them (docs/protocols.md §2.5, point 4), so `RTDEControlInterface` runs unmodified.
 
 use std::time::Instant;
 

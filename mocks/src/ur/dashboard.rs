@@ -1,7 +1,7 @@
 //! The dashboard server (29999) and the script port (30003) of the mock controller.
 //!
 //! The dashboard answers one line per command with the reply strings clients match on
-//! (protocols.md §2.6). State-changing commands are refused while the controller is not in
+//! (docs/protocols.md §2.6). State-changing commands are refused while the controller is not in
 //! remote control; the refusal text is this mock's choice (no document pins it down).
 
 use std::sync::Arc;

@@ -1,6 +1,6 @@
 //! The RTDE server (30004) of the mock controller: protocol negotiation, controller version,
 //! output and input recipes, start/pause, and data packages streamed at the requested
-//! frequency (protocols.md §2.2–2.5).
+//! frequency (docs/protocols.md §2.2–2.5).
 
 use std::sync::Arc;
 use std::time::Duration;

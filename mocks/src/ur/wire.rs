@@ -1,4 +1,4 @@
-//! RTDE framing and field types (protocols.md §2.2), shared by the mock controller's server
+//! RTDE framing and field types (docs/protocols.md §2.2), shared by the mock controller's server
 //! side and the small client behind [`super::UrRtdeJoints`].
 //!
 //! Every package is `u16 size (BE, including the 3-byte header) | u8 type | payload`; all

@@ -1,5 +1,5 @@
 //! The mock controller's state machine: what each register does to the simulated arm and
-//! what the controller answers (protocols.md §1.3–1.5). No I/O here; `super` moves the bytes.
+//! what the controller answers (docs/protocols.md §1.3–1.5). No I/O here; `super` moves the bytes.
 
 use std::time::Instant;
 

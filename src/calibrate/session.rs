@@ -1,0 +1,647 @@
+//! One calibration's state from round to round, and the steps of a round: plan, check the
+//! stop rules, move, capture, solve, record.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use easyhec_drivers::ArmStatus;
+use nalgebra::Isometry3;
+
+use super::planner::{choose_reachable, rank_poses, Ranked};
+use super::recorder::{self, Recorder};
+use super::{Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
+use crate::backend::{open_renderer, Backend};
+use crate::camera::{Intrinsics, LensWarp};
+use crate::cell::Cell;
+use crate::config::CalibrationSettings;
+use crate::error::{Error, Result};
+use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
+use crate::init::{initialise, InitOptions};
+use crate::io::write_json_atomic;
+use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
+use crate::render::PosedRobot;
+use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
+use crate::safety::CheckedMove;
+use crate::solve::{solve, SolveOptions, SolveReport, View};
+
+/// Why a move did not bring a new view.
+enum MoveOutcome {
+    /// The arm is at the target.
+    Arrived,
+    /// The move failed; re-plan from wherever the arm stopped.
+    Retry,
+    /// End the loop with this reason.
+    Stop(String),
+}
+
+/// Everything one calibration carries from round to round.
+pub(super) struct Session<'a> {
+    cell: &'a Cell,
+    opts: &'a RunOptions,
+    settings: CalibrationSettings,
+    camera: Intrinsics,
+    rec: Recorder,
+    pb: indicatif::ProgressBar,
+    renderer: Arc<dyn Backend>,
+    solve_opts: SolveOptions,
+    started: Instant,
+    solve_s: f64,
+    explore_s: f64,
+    motion_s: f64,
+    guess: Option<Isometry3<f64>>,
+    /// Reported joints of every view.
+    taken: Vec<Vec<f64>>,
+    /// Frames kept for a context-aware segmenter (absent for per-frame segmenters).
+    live: Option<LiveFrames>,
+    views: Vec<View>,
+    report: Option<SolveReport>,
+    rounds: Vec<RoundRecord>,
+    previous_best: Option<f64>,
+    failures: usize,
+    planned: Vec<PlannedPose>,
+    cancelled: bool,
+}
+
+impl<'a> Session<'a> {
+    /// Checks the run's settings, opens the renderer and starts the run directory.
+    pub(super) fn start(cell: &'a Cell, out: &Path, opts: &'a RunOptions) -> Result<Session<'a>> {
+        let settings = run_settings(cell, opts)?;
+        let camera = cell.camera.intrinsics().clone();
+        let guess = initial_guess(cell, opts, &settings)?;
+        let rec = Recorder::create(out, robot_entry(cell), CameraEntry::of(&camera), guess)?;
+        let pb = progress_bar(opts, settings.max_views);
+        let renderer = open_renderer(settings.renderer, !opts.progress)
+            .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
+        let live = cell.segmenter.uses_context().then(|| LiveFrames {
+            frames: Vec::new(),
+            min_band_px: cell.config.segmenter.min_band_px(),
+            final_band_px: cell.config.segmenter.final_band_px(),
+        });
+        Ok(Session {
+            cell,
+            opts,
+            settings,
+            camera,
+            rec,
+            pb,
+            renderer,
+            solve_opts: SolveOptions::default(),
+            started: Instant::now(),
+            solve_s: 0.0,
+            explore_s: 0.0,
+            motion_s: 0.0,
+            guess,
+            taken: Vec::new(),
+            live,
+            views: Vec::new(),
+            report: None,
+            rounds: Vec::new(),
+            previous_best: None,
+            failures: 0,
+            planned: Vec::new(),
+            cancelled: false,
+        })
+    }
+
+    fn report(&self) -> &SolveReport {
+        self.report
+            .as_ref()
+            .expect("round 0 solved before any other step")
+    }
+
+    fn last_round(&mut self) -> &mut RoundRecord {
+        self.rounds.last_mut().expect("round 0 exists")
+    }
+
+    /// The view where the arm stands, and the first estimate from it (the guess, or an
+    /// automatic initialisation).
+    pub(super) async fn first_view(&mut self) -> Result<()> {
+        let guess = self.guess;
+        self.capture(guess.as_ref(), None).await?;
+        emit_view(self.opts, &self.taken);
+        self.pb.set_position(1);
+        let t = Instant::now();
+        let r = self.renderer.as_ref();
+        let report = match guess {
+            Some(g) => solve(r, &self.camera, &self.views, &g, &self.solve_opts)?,
+            None => initialise(
+                r,
+                &self.camera,
+                &self.views,
+                &self.solve_opts,
+                &InitOptions::default(),
+            )?,
+        };
+        self.solve_s += t.elapsed().as_secs_f64();
+        self.rounds = vec![RoundRecord {
+            round: 0,
+            views: 1,
+            camera_from_base: to_rows(&report.camera_from_base),
+            mean_iou: report.mean_iou(),
+            loss: report.loss,
+            pose_change: None,
+            best_variance: None,
+            next_joints: None,
+            events: Vec::new(),
+        }];
+        self.rec.write_rounds(&self.rounds)?;
+        emit_round(self.opts, &self.rounds, &report);
+        self.report = Some(report);
+        Ok(())
+    }
+
+    /// One round: plan, check the stop rules, move, capture and solve. `Some(reason)` ends
+    /// the loop.
+    pub(super) async fn round(&mut self) -> Result<Option<String>> {
+        let round = self.rounds.len() - 1;
+        if self.opts.cancelled() {
+            self.cancelled = true;
+            return Ok(Some(format!("cancelled after {} views", self.views.len())));
+        }
+        let s = &self.settings;
+        if self.views.len() >= s.max_views && !self.opts.dry_run {
+            return Ok(Some(format!(
+                "reached the maximum of {} views",
+                s.max_views
+            )));
+        }
+        let (ranked, best) = self.plan(round);
+        if let Some(reason) = self.converged(best) {
+            return Ok(Some(reason));
+        }
+        self.previous_best = best;
+        let from = self.cell.arm.read_joints().await?;
+        if self.opts.dry_run {
+            return Ok(Some(self.plan_dry_run(&ranked, &from)));
+        }
+        let mut events = Vec::new();
+        let speed = self.settings.speed_rad_s;
+        let chosen = choose_reachable(self.cell, &ranked, &from, speed, |_| false, &mut events);
+        self.last_round().events.extend(events);
+        let Some((pose, mv)) = chosen else {
+            return Ok(Some(format!(
+                "no safe, reachable pose left after {} views",
+                self.views.len()
+            )));
+        };
+        match self.move_to(&pose, &mv).await? {
+            MoveOutcome::Arrived => {}
+            MoveOutcome::Retry => return Ok(None),
+            MoveOutcome::Stop(reason) => return Ok(Some(reason)),
+        }
+        self.capture_and_solve(round, best).await?;
+        Ok(None)
+    }
+
+    /// Ranks the next poses and records the planning step.
+    fn plan(&mut self, round: usize) -> (Vec<Ranked>, Option<f64>) {
+        let t = Instant::now();
+        let (ranked, stats) = rank_poses(
+            self.renderer.as_ref(),
+            self.cell,
+            &self.camera,
+            self.report(),
+            &self.taken,
+            &self.settings,
+            round,
+        );
+        let best = ranked.first().and_then(|r| r.variance);
+        self.explore_s += t.elapsed().as_secs_f64();
+        self.opts.emit(Progress::Planned {
+            round,
+            best_variance: best,
+        });
+        let last = self.last_round();
+        last.best_variance = best;
+        last.events.push(format!(
+            "{} joint samples: {} safe, {} show the robot",
+            stats.sampled, stats.safe, stats.scored
+        ));
+        (ranked, best)
+    }
+
+    /// The variance rule: the best disagreement settled, enough views, and the estimate
+    /// barely moved in the last round.
+    fn converged(&self, best: Option<f64>) -> Option<String> {
+        let s = &self.settings;
+        let last = self.rounds.last()?;
+        let (Some(prev), Some(best), Some([deg, mm])) =
+            (self.previous_best, best, last.pose_change)
+        else {
+            return None;
+        };
+        let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
+        (settled && self.views.len() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm)
+            .then(|| format!("variance converged after {} views", self.views.len()))
+    }
+
+    /// A dry run plans the whole sequence from the first view's estimate, chaining paths,
+    /// and moves nothing.
+    fn plan_dry_run(&mut self, ranked: &[Ranked], from: &[f64]) -> String {
+        let mut at = from.to_vec();
+        let mut events = Vec::new();
+        for _ in 1..self.settings.max_views {
+            let planned = &self.planned;
+            let far = |q: &[f64]| {
+                planned.iter().any(|p: &PlannedPose| {
+                    p.joints
+                        .iter()
+                        .zip(q)
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0.0, f64::max)
+                        < 0.3
+                })
+            };
+            let speed = self.settings.speed_rad_s;
+            match choose_reachable(self.cell, ranked, &at, speed, far, &mut events) {
+                Some((p, _)) => {
+                    at = p.joints.clone();
+                    self.planned.push(p);
+                }
+                None => break,
+            }
+        }
+        self.last_round().events.extend(events);
+        format!(
+            "dry run: planned {} poses, nothing moved",
+            self.planned.len()
+        )
+    }
+
+    /// Asks the operator (when configured), then sends the checked move and watches it, the
+    /// cancel flag included; a failed move is recorded and, within the failure budget,
+    /// retried from wherever the arm stopped.
+    async fn move_to(&mut self, pose: &PlannedPose, mv: &CheckedMove) -> Result<MoveOutcome> {
+        let n = self.views.len();
+        if let Some(confirm) = &self.opts.confirm {
+            if !self.pb.suspend(|| confirm(pose)) {
+                return Ok(MoveOutcome::Stop(format!(
+                    "operator declined a move after {n} views"
+                )));
+            }
+        }
+        if self.opts.cancelled() {
+            self.cancelled = true;
+            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+        }
+        self.last_round().next_joints = Some(pose.joints.clone());
+        self.pb.set_message(format!("moving to view {}", n + 1));
+        self.opts.emit(Progress::Moving {
+            view: n,
+            joints: pose.joints.clone(),
+        });
+        let t = Instant::now();
+        let moved = self.execute(mv).await;
+        self.motion_s += t.elapsed().as_secs_f64();
+        if self.opts.cancelled() {
+            if moved.is_err() {
+                let _ = self.cell.arm.stop().await;
+                self.last_round()
+                    .events
+                    .push("move stopped: calibration cancelled".into());
+            }
+            self.cancelled = true;
+            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+        }
+        match moved {
+            Ok(()) => Ok(MoveOutcome::Arrived),
+            Err(e) => self.after_failed_move(e).await,
+        }
+    }
+
+    /// Sends a checked move and waits for it, stopping the arm if the run is cancelled.
+    async fn execute(&self, mv: &CheckedMove) -> Result<()> {
+        let motion = self.cell.arm.execute(mv).await?;
+        tokio::select! {
+            r = motion.wait() => r.map_err(Error::from),
+            () = self.opts.wait_cancelled() => {
+                // Stop first; the motion future is dropped, the arm halts where it is.
+                let _ = self.cell.arm.stop().await;
+                Err(Error::Hardware("move stopped: calibration cancelled".into()))
+            }
+        }
+    }
+
+    /// Records a failed move and decides: retry (clearing a fault when allowed) or stop.
+    async fn after_failed_move(&mut self, e: Error) -> Result<MoveOutcome> {
+        self.failures += 1;
+        let note = format!("move failed: {e}");
+        self.last_round().events.push(note.clone());
+        self.rec.write_rounds(&self.rounds)?;
+        let _ = self.cell.arm.stop().await;
+        let status = self.cell.arm.status().await?;
+        let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
+        if self.failures > self.settings.max_motion_failures {
+            return Ok(MoveOutcome::Stop(format!(
+                "gave up after {} failed moves ({note})",
+                self.failures
+            )));
+        }
+        if faulted {
+            if !self.settings.clear_faults {
+                return Ok(MoveOutcome::Stop(format!(
+                    "arm fault, not cleared (calibration.clear_faults = false): {e}"
+                )));
+            }
+            self.cell.arm.clear_fault().await?;
+        }
+        Ok(MoveOutcome::Retry)
+    }
+
+    /// Captures the view at the new pose, solves from the previous estimate and records the
+    /// round.
+    async fn capture_and_solve(&mut self, round: usize, best: Option<f64>) -> Result<()> {
+        let previous = self.report().camera_from_base;
+        let report = self.report.take().expect("round 0 solved");
+        let captured = self.capture(Some(&previous), Some(&report)).await;
+        self.report = Some(report);
+        captured?;
+        emit_view(self.opts, &self.taken);
+        self.pb.set_position(self.views.len() as u64);
+        let t = Instant::now();
+        let mut report = solve(
+            self.renderer.as_ref(),
+            &self.camera,
+            &self.views,
+            &previous,
+            &self.solve_opts,
+        )?;
+        report.trajectory.insert(0, previous);
+        self.solve_s += t.elapsed().as_secs_f64();
+        let change = [
+            rotation_error_deg(&previous, &report.camera_from_base),
+            translation_error_mm(&previous, &report.camera_from_base),
+        ];
+        self.rounds.push(RoundRecord {
+            round: round + 1,
+            views: self.views.len(),
+            camera_from_base: to_rows(&report.camera_from_base),
+            mean_iou: report.mean_iou(),
+            loss: report.loss,
+            pose_change: Some(change),
+            best_variance: None,
+            next_joints: None,
+            events: Vec::new(),
+        });
+        self.rec.write_rounds(&self.rounds)?;
+        emit_round(self.opts, &self.rounds, &report);
+        self.pb.set_message(format!(
+            "round {} loss {:.5} IoU {:.4} best var {:.1} px change {:.3} deg / {:.2} mm",
+            round + 1,
+            report.loss,
+            report.mean_iou(),
+            best.unwrap_or(0.0),
+            change[0],
+            change[1]
+        ));
+        self.report = Some(report);
+        Ok(())
+    }
+
+    /// Reads the joints and grabs a frame at the arm's present pose, segments it, records the
+    /// view and adds it to `views`. With a context-aware segmenter the new frame is segmented
+    /// together with every earlier one under `estimate`, and earlier masks are re-segmented
+    /// and rewritten when they change.
+    async fn capture(
+        &mut self,
+        estimate: Option<&Isometry3<f64>>,
+        report: Option<&SolveReport>,
+    ) -> Result<()> {
+        let cell = self.cell;
+        let joints = cell.arm.read_joints().await?;
+        let frame = cell.camera.grab().await?;
+        let camera = &self.camera;
+        if frame.width != camera.width || frame.height != camera.height {
+            return Err(Error::Hardware(format!(
+                "camera returned a {}x{} frame; its intrinsics say {}x{}",
+                frame.width, frame.height, camera.width, camera.height
+            )));
+        }
+        let Some(live) = self.live.as_mut() else {
+            let mask = cell.segmenter.segment(&frame)?;
+            self.rec.add_view(&joints, &frame, &mask)?;
+            self.taken.push(joints.clone());
+            self.views.push(View {
+                robot: PosedRobot::new(&cell.robot, &joints),
+                observed: camera.undistort_mask(&mask),
+            });
+            return Ok(());
+        };
+        live.frames.push(frame);
+        self.taken.push(joints.clone());
+        let band = live.min_band_px;
+        let rec = &self.rec;
+        let masks = match live.resegment(
+            self.renderer.as_ref(),
+            cell.segmenter.as_ref(),
+            &cell.robot,
+            camera,
+            band,
+            &self.taken,
+            estimate,
+            report,
+            &mut self.views,
+            |i, m| rec.replace_mask(i, m),
+        ) {
+            Ok(m) => m,
+            Err(e) => {
+                live.frames.pop();
+                self.taken.pop();
+                return Err(e);
+            }
+        };
+        let last = live.frames.last().expect("just pushed");
+        self.rec
+            .add_view(&joints, last, masks.last().expect("one mask per frame"))?;
+        Ok(())
+    }
+
+    /// The last views were segmented under the previous estimate: re-segment all of them
+    /// under the final one and solve once more; when that estimate fits, with the final
+    /// (narrowest) band: a narrow band is only safe around a right render.
+    fn resegment_final(&mut self) -> Result<()> {
+        let Some(live) = &self.live else {
+            return Ok(());
+        };
+        let t = Instant::now();
+        let report = self.report.as_ref().expect("round 0 solved");
+        let floor = if report.mean_iou() >= POOR_FIT_IOU {
+            live.final_band_px.min(live.min_band_px)
+        } else {
+            live.min_band_px
+        };
+        let rec = &self.rec;
+        live.resegment(
+            self.renderer.as_ref(),
+            self.cell.segmenter.as_ref(),
+            &self.cell.robot,
+            &self.camera,
+            floor,
+            &self.taken,
+            Some(&report.camera_from_base),
+            Some(report),
+            &mut self.views,
+            |i, m| rec.replace_mask(i, m),
+        )?;
+        let report = solve(
+            self.renderer.as_ref(),
+            &self.camera,
+            &self.views,
+            &report.camera_from_base,
+            &self.solve_opts,
+        )?;
+        self.solve_s += t.elapsed().as_secs_f64();
+        let last = self.last_round();
+        last.camera_from_base = to_rows(&report.camera_from_base);
+        last.mean_iou = report.mean_iou();
+        last.loss = report.loss;
+        last.events
+            .push("re-segmented every view under the final estimate and re-solved".into());
+        self.report = Some(report);
+        Ok(())
+    }
+
+    /// Re-segments once more when that helps, then writes the result (not on a dry run).
+    pub(super) fn finish(mut self, stop_reason: String) -> Result<Outcome> {
+        self.pb.finish_and_clear();
+        if !self.opts.dry_run && !self.cancelled {
+            self.resegment_final()?;
+        }
+        self.rec.write_rounds(&self.rounds)?;
+        let report = self.report.take().expect("round 0 solved");
+        let cell = self.cell;
+        let mut result =
+            ResultFile::new(&report.camera_from_base, &cell.robot.links[cell.robot.base]);
+        result.views_used = (0..self.views.len()).collect();
+        result.per_view = report
+            .per_view_iou
+            .iter()
+            .enumerate()
+            .map(|(i, &iou)| PerView { view: i, iou })
+            .collect();
+        result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
+        result.stop_reason = stop_reason;
+        let timings = [
+            ("total", self.started.elapsed().as_secs_f64()),
+            ("solve", self.solve_s),
+            ("explore", self.explore_s),
+            ("motion", self.motion_s),
+        ];
+        for (k, v) in timings {
+            result.timings_s.insert(k.into(), v);
+        }
+        if !self.opts.dry_run {
+            write_json_atomic(&self.rec.dir().join("result.json"), &result)?;
+        }
+        Ok(Outcome {
+            result,
+            report,
+            rounds: self.rounds,
+            planned: self.planned,
+            run_dir: self.rec.dir().to_path_buf(),
+            cancelled: self.cancelled,
+        })
+    }
+}
+
+/// The `[calibration]` settings of this run: `RunOptions::max_views` applied, the commanded
+/// speed checked against the safety cap.
+fn run_settings(cell: &Cell, opts: &RunOptions) -> Result<CalibrationSettings> {
+    let mut settings = cell.config.calibration.clone();
+    if let Some(m) = opts.max_views {
+        if m == 0 {
+            return Err(Error::input(
+                &cell.config_path,
+                "calibration.max_views",
+                "a run needs at least 1 view",
+            ));
+        }
+        settings.max_views = m;
+        settings.min_views = settings.min_views.min(m);
+    }
+    let speed = settings.speed_rad_s;
+    let cap = cell.checker.speed_cap_rad_s();
+    if speed > cap {
+        return Err(Error::input(
+            &cell.config_path,
+            "calibration.speed_rad_s",
+            format!("{speed} rad/s is above the safety cap of {cap} rad/s (safety.speed_cap_rad_s and the joints' velocity limits)"),
+        ));
+    }
+    Ok(settings)
+}
+
+/// The starting pose: the run's own (a warm start), else the config's, else none.
+fn initial_guess(
+    cell: &Cell,
+    opts: &RunOptions,
+    settings: &CalibrationSettings,
+) -> Result<Option<Isometry3<f64>>> {
+    Ok(match (&opts.initial_guess, &settings.initial_guess) {
+        (Some(g), _) => Some(*g),
+        (None, Some(g)) => Some(
+            g.camera_from_base()
+                .map_err(|m| Error::input(&cell.config_path, "calibration.initial_guess", m))?,
+        ),
+        (None, None) => None,
+    })
+}
+
+/// The run's `robot` entry: absolute paths, so the run solves from anywhere.
+fn robot_entry(cell: &Cell) -> RobotEntry {
+    let src = &cell.robot.source;
+    RobotEntry {
+        urdf: recorder::absolute(&src.urdf),
+        package_dirs: src
+            .package_dirs
+            .iter()
+            .map(|(k, v)| (k.clone(), recorder::absolute(v)))
+            .collect(),
+        base_link: Some(cell.robot.links[cell.robot.base].clone()),
+        ignore_links: src.ignore_links.clone(),
+        joints: cell
+            .robot
+            .joint_names()
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+    }
+}
+
+fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
+    if !opts.progress {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(max_views as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} views {pos}/{len} {wide_msg} [{elapsed}]",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pb.enable_steady_tick(std::time::Duration::from_millis(200));
+    pb
+}
+
+fn emit_view(opts: &RunOptions, taken: &[Vec<f64>]) {
+    if let Some(joints) = taken.last() {
+        opts.emit(Progress::ViewCaptured {
+            index: taken.len() - 1,
+            joints: joints.clone(),
+        });
+    }
+}
+
+fn emit_round(opts: &RunOptions, rounds: &[RoundRecord], report: &SolveReport) {
+    if let Some(r) = rounds.last() {
+        opts.emit(Progress::Round {
+            round: r.round,
+            views: r.views,
+            loss: r.loss,
+            mean_iou: r.mean_iou,
+            camera_from_base: r.camera_from_base,
+            uncertainty: UncertaintyEntry::of(&report.uncertainty),
+        });
+    }
+}

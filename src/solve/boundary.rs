@@ -1,0 +1,315 @@
+//! The boundary residual model LM minimises: per pyramid level, rendered outline samples are
+//! matched to the observed mask's outline (both ways) and summed into normal equations.
+
+use nalgebra::{Isometry3, Matrix6};
+use rayon::prelude::*;
+
+use super::{SolveOptions, View};
+use crate::camera::Intrinsics;
+use crate::geometry::Twist;
+use crate::mask::Mask;
+use crate::render::{BoundarySample, PosedRobot, Silhouette, SilhouetteRenderer, ROW_CROSSING};
+
+/// One pyramid level: the downsampled camera and observations, and the Cauchy scale there.
+pub(super) struct Level {
+    camera: Intrinsics,
+    /// Cauchy scale at this level, pixels.
+    robust_scale_px: f64,
+    views: Vec<ObservedLevel>,
+}
+
+/// How far along a pixel row/column the observed transition is searched, pixels.
+const SCAN_REACH_PX: i64 = 12;
+
+/// Signed distance (outward positive, in the outline-normal direction) from a rendered outline
+/// crossing to the nearest observed transition of the same sense on the same pixel row or
+/// column; `None` when there is none within `reach` pixels.
+fn scanline_residual(observed: &Mask, s: &BoundarySample, reach: i64) -> Option<f64> {
+    let (along, normal_along, fixed) = if s.axis == ROW_CROSSING {
+        (s.pixel[0], s.normal[0], s.pixel[1].round() as i64)
+    } else {
+        (s.pixel[1], s.normal[1], s.pixel[0].round() as i64)
+    };
+    let dir: i64 = if normal_along >= 0.0 { 1 } else { -1 };
+    let at = |k: i64| {
+        if s.axis == ROW_CROSSING {
+            observed.get(k, fixed)
+        } else {
+            observed.get(fixed, k)
+        }
+    };
+    let (w, h) = (i64::from(observed.width), i64::from(observed.height));
+    let limit = if s.axis == ROW_CROSSING { w } else { h };
+    let base = along.floor() as i64;
+    let mut best: Option<f64> = None;
+    for offset in 0..=reach {
+        for k in [base + offset, base - offset] {
+            // Transition between k and k+1, robot on the inner side (opposite `dir`).
+            if k < 0 || k + 1 >= limit {
+                continue;
+            }
+            let (inner, outer) = if dir > 0 { (k, k + 1) } else { (k + 1, k) };
+            if at(inner) && !at(outer) {
+                let x = k as f64 + 0.5;
+                let d = (along - x) * f64::from(dir as i32);
+                if best.is_none_or(|b: f64| d.abs() < b.abs()) {
+                    best = Some(d);
+                }
+            }
+        }
+        if best.is_some() {
+            break;
+        }
+    }
+    best.map(|d| d * normal_along.abs())
+}
+
+impl Level {
+    /// The observations of `views` at pyramid `factor` with Cauchy scale `robust_scale_px`.
+    pub(super) fn new(
+        camera: &Intrinsics,
+        views: &[View],
+        factor: u32,
+        robust_scale_px: f64,
+    ) -> Level {
+        Level {
+            camera: camera.downsampled(factor),
+            robust_scale_px,
+            views: views
+                .par_iter()
+                .map(|v| ObservedLevel::new(&v.observed, factor))
+                .collect(),
+        }
+    }
+}
+
+/// One view's observation at one pyramid level.
+struct ObservedLevel {
+    mask: Mask,
+    /// Observed outline crossings: position, outline length they stand for.
+    outline: Vec<([f64; 2], f64)>,
+}
+
+impl ObservedLevel {
+    fn new(observed: &Mask, factor: u32) -> ObservedLevel {
+        let mask = observed.downsample(factor);
+        let outline = mask
+            .outline_crossings()
+            .into_iter()
+            .map(|x| {
+                // Outline normal from a 3x3 Sobel of the mask around the crossing; a crossing
+                // stands for 1 / (|n_x| + |n_y|) px of outline (see `render::outline_samples`).
+                let (u, v) = (x[0].round() as i64, x[1].round() as i64);
+                let m = |du: i64, dv: i64| f64::from(u8::from(mask.get(u + du, v + dv)));
+                let gx = m(1, -1) + 2.0 * m(1, 0) + m(1, 1) - m(-1, -1) - 2.0 * m(-1, 0) - m(-1, 1);
+                let gy = m(-1, 1) + 2.0 * m(0, 1) + m(1, 1) - m(-1, -1) - 2.0 * m(0, -1) - m(1, -1);
+                let norm = gx.hypot(gy);
+                let ds = if norm > 0.0 {
+                    norm / (gx.abs() + gy.abs())
+                } else {
+                    1.0
+                };
+                (x, ds)
+            })
+            .collect();
+        ObservedLevel { mask, outline }
+    }
+}
+
+/// Normal equations (`h`, `g`) of Cauchy-weighted outline residuals, with their robust cost,
+/// weighted squared sum and the outline length (px) they cover.
+pub(super) struct Normal {
+    cost: f64,
+    pub(super) h: Matrix6<f64>,
+    pub(super) g: Twist,
+    pub(super) weighted_sq: f64,
+    pub(super) length: f64,
+}
+
+impl Normal {
+    fn zero() -> Normal {
+        Normal {
+            cost: 0.0,
+            h: Matrix6::zeros(),
+            g: Twist::zeros(),
+            weighted_sq: 0.0,
+            length: 0.0,
+        }
+    }
+
+    /// Adds one Cauchy-weighted residual `r` with Jacobian `j` standing for `ds` px of outline.
+    #[inline]
+    fn add(&mut self, r: f64, j: &Twist, ds: f64, c: f64) {
+        let u = (r / c) * (r / c);
+        let (w, cost) = (1.0 / (1.0 + u), 0.5 * c * c * (1.0 + u).ln());
+        self.cost += ds * cost;
+        self.h += j * j.transpose() * (w * ds);
+        self.g += j * (w * r * ds);
+        self.weighted_sq += w * r * r * ds;
+        self.length += ds;
+    }
+
+    /// A residual beyond the search reach: costs the capped amount, pulls nothing.
+    #[inline]
+    fn add_outlier(&mut self, cap: f64, ds: f64, c: f64) {
+        let u = (cap / c) * (cap / c);
+        self.cost += ds * 0.5 * c * c * (1.0 + u).ln();
+    }
+
+    fn merge(mut self, o: Normal) -> Normal {
+        self.cost += o.cost;
+        self.h += o.h;
+        self.g += o.g;
+        self.weighted_sq += o.weighted_sq;
+        self.length += o.length;
+        self
+    }
+}
+
+/// Bucket grid over the rendered outline samples for nearest-sample queries.
+struct SampleGrid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    starts: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl SampleGrid {
+    fn new(samples: &[BoundarySample], width: u32, height: u32, cell: f64) -> SampleGrid {
+        let cols = (f64::from(width) / cell).ceil() as usize + 1;
+        let rows = (f64::from(height) / cell).ceil() as usize + 1;
+        let key = |s: &BoundarySample| {
+            let cx = ((s.pixel[0] + 0.5) / cell)
+                .floor()
+                .clamp(0.0, (cols - 1) as f64) as usize;
+            let cy = ((s.pixel[1] + 0.5) / cell)
+                .floor()
+                .clamp(0.0, (rows - 1) as f64) as usize;
+            cy * cols + cx
+        };
+        let mut counts = vec![0u32; cols * rows + 1];
+        for s in samples {
+            counts[key(s) + 1] += 1;
+        }
+        for i in 1..counts.len() {
+            counts[i] += counts[i - 1];
+        }
+        let mut fill = counts.clone();
+        let mut items = vec![0u32; samples.len()];
+        for (i, s) in samples.iter().enumerate() {
+            let k = key(s);
+            items[fill[k] as usize] = i as u32;
+            fill[k] += 1;
+        }
+        SampleGrid {
+            cell,
+            cols,
+            rows,
+            starts: counts,
+            items,
+        }
+    }
+
+    /// Nearest sample within `reach` cells of `p`.
+    fn nearest(&self, samples: &[BoundarySample], p: [f64; 2], reach: i64) -> Option<usize> {
+        let cx = ((p[0] + 0.5) / self.cell).floor() as i64;
+        let cy = ((p[1] + 0.5) / self.cell).floor() as i64;
+        let mut best = (f64::INFINITY, None);
+        for y in (cy - reach).max(0)..=(cy + reach).min(self.rows as i64 - 1) {
+            for x in (cx - reach).max(0)..=(cx + reach).min(self.cols as i64 - 1) {
+                let k = y as usize * self.cols + x as usize;
+                for &i in &self.items[self.starts[k] as usize..self.starts[k + 1] as usize] {
+                    let s = &samples[i as usize];
+                    let d = (s.pixel[0] - p[0]).powi(2) + (s.pixel[1] - p[1]).powi(2);
+                    if d < best.0 {
+                        best = (d, Some(i as usize));
+                    }
+                }
+            }
+        }
+        best.1
+    }
+}
+
+/// Outline grid cell, pixels of the level's image.
+const GRID_CELL_PX: f64 = 8.0;
+/// Search reach of the observed→rendered match, cells (beyond it a residual counts as the cap).
+const GRID_REACH: i64 = 2;
+
+/// Normal equations of the boundary residuals of `robots` (one per observation in `level`).
+pub(super) fn accumulate(
+    renderer: &dyn SilhouetteRenderer,
+    robots: &[&PosedRobot],
+    level: &Level,
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> Normal {
+    accumulate_keeping(renderer, robots, level, pose, opts).0
+}
+
+/// [`accumulate`], also handing back the silhouettes it rendered (their masks score the
+/// final pose without a second render).
+pub(super) fn accumulate_keeping(
+    renderer: &dyn SilhouetteRenderer,
+    robots: &[&PosedRobot],
+    level: &Level,
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> (Normal, Vec<Silhouette>) {
+    let c = level.robust_scale_px;
+    let cap = GRID_CELL_PX * GRID_REACH as f64;
+    // One call for all views: a GPU backend draws them in one submission.
+    let silhouettes =
+        renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
+    let normal = silhouettes
+        .par_iter()
+        .zip(&level.views)
+        .map(|(sil, obs)| {
+            let mut n = Normal::zero();
+            let mut jacobians = Vec::with_capacity(sil.boundary.len());
+            // Rendered outline -> observed outline along the same pixel row (or column): the
+            // observed transition of the same sense nearest the rendered crossing. Both sit on
+            // the same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).
+            for s in &sil.boundary {
+                let jp = s.pixel_jacobian(&level.camera);
+                let jn = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+                jacobians.push(jn);
+                match scanline_residual(&obs.mask, s, SCAN_REACH_PX) {
+                    Some(r) => n.add(r, &jn, s.length_px, c),
+                    None => n.add_outlier(SCAN_REACH_PX as f64, s.length_px, c),
+                }
+            }
+            // Observed outline -> rendered outline: signed distance to the tangent of the
+            // nearest rendered sample; keeps the render from sliding out of view or shrinking.
+            let grid = SampleGrid::new(
+                &sil.boundary,
+                level.camera.width,
+                level.camera.height,
+                GRID_CELL_PX,
+            );
+            for &(y, ds) in &obs.outline {
+                match grid.nearest(&sil.boundary, y, GRID_REACH) {
+                    Some(i) => {
+                        let s = &sil.boundary[i];
+                        let r =
+                            s.normal[0] * (y[0] - s.pixel[0]) + s.normal[1] * (y[1] - s.pixel[1]);
+                        n.add(r, &(-jacobians[i]), ds, c);
+                    }
+                    None => n.add_outlier(cap, ds, c),
+                }
+            }
+            n
+        })
+        .reduce(Normal::zero, Normal::merge);
+    (normal, silhouettes)
+}
+
+/// Robust cost per pixel of outline (infinite when nothing of the robot is in view).
+pub(super) fn total_cost(n: &Normal) -> f64 {
+    if n.length > 0.0 {
+        n.cost / n.length
+    } else {
+        f64::INFINITY
+    }
+}
