@@ -38,20 +38,21 @@ pub enum Error {
     /// A driver call failed. The driver's error is kept whole, so a caller can tell a refused
     /// target from a fault, a stall, a timeout or a lost link (`DriverError::kind`, or match
     /// the variant) instead of reading a string.
-    #[error("{}{source}", if context.is_empty() { String::new() } else { format!("{context}: ") })]
+    #[error("{}{driver}", if context.is_empty() { String::new() } else { format!("{context}: ") })]
     Driver {
         /// What the library was doing ("reading joints before a move"); may be empty.
         context: String,
-        /// The driver's error.
-        source: easyhec_drivers::DriverError,
+        /// The driver's error. Not a `source` in the error chain: its text is already in this
+        /// error's message, and the command line prints the chain.
+        driver: easyhec_drivers::DriverError,
     },
 }
 
 impl From<easyhec_drivers::DriverError> for Error {
-    fn from(source: easyhec_drivers::DriverError) -> Self {
+    fn from(driver: easyhec_drivers::DriverError) -> Self {
         Error::Driver {
             context: String::new(),
-            source,
+            driver,
         }
     }
 }
@@ -71,17 +72,17 @@ impl Error {
     }
 
     /// A driver error with what the library was doing when it happened.
-    pub fn driver(context: impl Into<String>, source: easyhec_drivers::DriverError) -> Self {
+    pub fn driver(context: impl Into<String>, driver: easyhec_drivers::DriverError) -> Self {
         Error::Driver {
             context: context.into(),
-            source,
+            driver,
         }
     }
 
     /// The driver error behind this error, when a driver call failed.
     pub fn driver_error(&self) -> Option<&easyhec_drivers::DriverError> {
         match self {
-            Error::Driver { source, .. } => Some(source),
+            Error::Driver { driver, .. } => Some(driver),
             _ => None,
         }
     }

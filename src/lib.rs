@@ -1,22 +1,19 @@
 //! easyhec: markerless eye-to-hand calibration by silhouette alignment.
 //!
 //! # Layout
-//! - [`geometry`]: se(3), pose errors, matrix I/O.
-//! - [`mesh`], [`robot`]: mesh loading and URDF kinematics (the model).
-//! - [`camera`], [`mask`]: pinhole + distortion, binary masks and distance transforms.
-//! - [`render`]: silhouettes and their outline samples, behind [`render::SilhouetteRenderer`].
-//! - [`objective`]: the paper's loss and its exact boundary gradient.
-//! - [`scoring`]: many poses scored in one batch (exploration's disagreement, the solver's
-//!   refinement), behind [`scoring::BatchScoring`], with the CPU reference in [`scoring::cpu`].
-//! - `gpu` (feature `wgpu`): the wgpu backend, implementing both of the above.
-//! - [`backend`]: [`backend::Backend`] (render + score) and [`backend::open_renderer`].
-//! - [`solve`]: Levenberg–Marquardt (default) and Adam (baseline) solvers, uncertainty.
-//! - [`explore`]: consistency-based choice of the next view.
-//! - [`run`]: the `easyhec-run/1` and `easyhec-result/1` formats.
-//! - [`calibrate`], [`cell`], [`daemon`]: the closed loop on a configured cell, and the
-//!   long-running service around it (`easyhec daemon`).
-//! - [`synth`], [`interop`], [`overlay`], [`bench`](mod@bench): synthetic runs, import/export, overlays,
-//!   benchmarks.
+//! ARCHITECTURE.md has every module with its purpose and layer (a test keeps that table true).
+//! In short, from the bottom up:
+//! - foundation: [`error`], [`geometry`], [`time`], [`io`], [`mask`], [`mesh`], [`camera`]
+//!   (lens warps for the one intrinsics type), [`robot`] (URDF kinematics);
+//! - [`config`]: every table of a cell config;
+//! - rendering and scoring: [`render`], [`objective`], [`scoring`], `gpu` (feature `wgpu`),
+//!   [`backend`];
+//! - estimation: [`solve`], [`init`], [`consensus`], [`explore`]; motion safety: [`safety`];
+//! - the simulator (feature `sim`): `scene`, `synth`, with [`mask_noise`];
+//! - [`segment`] (segmenters), [`run`] and [`interop`] (formats), [`overlay`];
+//! - [`pipeline`] (the offline solve, segment-and-solve), [`cell`] (hardware or simulator
+//!   behind the driver traits), [`calibrate`] (the closed loop), [`daemon`] (the service),
+//!   `bench` (feature `sim`).
 
 pub mod backend;
 #[cfg(feature = "sim")]

@@ -328,7 +328,7 @@ fn cancel_stops_the_arm_and_ends_cancelled() {
         .enable_all()
         .build()
         .unwrap()
-        .block_on(easyhec_drivers::Arm::status(&arm))
+        .block_on(d.daemon.cell().arm.status())
         .unwrap();
     assert_ne!(status, easyhec_drivers::ArmStatus::Moving);
     // Cancelling an ended calibration is 409; an unknown one 404.

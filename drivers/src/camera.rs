@@ -123,8 +123,9 @@ pub struct Frame {
     /// When the exposure happened (sensor or host clock).
     pub captured_at: SystemTime,
     /// The camera's frame counter (a V4L2 buffer's sequence, a GigE Vision block id, a
-    /// simulator's frame index): it tells frames apart, and lets a simulator look up what it
-    /// rendered for a frame without the frame carrying anything a real camera would not.
+    /// simulator's frame number, from 1): it tells frames apart, and lets a simulator look up
+    /// what it rendered for a frame without the frame carrying anything a real camera would
+    /// not. 0 for a frame that did not come from a camera (an image read from disk).
     pub sequence: u64,
 }
 

@@ -105,11 +105,14 @@ impl Camera for SimCamera {
             .await
             .map_err(|e| DriverError::Connection(format!("render task: {e}")))?
             .map_err(|e| DriverError::Backend(e.into()))?;
+        // Sequence numbers start at 1: a frame read back from disk carries 0, which then
+        // never matches a simulated frame's truth.
+        let sequence = index + 1;
         if let Ok(mut truths) = self.truths.lock() {
             if truths.len() == TRUTH_MASKS_KEPT {
                 truths.pop_front();
             }
-            truths.push_back((index, frame.mask));
+            truths.push_back((sequence, frame.mask));
         }
         let i = self.scene.intrinsics();
         Ok(Frame {
@@ -117,7 +120,7 @@ impl Camera for SimCamera {
             height: i.height,
             rgb: frame.rgb,
             captured_at,
-            sequence: index,
+            sequence,
         })
     }
 }

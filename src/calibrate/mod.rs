@@ -53,7 +53,7 @@ pub struct RoundRecord {
 pub struct PlannedPose {
     /// Target joints.
     pub joints: Vec<f64>,
-    /// Ranking score (higher is better; see [`ScoreSetting`]).
+    /// Ranking score (higher is better; see [`crate::config::ScoreSetting`]).
     pub score: f64,
     /// Variance of the camera candidates' masks at this pose (computed for the best only,
     /// unless the variance ranked them all).

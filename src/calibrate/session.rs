@@ -66,6 +66,8 @@ pub(super) struct Session<'a> {
 impl<'a> Session<'a> {
     /// Checks the run's settings, opens the renderer and starts the run directory.
     pub(super) fn start(cell: &'a Cell, out: &Path, opts: &'a RunOptions) -> Result<Session<'a>> {
+        // The total time counts setup too (the renderer, a GPU device included).
+        let started = Instant::now();
         let settings = run_settings(cell, opts)?;
         let camera = cell.camera.intrinsics().clone();
         let guess = initial_guess(cell, opts, &settings)?;
@@ -87,7 +89,7 @@ impl<'a> Session<'a> {
             pb,
             renderer,
             solve_opts: SolveOptions::default(),
-            started: Instant::now(),
+            started,
             solve_s: 0.0,
             explore_s: 0.0,
             motion_s: 0.0,

@@ -262,8 +262,8 @@ pub(super) fn calibration_of(
 #[cfg(any(feature = "v4l2", feature = "aravis"))]
 pub(super) fn camera_open_error(e: easyhec_drivers::DriverError, path: &Path) -> Error {
     if let easyhec_drivers::DriverError::Backend(inner) = &e {
-        if let Some(ie) = inner.downcast_ref::<IntrinsicsError>() {
-            return intrinsics_error(ie.clone(), path);
+        if let Some(ie) = inner.downcast_ref::<easyhec_drivers::intrinsics::IntrinsicsError>() {
+            return crate::config::camera::intrinsics_error(ie.clone(), path);
         }
     }
     Error::input(path, "camera", e.to_string())

@@ -21,11 +21,28 @@ use crate::run::GroundTruth;
 use crate::scene::SimScene;
 use crate::segment::Segmenter;
 
+/// What a test may read of the simulated arm: its true joints and every command it received.
+/// Read-only on purpose: the arm itself moves only through the cell's `SafeArm`.
+#[derive(Clone)]
+pub struct SimArmLog(SimArm);
+
+impl SimArmLog {
+    /// The joints as they truly are (the reported ones carry encoder noise).
+    pub fn true_joints(&self) -> Vec<f64> {
+        self.0.true_joints()
+    }
+
+    /// Every move command received, accepted or refused, in order.
+    pub fn commands(&self) -> Vec<easyhec_mocks::CommandRecord> {
+        self.0.commands()
+    }
+}
+
 /// Handles into the simulated hardware, for tests and the truth report.
 #[derive(Clone, Default)]
 pub struct SimHandles {
-    /// The simulated arm (its command log).
-    pub arm: Option<SimArm>,
+    /// The simulated arm's log (read-only).
+    pub arm: Option<SimArmLog>,
     /// The simulated camera's true pose when the cell was built.
     pub camera_from_base: Option<Isometry3<f64>>,
     /// The simulated camera's scene: its true pose now, and a way to bump the camera
@@ -190,7 +207,7 @@ pub(super) fn attach(
         _ => segmenter,
     };
     let handles = SimHandles {
-        arm,
+        arm: arm.map(SimArmLog),
         camera_from_base: camera.as_ref().map(|c| c.camera_from_base),
         scene: camera.as_ref().map(|c| c.scene.clone()),
         camera: camera.map(|c| c.camera),

@@ -255,7 +255,7 @@ impl CameraConfig {
 
 /// A calibration-file error as a library error: the file and field at fault, and which
 /// config points at the file.
-fn intrinsics_error(e: IntrinsicsError, config_path: &Path) -> Error {
+pub(crate) fn intrinsics_error(e: IntrinsicsError, config_path: &Path) -> Error {
     Error::input(
         &e.file,
         e.field,

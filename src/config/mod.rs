@@ -5,7 +5,7 @@
 //! (`[robot]`), the safety envelope (`[safety]`), the loop's settings (`[calibration]`) and the
 //! service's (`[daemon]`). Building hardware from it is `crate::cell`'s job; this module sits
 //! below everything that interprets it, so it imports nothing above the foundation (`error`,
-//! `geometry`, `camera`, `render`'s backend choice) and the driver crate's file readers.
+//! `geometry`) and the driver crate's types and file readers.
 //!
 //! Relative paths in a config are relative to the config file. `docs/config.md` lists every key.
 

@@ -1,7 +1,7 @@
 //! The offline solve of a recorded run directory (`easyhec solve`): load, segment the views
 //! that need masks, initialise when there is no guess, select views, leave out the views no
-//! pose agrees with, write the result and the overlays. The CLI prints what it returns; the
-//! daemon and tests call it directly.
+//! pose agrees with, write the result and the overlays. The CLI prints what it returns; any
+//! other caller (a service, a test) gets the same typed outcome without spawning the binary.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -83,7 +83,7 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
     };
     let renderer =
-        open_renderer(req.renderer, false).map_err(|e| Error::input(&req.run, "--renderer", e))?;
+        open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let renderer = renderer.as_ref();
     let mut segment_s = None;
     let mut settled = None;
@@ -95,11 +95,9 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
     let total = run.views.len();
     let k = req.views.unwrap_or(total);
     if k == 0 || k > total {
-        return Err(Error::input(
-            &req.run,
-            "--views",
-            format!("{k}: the run has {total} views"),
-        ));
+        return Err(Error::Usage(format!(
+            "--views {k}: the run has {total} views"
+        )));
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
     let pool_size = if req.selection == Selection::First {

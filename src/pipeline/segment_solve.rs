@@ -1,6 +1,7 @@
 //! Segment → solve → re-segment: context-aware segmenters improve as the estimate does, and
-//! the estimate improves with the masks. Used by `easyhec solve --segmenter` and by the
-//! closed loop.
+//! the estimate improves with the masks. The one place that alternates a segmenter with the
+//! solver: `easyhec solve --segmenter` (through `pipeline::offline`), the closed loop's live
+//! frames ([`LiveFrames`]) and the daemon's bump check ([`segment_among_recorded`]).
 
 use easyhec_drivers::Frame;
 use nalgebra::Isometry3;
