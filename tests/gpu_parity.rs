@@ -31,7 +31,7 @@ fn gpu() -> Option<WgpuRenderer> {
         Err(e) => {
             assert!(
                 std::env::var("CI").is_err(),
-                "no wgpu adapter under CI (.ci/run installs mesa-vulkan-drivers): {e}"
+                "no wgpu adapter under CI (./test installs mesa-vulkan-drivers): {e}"
             );
             eprintln!("SKIPPED: {e}");
             None
