@@ -1,5 +1,6 @@
-//! Crash-safe file writes: temp file in the same folder, fsync, rename, fsync the folder.
-//! A reader sees the old file or the new one, never half of one.
+//! File I/O with guarantees. Writes are crash-safe: temp file in the same folder, fsync,
+//! rename, fsync the folder, so a reader sees the old file or the new one, never half of one.
+//! Whole-file reads of user inputs check first that the path is a bounded regular file.
 
 use std::io::Write;
 use std::path::Path;
@@ -43,4 +44,28 @@ pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<
         .map_err(|e| Error::io(path, format!("cannot serialise: {e}")))?;
     bytes.push(b'\n');
     write_atomic(path, &bytes)
+}
+
+/// Largest text input read whole (a run.json, a cell config, a result, a URDF): far above any
+/// real one, low enough that a wrong path never fills memory.
+pub const MAX_TEXT_INPUT_BYTES: u64 = 64 * 1024 * 1024;
+
+/// Reads a whole text input after checking that it is a regular file (a FIFO or a device would
+/// block or never end) of at most [`MAX_TEXT_INPUT_BYTES`].
+pub fn read_text_input(path: &Path) -> Result<String> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
+    if !meta.is_file() {
+        return Err(Error::input(path, "(file)", "is not a regular file"));
+    }
+    if meta.len() > MAX_TEXT_INPUT_BYTES {
+        return Err(Error::input(
+            path,
+            "(file)",
+            format!(
+                "is {} bytes; allowed: at most {MAX_TEXT_INPUT_BYTES}",
+                meta.len()
+            ),
+        ));
+    }
+    std::fs::read_to_string(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))
 }

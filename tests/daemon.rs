@@ -1,7 +1,9 @@
 //! `easyhec daemon` on simulated cells: the API contract (auth, 409, SSE, overlays, history,
 //! metrics, OpenAPI), cancel stopping the arm, bump detection with a warm-started
 //! recalibration, graceful shutdown, restarts that keep history and the active calibration,
-//! and a SIGKILL mid-run that leaves a re-solvable interrupted run (the real binary).
+//! a SIGKILL mid-run that leaves a re-solvable interrupted run (the real binary), activation
+//! refusals, a data folder that is reconciled rather than trusted at start, and the HTTP
+//! server's limits (1,000 idle connections, timeouts, the connection limit).
 
 mod common;
 mod daemon_common;
@@ -12,8 +14,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use daemon_common::{
-    call, call_as, full_resolution, get_bytes, read_events, real_time_arm, start, wait_final,
-    wait_for, write_config,
+    call, call_as, full_resolution, get_bytes, quarantined, raise_open_files, read_events,
+    real_time_arm, record, result_json, start, wait_final, wait_for, write_config, write_index,
+    write_result, POSE,
 };
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -243,7 +246,9 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
         &format!("{base}/api/v1/calibrations/{dry}/activate"),
         None,
     );
-    assert_eq!(code, 409, "a dry run has no result: {body}");
+    assert_eq!(code, 409, "a dry run is never activated: {body}");
+    let msg = body["error"].as_str().unwrap();
+    assert!(msg.contains(&dry) && msg.contains("dry_run"), "{msg}");
 
     // History, newest first.
     let (code, h) = call("GET", &format!("{base}/api/v1/calibrations"), None);
@@ -331,6 +336,26 @@ fn cancel_stops_the_arm_and_ends_cancelled() {
         .block_on(d.daemon.cell().arm.status())
         .unwrap();
     assert_ne!(status, easyhec_drivers::ArmStatus::Moving);
+    // A cancelled run is never activated, although the loop wrote a result for its views.
+    assert!(dir
+        .path()
+        .join("data/runs")
+        .join(&id)
+        .join("result.json")
+        .is_file());
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations/{id}/activate"),
+        None,
+    );
+    assert_eq!(code, 409, "{body}");
+    let msg = body["error"].as_str().unwrap();
+    assert!(
+        msg.contains(&id) && msg.contains("state: cancelled"),
+        "{msg}"
+    );
+    let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(code, 404, "nothing became active");
     // Cancelling an ended calibration is 409; an unknown one 404.
     let (code, _) = call(
         "POST",
@@ -509,7 +534,7 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
     assert!(err.contains("tokn") && err.contains("cell.toml"), "{err}");
     // Out-of-range values, each naming its key.
     type Tweak = fn(&mut easyhec::config::CellConfig);
-    let cases: [(Tweak, &str); 4] = [
+    let cases: [(Tweak, &str); 7] = [
         (
             |c| c.daemon.check_pose = Some(vec![0.0, 1.0]),
             "daemon.check_pose",
@@ -522,6 +547,18 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
         (
             |c| c.daemon.token = Some("has space".into()),
             "daemon.token",
+        ),
+        (
+            |c| c.daemon.max_connections = Some(0),
+            "daemon.max_connections",
+        ),
+        (
+            |c| c.daemon.header_read_timeout_s = Some(301.0),
+            "daemon.header_read_timeout_s",
+        ),
+        (
+            |c| c.daemon.idle_timeout_s = Some(f64::NAN),
+            "daemon.idle_timeout_s",
         ),
     ];
     for (tweak, key) in cases {
@@ -540,6 +577,15 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
 
 /// Starts the real binary; returns it and its base URL (read from its first stderr line).
 fn spawn_daemon(config: &Path, data: &Path) -> (Child, String) {
+    let (child, base, _) = spawn_daemon_logged(config, data);
+    (child, base)
+}
+
+/// [`spawn_daemon`], also collecting every line the daemon writes to stderr.
+fn spawn_daemon_logged(
+    config: &Path,
+    data: &Path,
+) -> (Child, String, std::sync::Arc<std::sync::Mutex<Vec<String>>>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_easyhec"))
         .args(["daemon", "--listen", "127.0.0.1:0", "--config"])
         .arg(config)
@@ -551,6 +597,8 @@ fn spawn_daemon(config: &Path, data: &Path) -> (Child, String) {
         .expect("easyhec runs");
     let stderr = child.stderr.take().unwrap();
     let (tx, rx) = std::sync::mpsc::channel();
+    let log = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let lines = log.clone();
     std::thread::spawn(move || {
         let mut sent = false;
         for line in std::io::BufReader::new(stderr)
@@ -558,6 +606,7 @@ fn spawn_daemon(config: &Path, data: &Path) -> (Child, String) {
             .map_while(Result::ok)
         {
             eprintln!("[daemon] {line}");
+            lines.lock().unwrap().push(line.clone());
             if !sent {
                 if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
                     let _ = tx.send(url.to_string());
@@ -569,7 +618,7 @@ fn spawn_daemon(config: &Path, data: &Path) -> (Child, String) {
     let base = rx
         .recv_timeout(Duration::from_secs(30))
         .expect("the daemon prints its address");
-    (child, base)
+    (child, base, log)
 }
 
 #[test]
@@ -781,5 +830,466 @@ fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
     assert!(
         iou_b < iou - 0.05 && px_b > px + 0.5,
         "the knock should cost agreement: IoU {iou} -> {iou_b}, {px} -> {px_b} px"
+    );
+}
+
+/// The error of a refused activation: 409, one line, naming the calibration and `field`.
+fn refused_activation(base: &str, id: &str, field: &str) -> String {
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations/{id}/activate"),
+        None,
+    );
+    assert_eq!(code, 409, "{id}: {body}");
+    let msg = body["error"].as_str().unwrap().to_string();
+    assert!(
+        msg.contains(id) && msg.contains(field) && !msg.contains('\n'),
+        "{id}: expected one line naming {field}: {msg}"
+    );
+    msg
+}
+
+/// Activation accepts only a succeeded, non-dry run whose own result.json, inside the data
+/// folder, holds a rigid pose: records that lie are refused, each naming the record and field.
+#[test]
+fn activation_refuses_records_that_did_not_succeed_or_point_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let runs = data.join("runs");
+    let mut scaled = POSE;
+    for row in scaled.iter_mut().take(3) {
+        for v in row.iter_mut().take(3) {
+            *v *= 1.0001;
+        }
+    }
+    write_result(&runs.join("cal-0001"), &result_json(POSE, "converged"));
+    write_result(
+        &runs.join("cal-0002"),
+        &result_json(POSE, "cancelled after 1 views"),
+    );
+    write_result(&runs.join("cal-0005"), &result_json(scaled, "converged"));
+    write_result(
+        &runs.join("cal-0007"),
+        &result_json(POSE, "cancelled after 2 views"),
+    );
+    let outside = dir.path().join("elsewhere");
+    write_result(&outside, &result_json(POSE, "converged"));
+    write_index(
+        &data,
+        &[
+            record("cal-0001", "succeeded", false, "runs/cal-0001"),
+            record("cal-0002", "cancelled", false, "runs/cal-0002"),
+            // The reported case: a failed dry run whose record points at another run's result.
+            record("cal-0003", "failed", true, "runs/cal-0001"),
+            record("cal-0004", "succeeded", false, "runs/cal-0004"),
+            record("cal-0005", "succeeded", false, "runs/cal-0005"),
+            record("cal-0006", "succeeded", false, "runs/cal-0001"),
+            record("cal-0007", "interrupted", false, "runs/cal-0007"),
+        ],
+    );
+    let d = start(&config, &data);
+    let base = d.base.clone();
+    // A run directory that now resolves outside the data folder (the daemon checked the
+    // records when it started; activation checks again).
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&outside, runs.join("cal-0004")).unwrap();
+
+    refused_activation(&base, "cal-0002", "state: cancelled");
+    refused_activation(&base, "cal-0003", "state: failed");
+    #[cfg(unix)]
+    {
+        let msg = refused_activation(&base, "cal-0004", "run_dir");
+        assert!(msg.contains("outside the data folder"), "{msg}");
+    }
+    let msg = refused_activation(&base, "cal-0005", "camera_from_base");
+    assert!(msg.contains("orthonormal"), "{msg}");
+    let msg = refused_activation(&base, "cal-0006", "run_dir");
+    assert!(msg.contains("runs/cal-0006"), "{msg}");
+    let msg = refused_activation(&base, "cal-0007", "state: interrupted");
+    assert!(msg.contains("easyhec solve"), "{msg}");
+    let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(code, 404, "every refusal left nothing active");
+
+    let (code, a) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations/cal-0001/activate"),
+        None,
+    );
+    assert_eq!(code, 200, "{a}");
+    let (code, active) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(code, 200);
+    assert_eq!(active["id"], "cal-0001");
+    assert_eq!(active["result"]["camera_from_base"], json!(POSE));
+}
+
+/// The ids of the history, newest first.
+fn history_ids(base: &str) -> Vec<String> {
+    let (code, h) = call("GET", &format!("{base}/api/v1/calibrations"), None);
+    assert_eq!(code, 200, "{h}");
+    h["calibrations"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["id"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// Starts a one-view dry run and waits for it; returns its id.
+fn dry_run(base: &str) -> String {
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations"),
+        Some(&json!({"dry_run": true, "max_views": 1})),
+    );
+    assert_eq!(code, 202, "{body}");
+    let id = body["id"].as_str().unwrap().to_string();
+    wait_final(base, &id);
+    id
+}
+
+/// A broken `index.json` is quarantined and rebuilt from `runs/`; a lost one too; run
+/// directories no record lists get records, so new ids never collide with them.
+#[test]
+fn a_lost_or_broken_index_is_rebuilt_from_the_runs_and_ids_never_collide() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let d = start(&config, &data);
+    let (_, body) = call("POST", &format!("{}/api/v1/calibrations", d.base), None);
+    let first = body["id"].as_str().unwrap().to_string();
+    let s = wait_final(&d.base, &first);
+    assert_eq!(s["state"], "succeeded", "{s}");
+    let second = dry_run(&d.base);
+    assert_eq!((first.as_str(), second.as_str()), ("cal-0001", "cal-0002"));
+    d.stop();
+
+    // Broken JSON: quarantined, and the history comes back from runs/.
+    std::fs::write(
+        data.join("index.json"),
+        "{\"format\": \"easyhec-daemon-index/1\", [",
+    )
+    .unwrap();
+    let d = start(&config, &data);
+    assert_eq!(quarantined(&data, "index.json").len(), 1);
+    assert_eq!(history_ids(&d.base), ["cal-0002", "cal-0001"]);
+    let (_, r) = call(
+        "GET",
+        &format!("{}/api/v1/calibrations/cal-0001", d.base),
+        None,
+    );
+    assert_eq!(r["state"], "interrupted", "{r}");
+    assert_eq!(r["trigger"], "unknown", "{r}");
+    assert_eq!(r["views"], s["views"], "views read back from run.json: {r}");
+    assert!(r["error"].as_str().unwrap().contains("rebuilt"), "{r}");
+    let (code, active) = call("GET", &format!("{}/api/v1/calibration", d.base), None);
+    assert_eq!((code, active["id"].as_str()), (200, Some("cal-0001")));
+    assert_eq!(dry_run(&d.base), "cal-0003");
+    // The rebuilt dry run has no result; the rebuilt full run still activates.
+    refused_activation(&d.base, "cal-0002", "result.json");
+    let (code, a) = call(
+        "POST",
+        &format!("{}/api/v1/calibrations/cal-0001/activate", d.base),
+        None,
+    );
+    assert_eq!(code, 200, "{a}");
+    d.stop();
+
+    // Lost, with a run directory no record ever listed.
+    std::fs::remove_file(data.join("index.json")).unwrap();
+    std::fs::create_dir(data.join("runs/cal-0007")).unwrap();
+    let d = start(&config, &data);
+    assert_eq!(
+        history_ids(&d.base),
+        ["cal-0007", "cal-0003", "cal-0002", "cal-0001"]
+    );
+    assert_eq!(dry_run(&d.base), "cal-0008");
+    let index: Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("index.json")).unwrap()).unwrap();
+    assert_eq!(index["calibrations"].as_array().unwrap().len(), 5);
+}
+
+/// Records that fail their checks are quarantined, not served: an id past the id space (which
+/// would wrap the next id to `cal-0000`), a duplicate, a `run_dir` outside the data folder, a
+/// non-rigid estimate. The next id neither wraps nor lands on an existing folder.
+#[test]
+fn bad_records_are_quarantined_and_a_huge_id_does_not_wrap_the_next_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let huge = format!("cal-{}", u64::MAX);
+    let mut bent = record("cal-0004", "failed", false, "runs/cal-0004");
+    bent["camera_from_base"] = json!([[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
+    write_index(
+        &data,
+        &[
+            record("cal-0001", "failed", false, "runs/cal-0001"),
+            record(&huge, "succeeded", false, &format!("runs/{huge}")),
+            record("cal-0001", "succeeded", false, "runs/cal-0001"),
+            record("cal-0003", "succeeded", false, "../../elsewhere"),
+            bent,
+        ],
+    );
+    std::fs::create_dir_all(data.join("runs").join(&huge)).unwrap();
+    std::fs::create_dir_all(data.join("runs/cal-0002")).unwrap();
+    let d = start(&config, &data);
+    // cal-0002 had a folder but no record: it gets one, and the next id skips it.
+    assert_eq!(history_ids(&d.base), ["cal-0002", "cal-0001"]);
+    let records = quarantined(&data, "index-record-");
+    assert_eq!(records.len(), 4, "{records:?}");
+    let texts: Vec<String> = records
+        .iter()
+        .map(|p| std::fs::read_to_string(p).unwrap())
+        .collect();
+    let max = u64::MAX.to_string();
+    for needle in [max.as_str(), "elsewhere", "cal-0004"] {
+        assert!(
+            texts.iter().any(|t| t.contains(needle)),
+            "{needle}: {texts:?}"
+        );
+    }
+    for id in ["cal-0003", "cal-0004", huge.as_str()] {
+        let (code, _) = call("GET", &format!("{}/api/v1/calibrations/{id}", d.base), None);
+        assert_eq!(code, 404, "{id} is not served");
+    }
+    let (_, first) = call(
+        "GET",
+        &format!("{}/api/v1/calibrations/cal-0001", d.base),
+        None,
+    );
+    assert_eq!(
+        first["state"], "failed",
+        "the first of the duplicates is kept"
+    );
+    assert_eq!(dry_run(&d.base), "cal-0003");
+}
+
+/// A bad `active.json` means no active calibration: it is quarantined with one log line naming
+/// the file and field, and never served. Another format version stops the daemon with the tag.
+#[test]
+fn a_bad_active_json_is_quarantined_and_nothing_is_active() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let mut scaled = POSE;
+    scaled[0][1] = -2.0;
+    let active = json!({
+        "format": "easyhec-daemon-active/1",
+        "id": "cal-0001",
+        "activated_at": "2026-11-25T10:00:00Z",
+        "stale": false,
+        "result": result_json(scaled, "converged"),
+    });
+    write_index(&data, &[]);
+    std::fs::write(data.join("active.json"), active.to_string()).unwrap();
+    let (mut child, base, log) = spawn_daemon_logged(&config, &data);
+    let (code, body) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(code, 404, "a non-rigid pose is not served: {body}");
+    let (_, _, metrics) = get_bytes(&format!("{base}/metrics"));
+    let metrics = String::from_utf8(metrics).unwrap();
+    assert!(
+        metrics.lines().any(|l| l == "easyhec_active_calibration 0"),
+        "{metrics}"
+    );
+    assert!(!data.join("active.json").exists());
+    assert_eq!(quarantined(&data, "active.json").len(), 1);
+    let lines = log.lock().unwrap().clone();
+    let line = lines
+        .iter()
+        .find(|l| l.contains("active.json") && l.contains("quarantined"))
+        .unwrap_or_else(|| panic!("no quarantine line in {lines:?}"));
+    assert!(line.contains("result.camera_from_base"), "{line}");
+    child.kill().unwrap();
+    child.wait().unwrap();
+
+    // Another format version stops the daemon, printing the tag as written.
+    std::fs::write(
+        data.join("index.json"),
+        r#"{"format": "easyhec-daemon-index/9", "calibrations": []}"#,
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_easyhec"))
+        .args(["daemon", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .arg("--data")
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("index.json: format: \"easyhec-daemon-index/9\"") && !err.contains("Some("),
+        "{err}"
+    );
+}
+
+/// The p-th percentile (0–100) of sorted durations, in milliseconds.
+fn percentile_ms(sorted: &[Duration], p: usize) -> f64 {
+    let i = (sorted.len() * p).div_ceil(100).saturating_sub(1);
+    sorted[i].as_secs_f64() * 1e3
+}
+
+/// Waits until the daemon holds `n` connections open.
+fn wait_open(d: &daemon_common::Running, n: u64) {
+    let t = Instant::now();
+    let open = || {
+        d.daemon
+            .http
+            .open
+            .load(std::sync::atomic::Ordering::Relaxed)
+    };
+    while open() < n {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "{} of {n} open",
+            open()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The issue's load bound: with 1,000 idle connections held open, `/healthz` (each request
+/// on a new connection) answers with p99 under 50 ms over 200 requests.
+#[test]
+fn healthz_stays_fast_with_a_thousand_idle_connections() {
+    const IDLE: usize = 1000;
+    // Both ends of every connection live in this process.
+    raise_open_files(2 * IDLE + 512);
+    let dir = tempfile::tempdir().unwrap();
+    // Long enough that no idle connection times out during the measurement.
+    let config = write_config(dir.path(), |c| c.daemon.header_read_timeout_s = Some(120.0));
+    let d = start(&config, &dir.path().join("data"));
+    let addr = d.base.trim_start_matches("http://").to_string();
+    let idle: Vec<std::net::TcpStream> = (0..IDLE)
+        .map(|i| {
+            std::net::TcpStream::connect(&addr).unwrap_or_else(|e| panic!("connection {i}: {e}"))
+        })
+        .collect();
+    wait_open(&d, IDLE as u64);
+    let url = format!("{}/healthz", d.base);
+    let mut times: Vec<Duration> = (0..200)
+        .map(|_| {
+            let t = Instant::now();
+            let (code, body) = call_as("GET", &url, None, None);
+            let took = t.elapsed();
+            assert_eq!((code, body["status"].as_str()), (200, Some("ok")));
+            took
+        })
+        .collect();
+    times.sort();
+    let (p50, p99) = (percentile_ms(&times, 50), percentile_ms(&times, 99));
+    eprintln!(
+        "healthz with {IDLE} idle connections, 200 requests: p50 {p50:.2} ms, p99 {p99:.2} ms, max {:.2} ms",
+        percentile_ms(&times, 100)
+    );
+    let still = d
+        .daemon
+        .http
+        .open
+        .load(std::sync::atomic::Ordering::Relaxed);
+    assert!(
+        still >= IDLE as u64,
+        "the idle connections were held throughout: {still}"
+    );
+    assert!(p99 < 50.0, "p99 {p99:.2} ms (p50 {p50:.2} ms)");
+    drop(idle);
+}
+
+/// Reads a connection to its end (the server closed it) and says how long that took.
+fn read_to_close(s: &mut std::net::TcpStream) -> (String, Duration) {
+    use std::io::Read;
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let t = Instant::now();
+    let mut text = Vec::new();
+    s.read_to_end(&mut text)
+        .unwrap_or_else(|e| panic!("the server did not close the connection: {e}"));
+    (String::from_utf8_lossy(&text).to_string(), t.elapsed())
+}
+
+/// One connection over `max_connections` gets a 503; a client that sends no request head is
+/// closed after `header_read_timeout_s`, one that stalls its upload after `idle_timeout_s`.
+#[test]
+fn the_connection_limit_and_the_timeouts_close_clients_that_hold_the_daemon() {
+    use std::io::Write;
+    use std::sync::atomic::Ordering::Relaxed;
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |c| {
+        c.daemon.max_connections = Some(4);
+        c.daemon.header_read_timeout_s = Some(1.0);
+        c.daemon.idle_timeout_s = Some(2.0);
+    });
+    let d = start(&config, &dir.path().join("data"));
+    let addr = d.base.trim_start_matches("http://").to_string();
+    let mut idle: Vec<std::net::TcpStream> = (0..4)
+        .map(|_| std::net::TcpStream::connect(&addr).unwrap())
+        .collect();
+    wait_open(&d, 4);
+    let mut fifth = std::net::TcpStream::connect(&addr).unwrap();
+    fifth
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .unwrap();
+    let (answer, _) = read_to_close(&mut fifth);
+    assert!(
+        answer.starts_with("HTTP/1.1 503") && answer.contains("max_connections"),
+        "{answer}"
+    );
+    assert_eq!(d.daemon.http.refused.load(Relaxed), 1);
+    for s in &mut idle {
+        let (text, took) = read_to_close(s);
+        assert!(
+            text.is_empty() || text.starts_with("HTTP/1.1 408"),
+            "{text}"
+        );
+        assert!(took < Duration::from_secs(4), "closed after {took:?}");
+    }
+    assert_eq!(d.daemon.http.header_timeouts.load(Relaxed), 4);
+
+    // A stalled upload: the head arrives, 10 of 100 body bytes, then nothing.
+    let mut stalled = std::net::TcpStream::connect(&addr).unwrap();
+    let head = format!(
+        "POST /api/v1/calibrations HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {}\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{{\"dry_run\"",
+        daemon_common::TOKEN
+    );
+    stalled.write_all(head.as_bytes()).unwrap();
+    let (_, took) = read_to_close(&mut stalled);
+    assert!(
+        took >= Duration::from_millis(1500) && took < Duration::from_secs(6),
+        "closed after {took:?}"
+    );
+    assert_eq!(d.daemon.http.idle_timeouts.load(Relaxed), 1);
+    assert!(
+        history_ids(&d.base).is_empty(),
+        "the stalled request started nothing"
+    );
+    let (code, _) = call_as("GET", &format!("{}/healthz", d.base), None, None);
+    assert_eq!(code, 200);
+}
+
+/// An overlay is rendered once per view and estimate; asking again is served from the cache.
+#[test]
+fn overlays_are_rendered_once_and_then_cached() {
+    use std::sync::atomic::Ordering::Relaxed;
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let d = start(&config, &dir.path().join("data"));
+    let (_, body) = call("POST", &format!("{}/api/v1/calibrations", d.base), None);
+    let id = body["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_final(&d.base, &id)["state"], "succeeded");
+    let url = format!("{}/api/v1/calibrations/{id}/views/0/overlay.png", d.base);
+    let (code, ctype, first) = get_bytes(&url);
+    assert_eq!((code, ctype.as_str()), (200, "image/png"));
+    for _ in 0..5 {
+        let (code, _, again) = get_bytes(&url);
+        assert_eq!(code, 200);
+        assert_eq!(again, first, "the cached PNG is the rendered one");
+    }
+    assert_eq!(d.daemon.metrics.overlay_renders.load(Relaxed), 1);
+    assert_eq!(d.daemon.metrics.overlay_hits.load(Relaxed), 5);
+    let (_, _, text) = get_bytes(&format!("{}/metrics", d.base));
+    let text = String::from_utf8(text).unwrap();
+    assert!(
+        text.lines().any(|l| l == "easyhec_overlay_renders_total 1"),
+        "{text}"
     );
 }

@@ -318,7 +318,19 @@ fn views_whose_joints_do_not_match_their_images_are_left_out() {
     assert!(result.stop_reason.contains("left out 2 inconsistent views"));
     assert_near_truth(&run, "consensus of the consistent views");
 
+    // Kept, the two bad views pull the mean IoU under the poor-fit line: the solve fails and
+    // the consensus result stays as it was.
+    let before = std::fs::read(run.join("result.json")).unwrap();
     let out = solve(&run, &["--keep-all-views"]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("poor fit") && stderr.contains("--allow-poor-fit"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(run.join("result.json")).unwrap(), before);
+
+    let out = solve(&run, &["--keep-all-views", "--allow-poor-fit"]);
     assert_ok(&out);
     let result = ResultFile::read(&run.join("result.json")).unwrap();
     assert_eq!(result.views_used, vec![0, 1, 2, 3, 4]);

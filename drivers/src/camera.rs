@@ -29,7 +29,80 @@ pub struct Intrinsics {
     pub distortion: Option<[f64; 5]>,
 }
 
+/// Longest image side accepted, pixels (a 16K sensor): it bounds every per-pixel buffer a
+/// run or a config can make the solver allocate.
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Shortest image side accepted, pixels.
+pub const MIN_IMAGE_SIDE: u32 = 8;
+/// Focal lengths accepted, as multiples of the longer image side: from about a 170° field of
+/// view (0.05) to about 1° (50). Outside that a value is a unit slip or a corrupt file, and the
+/// solver would fit a meaningless pose with a tight uncertainty.
+pub const FOCAL_RANGE_PER_SIDE: (f64, f64) = (0.05, 50.0);
+/// Largest `fx / fy` or `fy / fx` accepted: real pixels are square to within a few percent.
+pub const MAX_PIXEL_ASPECT: f64 = 2.0;
+/// Largest magnitude of a `plumb_bob` coefficient accepted.
+pub const MAX_DISTORTION_COEFFICIENT: f64 = 1e3;
+
 impl Intrinsics {
+    /// The first value outside its physical range, as `(field, what is allowed)`: image sides in
+    /// [`MIN_IMAGE_SIDE`, `MAX_IMAGE_SIDE`], focal lengths within [`FOCAL_RANGE_PER_SIDE`] of
+    /// the longer side and within [`MAX_PIXEL_ASPECT`] of each other, the principal point
+    /// strictly inside the image, finite distortion coefficients. Every reader of intrinsics
+    /// (run files, cell configs, calibration files, imports) calls this before using them.
+    pub fn range_problem(&self) -> Option<(&'static str, String)> {
+        for (name, side) in [("width", self.width), ("height", self.height)] {
+            if !(MIN_IMAGE_SIDE..=MAX_IMAGE_SIDE).contains(&side) {
+                return Some((
+                    name,
+                    format!("is {side} px; allowed: {MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE}"),
+                ));
+            }
+        }
+        let side = f64::from(self.width.max(self.height));
+        let (lo, hi) = (FOCAL_RANGE_PER_SIDE.0 * side, FOCAL_RANGE_PER_SIDE.1 * side);
+        for (name, f) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(f.is_finite() && f >= lo && f <= hi) {
+                return Some((
+                    name,
+                    format!(
+                        "is {f} px; allowed for a {}x{} image: {lo} to {hi}",
+                        self.width, self.height
+                    ),
+                ));
+            }
+        }
+        let aspect = self.fx / self.fy;
+        if !(1.0 / MAX_PIXEL_ASPECT..=MAX_PIXEL_ASPECT).contains(&aspect) {
+            return Some((
+                "fy",
+                format!(
+                    "fx/fy is {aspect:.3}; allowed: {} to {MAX_PIXEL_ASPECT} (are fx and fy in the same pixels?)",
+                    1.0 / MAX_PIXEL_ASPECT
+                ),
+            ));
+        }
+        for (name, c, extent) in [("cx", self.cx, self.width), ("cy", self.cy, self.height)] {
+            if !(c.is_finite() && c > 0.0 && c < f64::from(extent)) {
+                return Some((
+                    name,
+                    format!(
+                        "is {c} px; allowed: inside the image, 0 < {name} < {extent} (a transposed camera matrix puts the principal point at 0)"
+                    ),
+                ));
+            }
+        }
+        let bad_k = self.distortion.and_then(|d| {
+            d.into_iter()
+                .find(|k| !(k.is_finite() && k.abs() <= MAX_DISTORTION_COEFFICIENT))
+        });
+        bad_k.map(|k| {
+            (
+                "distortion",
+                format!("coefficient {k}; allowed: finite, at most {MAX_DISTORTION_COEFFICIENT} in magnitude"),
+            )
+        })
+    }
+
     /// An ideal pinhole camera.
     pub fn pinhole(width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64) -> Intrinsics {
         Intrinsics {

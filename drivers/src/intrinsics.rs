@@ -141,18 +141,19 @@ pub fn parse_intrinsics(
         ));
     }
     let distortion = reader.distortion()?;
-    Ok((
-        Intrinsics {
-            width,
-            height,
-            fx,
-            fy,
-            cx,
-            cy,
-            distortion,
-        },
-        format,
-    ))
+    let intrinsics = Intrinsics {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+        distortion,
+    };
+    if let Some((field, allowed)) = intrinsics.range_problem() {
+        return Err(IntrinsicsError::new(file, field, allowed));
+    }
+    Ok((intrinsics, format))
 }
 
 /// Refuses frames of a size other than the one the intrinsics were calibrated at: the focal

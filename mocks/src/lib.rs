@@ -23,3 +23,24 @@ pub mod xarm;
 
 pub use sim_arm::{CommandRecord, Fault, SimArm, SimArmConfig};
 pub use sim_camera::{JointSource, SceneFrame, SceneRenderer, SimCamera};
+
+/// A loopback address 127.x.y.z (x ≥ 100) unlikely to be used by anything else: for mocks that
+/// must listen on a vendor's fixed ports (which its SDK cannot be told to change) while other
+/// tests, or a mock someone started by hand, hold the same ports on 127.0.0.1.
+pub(crate) fn fresh_loopback() -> std::net::IpAddr {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static NEXT_ALIAS: AtomicU32 = AtomicU32::new(0);
+    let n = NEXT_ALIAS.fetch_add(1, Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let mut h = (std::process::id() as u64) << 32 ^ (n as u64) << 20 ^ nanos as u64;
+    h = h.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let b = h.to_be_bytes();
+    std::net::IpAddr::V4(std::net::Ipv4Addr::new(
+        127,
+        100 + b[0] % 150,
+        1 + b[1] % 250,
+        1 + b[2] % 250,
+    ))
+}

@@ -27,7 +27,6 @@ mod rtde;
 pub mod wire;
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
@@ -78,8 +77,6 @@ pub struct MockUrConfig {
 
 /// The start pose of `config/sim-ur5e.toml` (the demo camera sees the whole arm).
 pub const DEMO_UR5E_START: [f64; 6] = [0.3, -1.9, 1.6, -1.3, -1.57, 0.0];
-
-static NEXT_ALIAS: AtomicU32 = AtomicU32::new(0);
 
 impl MockUrConfig {
     /// On 127.0.0.1 with the ports of a real controller (30004, 29999, 30003).
@@ -256,23 +253,6 @@ enum Port {
     Script,
 }
 
-/// A loopback address 127.x.y.z (x ≥ 100) unlikely to be used by anything else.
-fn fresh_loopback() -> IpAddr {
-    let n = NEXT_ALIAS.fetch_add(1, Ordering::Relaxed);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
-    let mut h = (std::process::id() as u64) << 32 ^ (n as u64) << 20 ^ nanos as u64;
-    h = h.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    let b = h.to_be_bytes();
-    IpAddr::V4(Ipv4Addr::new(
-        127,
-        100 + b[0] % 150,
-        1 + b[1] % 250,
-        1 + b[2] % 250,
-    ))
-}
-
 impl MockUr {
     /// Binds the ports and starts serving on the current tokio runtime.
     pub async fn spawn(cfg: MockUrConfig) -> std::io::Result<MockUr> {
@@ -297,7 +277,7 @@ impl MockUr {
         let mut attempt = 0;
         let (rtde, dashboard, script) = loop {
             if cfg.private_loopback {
-                cfg.host = fresh_loopback();
+                cfg.host = crate::fresh_loopback();
             }
             let bind = |port: u16| TcpListener::bind(SocketAddr::new(cfg.host, port));
             let bound = async {

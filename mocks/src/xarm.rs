@@ -3,13 +3,20 @@
 //! an arm.
 //!
 //! It listens on a command port (502 on a real controller) and on report ports (30001
-//! "normal" at 5 Hz, 30003 "real" at 100 Hz); port 0 picks a free one. It answers protocol
-//! ids 2 and 3 (echoing the id), ignores heartbeats (id 1) and answers Modbus (id 0) with
-//! "illegal function". Joint moves run linearly in joint space at the commanded speed (the
-//! fastest joint at that speed, no acceleration ramps), `speedup` times faster than the wall
-//! clock. Every move is recorded with what was on the wire and whether it was accepted;
-//! targets outside the model's limits are refused with error C23, speeds or accelerations
-//! above the caps with C24, so tests can prove no unsafe command reached "the arm".
+//! "normal" at 5 Hz, 30002 "rich" at 5 Hz, 30003 "real" at 100 Hz); port 0 picks a free one.
+//! The rich port matters because it is the vendor SDK's default (`XArmAPI(ip)` reads 30002):
+//! the SDK starts no move before a report has shown it a ready arm, so without the port its
+//! client reads, `set_servo_angle(wait=True)` blocks for ever. The SDK cannot be given ports;
+//! [`MockXArmConfig::standard_ports_on_private_loopback`] serves the real ones on a loopback
+//! address of the mock's own, where they collide with nothing.
+//!
+//! It answers protocol ids 2 and 3 (echoing the id), ignores heartbeats (id 1) and answers
+//! Modbus (id 0) with "illegal function". Joint moves run linearly in joint space at the
+//! commanded speed (the fastest joint at that speed, no acceleration ramps), `speedup` times
+//! faster than the wall clock. Every move is recorded with what was on the wire and whether it
+//! was accepted; targets outside the model's limits are refused with error C23, speeds or
+//! accelerations above the caps with C24, so tests can prove no unsafe command reached "the
+//! arm".
 //!
 //! It announces firmware 1.12.10 by default: below 2.0.102 the SDK waits for motions by
 //! polling the state rather than asking for 0xFF feedback frames, which this mock does not
@@ -17,6 +24,7 @@
 //! one (no command queue); a lost client does not stop the arm unless `halt_on_disconnect`.
 
 mod controller;
+mod rich;
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -31,17 +39,23 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 
 use crate::JointSource;
-use controller::Controller;
+use controller::{Controller, ReportKind};
 
 /// Where and how the mock controller runs.
 #[derive(Clone, Debug)]
 pub struct MockXArmConfig {
     /// Address to listen on (loopback by default).
     pub host: IpAddr,
+    /// Replace `host` at spawn with a fresh 127.x.y.z, retrying while the ports are taken
+    /// there: for the standard ports, which clients like the vendor SDK cannot change.
+    pub private_loopback: bool,
     /// Command port (502 on a real controller; 0: a free port).
     pub command_port: u16,
     /// The 5 Hz "normal" report port (30001; 0: free; `None`: not served).
     pub normal_report_port: Option<u16>,
+    /// The 5 Hz "rich" report port (30002; 0: free; `None`: not served), the one the vendor
+    /// SDK reads unless told otherwise.
+    pub rich_report_port: Option<u16>,
     /// The 100 Hz "real" report port (30003; 0: free; `None`: not served).
     pub real_report_port: Option<u16>,
     /// The arm model: axes, device type, joint limits.
@@ -63,12 +77,14 @@ pub struct MockXArmConfig {
 }
 
 impl MockXArmConfig {
-    /// On 127.0.0.1 with the ports of a real controller (502, 30001, 30003).
+    /// On 127.0.0.1 with the ports of a real controller (502, 30001, 30002, 30003).
     pub fn standard_ports(model: Model) -> MockXArmConfig {
         MockXArmConfig {
             host: IpAddr::V4(Ipv4Addr::LOCALHOST),
+            private_loopback: false,
             command_port: 502,
             normal_report_port: Some(30001),
+            rich_report_port: Some(30002),
             real_report_port: Some(30003),
             model,
             start: None,
@@ -86,7 +102,20 @@ impl MockXArmConfig {
         MockXArmConfig {
             command_port: 0,
             normal_report_port: Some(0),
+            rich_report_port: Some(0),
             real_report_port: Some(0),
+            ..MockXArmConfig::standard_ports(model)
+        }
+    }
+
+    /// The ports of a real controller on a loopback address no one else uses (127.x.y.z,
+    /// picked at spawn; read it from [`MockXArm::command_addr`]): for the vendor SDK's default
+    /// constructor, which cannot be given ports, in tests running beside others that hold
+    /// them on 127.0.0.1. Port 502 still needs root (or a lowered
+    /// `net.ipv4.ip_unprivileged_port_start`).
+    pub fn standard_ports_on_private_loopback(model: Model) -> MockXArmConfig {
+        MockXArmConfig {
+            private_loopback: true,
             ..MockXArmConfig::standard_ports(model)
         }
     }
@@ -211,13 +240,39 @@ pub struct MockXArm {
     shared: Arc<Shared>,
     command_addr: SocketAddr,
     normal_report_addr: Option<SocketAddr>,
+    rich_report_addr: Option<SocketAddr>,
     real_report_addr: Option<SocketAddr>,
 }
 
 #[derive(Clone, Copy)]
 enum Port {
     Command,
-    Report { period: Duration, normal: bool },
+    Report { period: Duration, kind: ReportKind },
+}
+
+/// The listeners of one mock: command port, then the normal, rich and real report ports.
+type Listeners = (
+    TcpListener,
+    Option<TcpListener>,
+    Option<TcpListener>,
+    Option<TcpListener>,
+);
+
+/// Binds every port of `cfg` on `cfg.host`.
+async fn bind_all(cfg: &MockXArmConfig) -> std::io::Result<Listeners> {
+    let bind = |port: u16| TcpListener::bind(SocketAddr::new(cfg.host, port));
+    let optional = |port: Option<u16>| async move {
+        match port {
+            Some(p) => bind(p).await.map(Some),
+            None => Ok(None),
+        }
+    };
+    Ok((
+        bind(cfg.command_port).await?,
+        optional(cfg.normal_report_port).await?,
+        optional(cfg.rich_report_port).await?,
+        optional(cfg.real_report_port).await?,
+    ))
 }
 
 impl MockXArm {
@@ -237,15 +292,23 @@ impl MockXArm {
         if !(cfg.speedup.is_finite() && cfg.speedup > 0.0) {
             return Err(invalid(format!("speedup {} must be positive", cfg.speedup)));
         }
-        let bind = |port: u16| TcpListener::bind(SocketAddr::new(cfg.host, port));
-        let command = bind(cfg.command_port).await?;
-        let normal = match cfg.normal_report_port {
-            Some(p) => Some(bind(p).await?),
-            None => None,
-        };
-        let real = match cfg.real_report_port {
-            Some(p) => Some(bind(p).await?),
-            None => None,
+        let mut cfg = cfg;
+        let mut attempt = 0;
+        let (command, normal, rich, real) = loop {
+            if cfg.private_loopback {
+                cfg.host = crate::fresh_loopback();
+            }
+            match bind_all(&cfg).await {
+                Ok(l) => break l,
+                Err(e)
+                    if cfg.private_loopback
+                        && e.kind() == std::io::ErrorKind::AddrInUse
+                        && attempt < 20 =>
+                {
+                    attempt += 1
+                }
+                Err(e) => return Err(e),
+            }
         };
         let shared = Arc::new(Shared {
             ctl: Mutex::new(Controller::new(cfg)),
@@ -255,23 +318,24 @@ impl MockXArm {
         let mock = MockXArm {
             command_addr: command.local_addr()?,
             normal_report_addr: normal.as_ref().map(|l| l.local_addr()).transpose()?,
+            rich_report_addr: rich.as_ref().map(|l| l.local_addr()).transpose()?,
             real_report_addr: real.as_ref().map(|l| l.local_addr()).transpose()?,
             shared: shared.clone(),
         };
         tokio::spawn(accept_loop(shared.clone(), command, Port::Command));
-        if let Some(l) = normal {
-            let port = Port::Report {
-                period: Duration::from_millis(200),
-                normal: true,
-            };
-            tokio::spawn(accept_loop(shared.clone(), l, port));
-        }
-        if let Some(l) = real {
-            let port = Port::Report {
-                period: Duration::from_millis(10),
-                normal: false,
-            };
-            tokio::spawn(accept_loop(shared.clone(), l, port));
+        let reports = [
+            (normal, 200, ReportKind::Normal),
+            (rich, 200, ReportKind::Rich),
+            (real, 10, ReportKind::Real),
+        ];
+        for (listener, period_ms, kind) in reports {
+            if let Some(l) = listener {
+                let port = Port::Report {
+                    period: Duration::from_millis(period_ms),
+                    kind,
+                };
+                tokio::spawn(accept_loop(shared.clone(), l, port));
+            }
         }
         // Faults fire on time even when nobody is asking.
         tokio::spawn(async move {
@@ -295,6 +359,11 @@ impl MockXArm {
     /// The normal (30001-style) report port's address, if served.
     pub fn normal_report_addr(&self) -> Option<SocketAddr> {
         self.normal_report_addr
+    }
+
+    /// The rich (30002-style) report port's address, if served.
+    pub fn rich_report_addr(&self) -> Option<SocketAddr> {
+        self.rich_report_addr
     }
 
     /// The real (30003-style) report port's address, if served.
@@ -356,6 +425,9 @@ impl MockXArm {
         if let Some(a) = self.normal_report_addr {
             s += &format!(", normal report (5 Hz) on {a}");
         }
+        if let Some(a) = self.rich_report_addr {
+            s += &format!(", rich report (5 Hz) on {a}");
+        }
         if let Some(a) = self.real_report_addr {
             s += &format!(", real report (100 Hz) on {a}");
         }
@@ -396,12 +468,12 @@ async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: Port) {
                 };
                 tokio::spawn(serve_commands(shared.clone(), stream, id, generation));
             }
-            Port::Report { period, normal } => {
+            Port::Report { period, kind } => {
                 tokio::spawn(serve_reports(
                     shared.clone(),
                     stream,
                     period,
-                    normal,
+                    kind,
                     generation,
                 ));
             }
@@ -504,7 +576,7 @@ async fn serve_reports(
     shared: Arc<Shared>,
     mut stream: TcpStream,
     period: Duration,
-    normal: bool,
+    kind: ReportKind,
     generation: u64,
 ) {
     let mut rx = shared.signals.subscribe();
@@ -514,7 +586,7 @@ async fn serve_reports(
     loop {
         tokio::select! {
             _ = tick.tick() => {
-                let frame = shared.with(|c| c.report(normal)).encode();
+                let frame = shared.with(|c| c.report_frame(kind));
                 if stream.write_all(&frame).await.is_err() {
                     return;
                 }
@@ -528,7 +600,7 @@ async fn serve_reports(
 /// simulated camera films when the arm is a (mock or real) xArm rather than a [`crate::SimArm`].
 #[derive(Clone, Debug)]
 pub struct XArmReportJoints {
-    /// `host:port` of a report port (30001 or 30003).
+    /// `host:port` of a report port (30001, 30002 or 30003: all three begin with the joints).
     pub addr: String,
     /// Joints to keep (the arm's axes; reports always carry 7).
     pub axes: usize,

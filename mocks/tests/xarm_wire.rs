@@ -1,10 +1,12 @@
 //! The mock xArm controller on the wire: the documented request/reply vectors byte for byte,
-//! protocol-id handling, and well-formed report streams at their rates.
+//! protocol-id handling, well-formed report streams at their rates, and the rich report's
+//! layout at the offsets xarm-python-sdk 1.18.4 reads.
 
 use std::time::{Duration, Instant};
 
-use easyhec_drivers::xarm::{read_report, Model};
-use easyhec_mocks::xarm::{MockXArm, MockXArmConfig};
+use easyhec_drivers::xarm::frame::{encode_request, protocol, reg, MoveJoint};
+use easyhec_drivers::xarm::{read_report, Model, Report};
+use easyhec_mocks::xarm::{MockFault, MockXArm, MockXArmConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -163,4 +165,118 @@ async fn report_ports_stream_well_formed_frames_at_their_rates() {
         (0.35..1.2).contains(&normal_s),
         "3 normal frames took {normal_s:.3} s"
     );
+}
+
+/// One whole frame from a report port, read by its length header, on a fresh connection (the
+/// first frame goes out at once, so it shows the controller as it is now).
+async fn first_frame(addr: std::net::SocketAddr) -> Vec<u8> {
+    let mut stream = TcpStream::connect(addr).await.unwrap();
+    let mut frame = vec![0u8; 4];
+    stream.read_exact(&mut frame).await.unwrap();
+    let len = u32::from_be_bytes([frame[0], frame[1], frame[2], frame[3]]) as usize;
+    assert!((4..=2048).contains(&len), "frame length {len}");
+    frame.resize(len, 0);
+    stream.read_exact(&mut frame[4..]).await.unwrap();
+    frame
+}
+
+fn f32_at(frame: &[u8], offset: usize) -> f32 {
+    f32::from_le_bytes(frame[offset..offset + 4].try_into().unwrap())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rich_report_is_the_normal_frame_plus_the_sdk_tail() {
+    let start = vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7];
+    let mut cfg = MockXArmConfig::free_ports(Model::Xarm7);
+    cfg.start = Some(start.clone());
+    // The move below stalls half-way and keeps reporting "moving": frames read after it
+    // started show it in motion, however late they are read.
+    cfg.faults = vec![MockFault::Stall {
+        on_move: 0,
+        at_fraction: 0.5,
+    }];
+    let (speed_cap, accel_cap) = (cfg.speed_cap_rad_s as f32, cfg.accel_cap_rad_s2 as f32);
+    let mock = MockXArm::spawn(cfg).await.unwrap();
+    let rich_addr = mock.rich_report_addr().unwrap();
+
+    // At rest, motors off. Offsets below are xarm-python-sdk 1.18.4's (docs/protocols.md §1.6.3).
+    let rest = first_frame(rich_addr).await;
+    assert_eq!(rest.len(), 587);
+    assert_eq!(&rest[..4], &587u32.to_be_bytes());
+    // It opens with the normal frame, byte for byte apart from the length.
+    let normal = first_frame(mock.normal_report_addr().unwrap()).await;
+    assert_eq!(&rest[4..145], &normal[4..145]);
+    let r = Report::parse(&rest).unwrap();
+    assert_eq!(r.joints_rad[6], 0.7);
+    assert_eq!((r.state, r.mode), (4, 0));
+    let n = r.normal.unwrap();
+    assert_eq!((n.error_code, n.motors_enabled, n.brakes), (0, 0, 0));
+    // Identity: device type, axes, master and slave ids, firmware text.
+    assert_eq!(
+        &rest[145..149],
+        &[Model::Xarm7.device_type(), 7, 0xAA, 0x55]
+    );
+    assert!(
+        rest[151..181].starts_with(b"v1.12.10\0"),
+        "{:?}",
+        &rest[151..181]
+    );
+    // Joint acceleration and speed limits are the mock's caps.
+    assert_eq!(
+        (f32_at(&rest, 209), f32_at(&rest, 217)),
+        (accel_cap, speed_cap)
+    );
+    // No servo faults; temperatures; nothing moving.
+    assert!(rest[229..245].iter().all(|&b| b == 0));
+    assert_eq!(&rest[245..252], &[30; 7]);
+    for k in 0..8 {
+        assert_eq!(f32_at(&rest, 252 + 4 * k), 0.0, "speed slot {k}");
+    }
+    // Joint voltages, u16 BE in hundredths of a volt.
+    for k in 0..7 {
+        assert_eq!(&rest[341 + 2 * k..343 + 2 * k], &4800u16.to_be_bytes());
+    }
+    // Reduced-mode joint ranges: the model's limits.
+    for (k, (lo, hi)) in Model::Xarm7.joint_limits().into_iter().enumerate() {
+        let at = 516 + 8 * k;
+        assert_eq!(
+            (f32_at(&rest, at), f32_at(&rest, at + 4)),
+            (lo as f32, hi as f32)
+        );
+    }
+
+    // Enable, ready, and a move: J1 +0.5 rad, J7 -0.25 rad at 0.5 rad/s.
+    let mut s = TcpStream::connect(mock.command_addr()).await.unwrap();
+    let target = [0.6, 0.2, 0.3, 0.4, 0.5, 0.6, 0.45];
+    let requests = [
+        (reg::MOTION_EN, vec![8, 1]),
+        (reg::SET_MODE, vec![0]),
+        (reg::SET_STATE, vec![0]),
+        (reg::MOVE_JOINT, MoveJoint::new(&target, 0.5, 5.0).encode()),
+    ];
+    for (t, (register, params)) in requests.into_iter().enumerate() {
+        let request = encode_request(t as u16 + 1, protocol::PRIVATE, register, &params);
+        exchange(&mut s, &request).await;
+    }
+    assert!(mock.commands()[0].accepted, "{:?}", mock.commands());
+
+    let moving = first_frame(rich_addr).await;
+    assert_eq!(moving.len(), 587);
+    let r = Report::parse(&moving).unwrap();
+    assert_eq!(r.state, 1, "moving");
+    assert_eq!(r.normal.unwrap().motors_enabled, 0x7F);
+    // (The joints that stay put move by the f32 rounding of their targets: nearly 0.)
+    let speeds: Vec<f32> = (0..7).map(|k| f32_at(&moving, 256 + 4 * k)).collect();
+    let want = [0.5, 0.0, 0.0, 0.0, 0.0, 0.0, -0.25];
+    assert!(
+        speeds.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6),
+        "{speeds:?}"
+    );
+
+    // An error shows in the normal part of the rich frame too.
+    mock.inject_error(31);
+    let stopped = first_frame(rich_addr).await;
+    let r = Report::parse(&stopped).unwrap();
+    assert_eq!((r.state, r.normal.unwrap().error_code), (4, 31));
+    assert!((0..7).all(|k| f32_at(&stopped, 256 + 4 * k) == 0.0));
 }

@@ -87,6 +87,8 @@ impl Cell {
 
     /// Builds from an already parsed config (`path` resolves relative paths).
     pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
+        // Every value that needs only the file, before anything is read or opened.
+        config.validate(path)?;
         // A bad calibration file fails here, before any hardware is opened.
         let calibration = config.camera.calibration(path)?;
         // So does a bad segmentation model.
@@ -101,7 +103,6 @@ impl Cell {
             .map(|j| (j.lower, j.upper, j.max_velocity))
             .collect();
         let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
-        config.calibration.validate(path)?;
         config.daemon.validate(path, robot.actuated.len())?;
         #[cfg(feature = "sim")]
         let (segmenter, sim) = sim::attach(&config, path, segmenter, arm.sim, camera.sim)?;

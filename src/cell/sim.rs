@@ -88,6 +88,7 @@ pub(super) fn arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Si
         ));
     }
     let urdf_limits = robot.joint_limits();
+    check_start(start, &urdf_limits, robot, path)?;
     let joints: Vec<JointLimit> = robot
         .joint_names()
         .iter()
@@ -110,6 +111,30 @@ pub(super) fn arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Si
         faults: faults.iter().map(fault).collect(),
         seed: *seed,
     }))
+}
+
+/// A simulated arm cannot stand outside its own joint limits: a start there is a typo (often
+/// degrees for radians), and every later path check would start from an impossible pose.
+fn check_start(
+    start: &[f64],
+    limits: &[(f64, f64)],
+    robot: &RobotModel,
+    path: &Path,
+) -> Result<()> {
+    let names = robot.joint_names();
+    for (k, (&q, &(lo, hi))) in start.iter().zip(limits).enumerate() {
+        if !(q.is_finite() && q >= lo && q <= hi) {
+            return Err(Error::input(
+                path,
+                format!("arm.start[{k}]"),
+                format!(
+                    "is {q}; allowed: within joint '{}' limits [{lo}, {hi}] rad",
+                    names[k]
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn fault(f: &FaultConfig) -> Fault {

@@ -4,6 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Context};
 use clap::Args;
+use easyhec::error::Error;
+use easyhec::interop::export::check_frame_name;
 use easyhec::interop::{export, ExportFormat};
 use easyhec::run::ResultFile;
 
@@ -26,7 +28,9 @@ pub struct ExportArgs {
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
     let format: ExportFormat = a.format.parse().map_err(|e: String| anyhow!(e))?;
     let result = ResultFile::read(&a.result)?;
-    let text = export(&result, format, &a.camera_frame);
+    check_frame_name(&result.base_link)
+        .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
+    let text = export(&result, format, &a.camera_frame)?;
     match a.out {
         Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
             .with_context(|| format!("writing {}", p.display()))?,

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Subcommand;
 use easyhec::interop::{import_easyhec, EasyHecImport};
-use easyhec::robot::RobotModel;
+use easyhec::robot::{RobotModel, RobotSource};
 
 use super::urdf_for_run;
 
@@ -26,6 +26,9 @@ pub enum ImportCommand {
         /// Links the masks leave out (e.g. fingers).
         #[arg(long, value_delimiter = ',')]
         ignore_links: Vec<String>,
+        /// Replace OUT when it exists and is not empty (refused otherwise).
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -39,7 +42,8 @@ impl ImportCommand {
                 urdf,
                 joints,
                 ignore_links,
-            } => easyhec(dir, out, urdf, joints, ignore_links),
+                force,
+            } => easyhec(dir, out, urdf, joints, ignore_links, force),
         }
     }
 }
@@ -51,14 +55,17 @@ pub fn easyhec(
     urdf: PathBuf,
     joints: Option<Vec<String>>,
     ignore_links: Vec<String>,
+    force: bool,
 ) -> anyhow::Result<()> {
-    let joints = match joints {
-        Some(j) => j,
-        None => {
-            let robot = RobotModel::from_urdf(urdf.clone())?;
-            robot.joint_names().iter().map(|s| s.to_string()).collect()
-        }
-    };
+    // The URDF is loaded with the named joints and links, so a misspelt, fixed or repeated
+    // joint fails here, before anything is read from the source folder.
+    let robot = RobotModel::load(&RobotSource {
+        urdf: urdf.clone(),
+        joints: joints.clone(),
+        ignore_links: ignore_links.clone(),
+        ..Default::default()
+    })?;
+    let joints = robot.joint_names().iter().map(|s| s.to_string()).collect();
     let run = import_easyhec(&EasyHecImport {
         source: dir,
         out: out.clone(),
@@ -66,6 +73,7 @@ pub fn easyhec(
         joints,
         ignore_links,
         initial_guess: None,
+        force,
     })?;
     println!("imported {} views into {}", run.views.len(), out.display());
     Ok(())

@@ -49,6 +49,10 @@ pub struct SolveArgs {
     /// With --segmenter: write the masks it made into this folder (NNN.mask.png).
     #[arg(long, requires = "segmenter")]
     pub masks_out: Option<PathBuf>,
+    /// Write the result even when the fit is poor (mean IoU under 0.8, or fewer than two
+    /// views left that agree); by default such a solve fails and writes nothing.
+    #[arg(long)]
+    pub allow_poor_fit: bool,
 }
 
 /// Solves the run and prints the outcome (remarks on stderr as they happen).
@@ -77,6 +81,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         segmenter,
         ignore_masks: a.ignore_masks,
         masks_out: a.masks_out,
+        allow_poor_fit: a.allow_poor_fit,
     };
     let outcome = solve_run(&request, &mut |line| eprintln!("{line}"))?;
     if !outcome.poor_views.is_empty() {

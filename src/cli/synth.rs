@@ -57,8 +57,62 @@ pub struct SynthArgs {
     pub truncate: bool,
 }
 
+/// Most views `easyhec synth` makes: a calibration uses 3–10, benchmarks up to 20; this keeps
+/// one call under a minute.
+pub const MAX_SYNTH_VIEWS: usize = 100;
+
+/// The flags' ranges, checked before anything is loaded or allocated.
+fn check_args(a: &SynthArgs) -> Result<(), easyhec::error::Error> {
+    use easyhec::error::Error;
+    if !(1..=MAX_SYNTH_VIEWS).contains(&a.views) {
+        return Err(Error::Usage(format!(
+            "--views is {}; allowed: 1 to {MAX_SYNTH_VIEWS}",
+            a.views
+        )));
+    }
+    let (w, h) = (a.width, a.height);
+    let camera = easyhec::camera::Intrinsics::pinhole(
+        w,
+        h,
+        a.focal,
+        a.focal,
+        (f64::from(w) - 1.0) / 2.0,
+        (f64::from(h) - 1.0) / 2.0,
+    );
+    if let Some((field, allowed)) = camera.range_problem() {
+        let flag = match field {
+            "width" => "--width",
+            "height" => "--height",
+            _ => "--focal",
+        };
+        return Err(Error::Usage(format!("{flag} {allowed}")));
+    }
+    if let Some(k) = a
+        .distortion
+        .iter()
+        .flatten()
+        .find(|k| !(k.is_finite() && k.abs() <= 1e3))
+    {
+        return Err(Error::Usage(format!(
+            "--distortion has {k}; allowed: finite coefficients of at most 1000 in magnitude"
+        )));
+    }
+    let need =
+        u64::from(w) * u64::from(h) * a.views as u64 * easyhec::run::SOLVE_BYTES_PER_VIEW_PIXEL;
+    match easyhec::run::available_memory_bytes() {
+        Some(free) if need > free => Err(Error::Usage(format!(
+            "--views {} at {w}x{h} needs about {:.1} GB; this machine has {:.1} GB available",
+            a.views,
+            need as f64 / 1e9,
+            free as f64 / 1e9
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Writes a synthetic run with its ground truth.
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
+    check_args(&a)?;
     let robot = RobotModel::load(&RobotSource {
         urdf: a.robot.clone(),
         ignore_links: a.ignore_links.clone(),

@@ -1,8 +1,9 @@
 //! `[daemon]` in a cell config: where the daemon listens, its token, its data folder and the
-//! bump check. Every key has a default, so a cell config without the table still runs a
-//! daemon (given a token in `EASYHEC_TOKEN`).
+//! bump check, and the limits of its HTTP server. Every key has a default, so a cell config
+//! without the table still runs a daemon (given a token in `EASYHEC_TOKEN`).
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
@@ -52,7 +53,39 @@ pub struct DaemonSettings {
     /// `POST /api/v1/calibrations/{id}/activate` does.
     #[serde(default = "yes")]
     pub activate_on_success: bool,
+    /// Seconds a connection may take to send a complete request head, counted from when it
+    /// opens or from its previous response (so it also bounds an idle keep-alive connection).
+    /// Absent: [`HEADER_READ_TIMEOUT_S`]. An option, so that configs without it serialise as
+    /// before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub header_read_timeout_s: Option<f64>,
+    /// Seconds a connection may move no byte either way (a stalled request body, a client
+    /// that stops reading) before it is closed; a handler at work with the whole request does
+    /// not count as idle. Absent: [`IDLE_TIMEOUT_S`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub idle_timeout_s: Option<f64>,
+    /// Open connections at most; one more is answered 503 and closed. Absent:
+    /// [`MAX_CONNECTIONS`]. The daemon lowers it to what its open-file limit allows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_connections: Option<usize>,
 }
+
+/// Default `header_read_timeout_s`: long enough for any client on a LAN, short enough that a
+/// client which connects and says nothing does not hold a connection for long.
+pub const HEADER_READ_TIMEOUT_S: f64 = 10.0;
+/// Largest `header_read_timeout_s`.
+pub const HEADER_READ_TIMEOUT_MAX_S: f64 = 300.0;
+/// Default `idle_timeout_s`.
+pub const IDLE_TIMEOUT_S: f64 = 60.0;
+/// Smallest `idle_timeout_s` (an idle event stream sends a keep-alive comment every third of
+/// it, at most every 15 s, so it is never cut).
+pub const IDLE_TIMEOUT_MIN_S: f64 = 2.0;
+/// Largest `idle_timeout_s`.
+pub const IDLE_TIMEOUT_MAX_S: f64 = 3600.0;
+/// Default `max_connections`: room for a thousand idle clients and the ones that matter.
+pub const MAX_CONNECTIONS: usize = 2048;
+/// Largest `max_connections`.
+pub const MAX_CONNECTIONS_MAX: usize = 65_536;
 
 fn default_listen() -> String {
     "127.0.0.1:8787".into()
@@ -77,6 +110,51 @@ impl Default for DaemonSettings {
 }
 
 impl DaemonSettings {
+    /// `header_read_timeout_s`, or its default.
+    pub fn header_read_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.header_read_timeout_s.unwrap_or(HEADER_READ_TIMEOUT_S))
+    }
+
+    /// `idle_timeout_s`, or its default.
+    pub fn idle_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.idle_timeout_s.unwrap_or(IDLE_TIMEOUT_S))
+    }
+
+    /// `max_connections`, or its default.
+    pub fn max_connections(&self) -> usize {
+        self.max_connections.unwrap_or(MAX_CONNECTIONS)
+    }
+
+    /// Checks the HTTP server's limits, naming the key at fault.
+    fn validate_http(&self, path: &Path) -> Result<()> {
+        let bad = |f: &str, m: String| Err(Error::input(path, format!("daemon.{f}"), m));
+        if let Some(s) = self.header_read_timeout_s {
+            if !(s.is_finite() && (1.0..=HEADER_READ_TIMEOUT_MAX_S).contains(&s)) {
+                return bad(
+                    "header_read_timeout_s",
+                    format!("{s}: use 1 to {HEADER_READ_TIMEOUT_MAX_S} seconds (default {HEADER_READ_TIMEOUT_S})"),
+                );
+            }
+        }
+        if let Some(s) = self.idle_timeout_s {
+            if !(s.is_finite() && (IDLE_TIMEOUT_MIN_S..=IDLE_TIMEOUT_MAX_S).contains(&s)) {
+                return bad(
+                    "idle_timeout_s",
+                    format!("{s}: use {IDLE_TIMEOUT_MIN_S} to {IDLE_TIMEOUT_MAX_S} seconds (default {IDLE_TIMEOUT_S})"),
+                );
+            }
+        }
+        if let Some(n) = self.max_connections {
+            if !(1..=MAX_CONNECTIONS_MAX).contains(&n) {
+                return bad(
+                    "max_connections",
+                    format!("{n}: use 1 to {MAX_CONNECTIONS_MAX} (default {MAX_CONNECTIONS})"),
+                );
+            }
+        }
+        Ok(())
+    }
+
     /// Checks ranges, naming the key at fault; `joints` is the arm's joint count.
     pub fn validate(&self, path: &Path, joints: usize) -> Result<()> {
         let bad = |f: &str, m: String| Err(Error::input(path, format!("daemon.{f}"), m));
@@ -129,6 +207,6 @@ impl DaemonSettings {
                 return bad("check_pose", "every joint must be a finite number".into());
             }
         }
-        Ok(())
+        self.validate_http(path)
     }
 }

@@ -12,6 +12,7 @@
 pub mod arm;
 pub mod calibration;
 pub mod camera;
+pub mod checks;
 pub mod daemon;
 pub mod robot;
 pub mod safety;
@@ -84,12 +85,17 @@ pub(crate) fn seconds(
 
 /// Reads and parses a cell config, with one-line errors naming the key.
 pub fn read_config(path: &Path) -> Result<CellConfig> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::io(path, format!("cannot read cell config: {e}")))?;
-    toml::from_str(&text).map_err(|e| {
+    let text = crate::io::read_text_input(path)?;
+    parse_config(&text, path)
+}
+
+/// Parses cell-config text; `path` is what errors name. Parsing only: [`CellConfig::validate`]
+/// checks the values.
+pub fn parse_config(text: &str, path: &Path) -> Result<CellConfig> {
+    toml::from_str(text).map_err(|e| {
         let line = e
             .span()
-            .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
+            .map(|s| text.get(..s.start).unwrap_or(text).lines().count().max(1))
             .unwrap_or(0);
         Error::input(path, format!("line {line}"), e.message().replace('\n', " "))
     })

@@ -14,7 +14,7 @@ pub struct SafetyConfig {
     #[serde(default = "default_speed_cap")]
     pub speed_cap_rad_s: f64,
     /// Per-joint sub-ranges `[lower, upper]` (radians) the calibration may use.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact_pairs")]
     pub joint_ranges: BTreeMap<String, [f64; 2]>,
     /// Clearance kept between links and to obstacles, metres.
     #[serde(default = "default_margin")]
@@ -35,6 +35,23 @@ pub struct SafetyConfig {
     /// estimate for a pose to be worth visiting.
     #[serde(default = "default_min_in_image")]
     pub min_in_image: f64,
+}
+
+/// `joint_ranges` with exactly two values per joint: a plain `[f64; 2]` would take the first two
+/// of `[a, b, c]` and drop the rest without a word.
+fn exact_pairs<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<BTreeMap<String, [f64; 2]>, D::Error> {
+    let raw = BTreeMap::<String, Vec<f64>>::deserialize(d)?;
+    raw.into_iter()
+        .map(|(name, v)| match v[..] {
+            [lo, hi] => Ok((name, [lo, hi])),
+            _ => Err(serde::de::Error::custom(format!(
+                "joint_ranges.{name} has {} values; allowed: [lower, upper]",
+                v.len()
+            ))),
+        })
+        .collect()
 }
 
 fn default_speed_cap() -> f64 {

@@ -3,7 +3,7 @@
 //! protect_reads = true`; `/`, `/app.js`, `/openapi.json` and `/healthz` are always open. Errors are JSON
 //! `{"error": "…"}`; a start while the arm is leased is 409 with `"running": ID`.
 
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use axum::body::Bytes;
@@ -17,14 +17,11 @@ use axum::{Json, Router};
 use serde_json::json;
 use tokio::sync::broadcast;
 
-use super::store::State as RunState;
-use super::{bump, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
-use crate::camera::LensWarp;
+use super::store::{CalibrationRecord, State as RunState};
+use super::validate::inside;
+use super::{bump, overlays, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
 use crate::geometry::from_rows;
-use crate::mask::Mask;
-use crate::overlay::overlay_image;
-use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
-use crate::run::RunFile;
+use crate::run::{RunFile, ViewEntry};
 
 /// The web page (embedded; no build step).
 const INDEX_HTML: &str = include_str!("web/index.html");
@@ -238,8 +235,9 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
             }
         }
     });
+    let every = super::http::keep_alive_interval(d.settings().idle_timeout());
     Ok(Sse::new(stream)
-        .keep_alive(KeepAlive::default())
+        .keep_alive(KeepAlive::new().interval(every))
         .into_response())
 }
 
@@ -253,58 +251,25 @@ async fn overlay(
     let record = d
         .status(&id)
         .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
-    let run_dir = d.store().run_dir(&record);
-    let json = run_dir.join("run.json");
-    let run = RunFile::read(&json)
-        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no views yet")))?;
-    let Some(view) = run.views.get(n).cloned() else {
-        return Err(Refusal::NotFound(format!(
-            "calibration {id} has {} views; view {n} does not exist",
-            run.views.len()
-        )));
-    };
+    let (run_dir, view) = overlay_view(&d, &record, n)?;
     let rows = record.camera_from_base.ok_or_else(|| {
         Refusal::Conflict(format!(
             "calibration {id} has no estimate yet: retry after its first round"
         ))
     })?;
-    let pose = from_rows(&rows).map_err(Refusal::Internal)?;
-    let cell = d.cell().clone();
-    let png = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, Refusal> {
-        let camera = cell.camera.intrinsics().clone();
-        let mask_rel = view
-            .mask
-            .ok_or_else(|| Refusal::NotFound(format!("view {n} has no mask")))?;
-        let observed = camera.undistort_mask(&Mask::load(&run_dir.join(mask_rel))?);
-        if view.joints.len() != cell.robot.actuated.len() {
-            return Err(Refusal::Internal(format!(
-                "view {n} has {} joints; the cell's robot has {}",
-                view.joints.len(),
-                cell.robot.actuated.len()
-            )));
+    let key = overlays::Key::new(
+        &id,
+        n,
+        &rows,
+        overlays::mask_path(&run_dir, &view).as_deref(),
+    );
+    let png = match d.overlays.get(&key) {
+        Some(png) => {
+            d.metrics.overlay_hits.fetch_add(1, Ordering::Relaxed);
+            png
         }
-        let rendered = CpuRenderer
-            .render(
-                &PosedRobot::new(&cell.robot, &view.joints),
-                &camera.undistorted(),
-                &pose,
-                None,
-            )
-            .mask;
-        // The colour frame is in the distorted image: only a pinhole camera's lines up.
-        let background = view
-            .image
-            .filter(|_| !camera.is_distorted())
-            .and_then(|p| image::open(run_dir.join(p)).ok())
-            .map(|i| i.to_rgb8());
-        let img = overlay_image(&rendered, &observed, background.as_ref());
-        let mut bytes = std::io::Cursor::new(Vec::new());
-        img.write_to(&mut bytes, image::ImageFormat::Png)
-            .map_err(|e| Refusal::Internal(format!("encoding the overlay: {e}")))?;
-        Ok(bytes.into_inner())
-    })
-    .await
-    .map_err(|e| Refusal::Internal(format!("overlay task: {e}")))??;
+        None => render_overlay(&d, run_dir, n, view, &rows, key).await?,
+    };
     Ok((
         [
             (header::CONTENT_TYPE, "image/png"),
@@ -313,6 +278,63 @@ async fn overlay(
         png,
     )
         .into_response())
+}
+
+/// The run directory and view `n` of a calibration, with the view's files checked to lie
+/// inside the data folder (`run.json` is read back from disk, so it is not trusted).
+fn overlay_view(
+    d: &Daemon,
+    record: &CalibrationRecord,
+    n: usize,
+) -> Result<(std::path::PathBuf, ViewEntry), Refusal> {
+    let id = &record.id;
+    let store = d.store();
+    let run_dir = inside(store.dir(), store.canonical_dir(), &record.run_dir)
+        .map_err(|m| Refusal::Conflict(format!("calibration {id}: run_dir: {m}")))?;
+    let run = RunFile::read(&run_dir.join("run.json"))
+        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no views yet")))?;
+    let Some(view) = run.views.get(n).cloned() else {
+        return Err(Refusal::NotFound(format!(
+            "calibration {id} has {} views; view {n} does not exist",
+            run.views.len()
+        )));
+    };
+    for (field, file) in [("mask", &view.mask), ("image", &view.image)] {
+        if let Some(f) = file {
+            inside(
+                store.dir(),
+                store.canonical_dir(),
+                &format!("{}/{f}", record.run_dir),
+            )
+            .map_err(|m| {
+                Refusal::Conflict(format!(
+                    "calibration {id}: run.json views[{n}].{field}: {m}"
+                ))
+            })?;
+        }
+    }
+    Ok((run_dir, view))
+}
+
+/// Renders an overlay on a blocking thread and keeps it in the cache.
+async fn render_overlay(
+    d: &Shared,
+    run_dir: std::path::PathBuf,
+    n: usize,
+    view: ViewEntry,
+    rows: &[[f64; 4]; 4],
+    key: overlays::Key,
+) -> Result<Bytes, Refusal> {
+    let pose = from_rows(rows).map_err(Refusal::Internal)?;
+    let cell = d.cell().clone();
+    let png =
+        tokio::task::spawn_blocking(move || overlays::render(&cell, &run_dir, n, &view, &pose))
+            .await
+            .map_err(|e| Refusal::Internal(format!("overlay task: {e}")))??;
+    d.metrics.overlay_renders.fetch_add(1, Ordering::Relaxed);
+    let png = Bytes::from(png);
+    d.overlays.put(key, png.clone());
+    Ok(png)
 }
 
 async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
@@ -364,107 +386,30 @@ async fn checks(State(d): State<Shared>) -> Json<serde_json::Value> {
     Json(json!({ "checks": c }))
 }
 
-async fn metrics(State(d): State<Shared>) -> Response {
+/// Appends one metric in the Prometheus text format.
+fn metric(s: &mut String, name: &str, kind: &str, help: &str, lines: &[(String, f64)]) {
     use std::fmt::Write;
-    let m = &d.metrics;
-    let mut s = String::new();
-    let mut metric = |name: &str, kind: &str, help: &str, lines: &[(String, f64)]| {
-        let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
-        for (labels, v) in lines {
-            let _ = writeln!(s, "{name}{labels} {v}");
-        }
-    };
-    let one = |v: f64| vec![(String::new(), v)];
-    let count = |a: &std::sync::atomic::AtomicU64| a.load(Ordering::Relaxed) as f64;
-    metric(
-        "easyhec_calibrations_started_total",
-        "counter",
-        "Calibrations started since the daemon started.",
-        &one(count(&m.started)),
-    );
-    let finished: Vec<(String, f64)> = FINISHED_STATES
-        .iter()
-        .zip(&m.finished)
-        .map(|(s, c)| (format!("{{state=\"{}\"}}", s.name()), count(c)))
-        .collect();
-    metric(
-        "easyhec_calibrations_finished_total",
-        "counter",
-        "Calibrations ended since the daemon started, by final state.",
-        &finished,
-    );
-    let running = matches!(d.busy(), Some(Busy::Calibration(_)));
-    metric(
-        "easyhec_calibration_running",
-        "gauge",
-        "1 while a calibration runs.",
-        &one(f64::from(u8::from(running))),
-    );
-    metric(
-        "easyhec_views_captured_total",
-        "counter",
-        "Views captured by calibrations.",
-        &one(count(&m.views)),
-    );
-    let active = d.store().active();
-    metric(
-        "easyhec_active_calibration",
-        "gauge",
-        "1 when a calibration is active.",
-        &one(f64::from(u8::from(active.is_some()))),
-    );
-    metric(
-        "easyhec_calibration_stale",
-        "gauge",
-        "1 when a bump check found the active calibration no longer fits.",
-        &one(f64::from(u8::from(
-            active.as_ref().is_some_and(|a| a.stale),
-        ))),
-    );
-    metric(
-        "easyhec_bump_checks_total",
-        "counter",
-        "Bump checks run.",
-        &one(count(&m.checks)),
-    );
-    metric(
-        "easyhec_bumps_detected_total",
-        "counter",
-        "Bump checks that found the camera moved.",
-        &one(count(&m.bumps)),
-    );
-    metric(
-        "easyhec_bump_check_errors_total",
-        "counter",
-        "Bump checks that failed (capture, motion, segmentation).",
-        &one(count(&m.check_errors)),
-    );
-    if m.checks.load(Ordering::Relaxed) > 0 {
-        metric(
-            "easyhec_last_check_iou",
-            "gauge",
-            "IoU of the last bump check.",
-            &one(f64::from_bits(m.last_iou.load(Ordering::Relaxed))),
-        );
-        metric(
-            "easyhec_last_check_boundary_px",
-            "gauge",
-            "Mean outline distance of the last bump check, pixels.",
-            &one(f64::from_bits(m.last_boundary_px.load(Ordering::Relaxed))),
-        );
+    let _ = writeln!(s, "# HELP {name} {help}\n# TYPE {name} {kind}");
+    for (labels, v) in lines {
+        let _ = writeln!(s, "{name}{labels} {v}");
     }
-    let interrupted = d
-        .store()
-        .records()
-        .iter()
-        .filter(|r| r.state == RunState::Interrupted)
-        .count();
-    metric(
-        "easyhec_calibrations_interrupted_in_history",
-        "gauge",
-        "Calibrations in the history that a shutdown or crash interrupted.",
-        &one(interrupted as f64),
-    );
+}
+
+/// One unlabelled value.
+fn one(v: f64) -> Vec<(String, f64)> {
+    vec![(String::new(), v)]
+}
+
+/// A counter's value.
+fn count(a: &AtomicU64) -> f64 {
+    a.load(Ordering::Relaxed) as f64
+}
+
+async fn metrics(State(d): State<Shared>) -> Response {
+    let mut s = String::new();
+    calibration_metrics(&d, &mut s);
+    check_metrics(&d, &mut s);
+    server_metrics(&d, &mut s);
     (
         [(
             header::CONTENT_TYPE,
@@ -473,4 +418,159 @@ async fn metrics(State(d): State<Shared>) -> Response {
         s,
     )
         .into_response()
+}
+
+/// Calibrations: started, finished by state, running, views, active, stale, interrupted.
+fn calibration_metrics(d: &Daemon, s: &mut String) {
+    let m = &d.metrics;
+    metric(
+        s,
+        "easyhec_calibrations_started_total",
+        "counter",
+        "Calibrations started since the daemon started.",
+        &one(count(&m.started)),
+    );
+    let finished: Vec<(String, f64)> = FINISHED_STATES
+        .iter()
+        .zip(&m.finished)
+        .map(|(st, c)| (format!("{{state=\"{}\"}}", st.name()), count(c)))
+        .collect();
+    metric(
+        s,
+        "easyhec_calibrations_finished_total",
+        "counter",
+        "Calibrations ended since the daemon started, by final state.",
+        &finished,
+    );
+    let running = matches!(d.busy(), Some(Busy::Calibration(_)));
+    metric(
+        s,
+        "easyhec_calibration_running",
+        "gauge",
+        "1 while a calibration runs.",
+        &one(f64::from(u8::from(running))),
+    );
+    metric(
+        s,
+        "easyhec_views_captured_total",
+        "counter",
+        "Views captured by calibrations.",
+        &one(count(&m.views)),
+    );
+    let active = d.store().active();
+    metric(
+        s,
+        "easyhec_active_calibration",
+        "gauge",
+        "1 when a calibration is active.",
+        &one(f64::from(u8::from(active.is_some()))),
+    );
+    metric(
+        s,
+        "easyhec_calibration_stale",
+        "gauge",
+        "1 when a bump check found the active calibration no longer fits.",
+        &one(f64::from(u8::from(
+            active.as_ref().is_some_and(|a| a.stale),
+        ))),
+    );
+    let interrupted = d
+        .store()
+        .records()
+        .iter()
+        .filter(|r| r.state == RunState::Interrupted)
+        .count();
+    metric(
+        s,
+        "easyhec_calibrations_interrupted_in_history",
+        "gauge",
+        "Calibrations in the history that a shutdown or crash interrupted.",
+        &one(interrupted as f64),
+    );
+}
+
+/// Bump checks: run, bumps, errors, and the last check's agreement.
+fn check_metrics(d: &Daemon, s: &mut String) {
+    let m = &d.metrics;
+    metric(
+        s,
+        "easyhec_bump_checks_total",
+        "counter",
+        "Bump checks run.",
+        &one(count(&m.checks)),
+    );
+    metric(
+        s,
+        "easyhec_bumps_detected_total",
+        "counter",
+        "Bump checks that found the camera moved.",
+        &one(count(&m.bumps)),
+    );
+    metric(
+        s,
+        "easyhec_bump_check_errors_total",
+        "counter",
+        "Bump checks that failed (capture, motion, segmentation).",
+        &one(count(&m.check_errors)),
+    );
+    if m.checks.load(Ordering::Relaxed) > 0 {
+        metric(
+            s,
+            "easyhec_last_check_iou",
+            "gauge",
+            "IoU of the last bump check.",
+            &one(f64::from_bits(m.last_iou.load(Ordering::Relaxed))),
+        );
+        metric(
+            s,
+            "easyhec_last_check_boundary_px",
+            "gauge",
+            "Mean outline distance of the last bump check, pixels.",
+            &one(f64::from_bits(m.last_boundary_px.load(Ordering::Relaxed))),
+        );
+    }
+}
+
+/// The HTTP server and the overlay cache.
+fn server_metrics(d: &Daemon, s: &mut String) {
+    let (m, h) = (&d.metrics, &d.http);
+    metric(
+        s,
+        "easyhec_overlay_renders_total",
+        "counter",
+        "Overlays rendered (a cached one is not rendered again).",
+        &one(count(&m.overlay_renders)),
+    );
+    metric(
+        s,
+        "easyhec_overlay_cache_hits_total",
+        "counter",
+        "Overlays served from the cache.",
+        &one(count(&m.overlay_hits)),
+    );
+    metric(
+        s,
+        "easyhec_http_connections_open",
+        "gauge",
+        "HTTP connections open now.",
+        &one(count(&h.open)),
+    );
+    metric(
+        s,
+        "easyhec_http_connections_refused_total",
+        "counter",
+        "Connections refused with 503 at [daemon] max_connections.",
+        &one(count(&h.refused)),
+    );
+    let timeouts = vec![
+        ("{reason=\"header\"}".to_string(), count(&h.header_timeouts)),
+        ("{reason=\"idle\"}".to_string(), count(&h.idle_timeouts)),
+    ];
+    metric(
+        s,
+        "easyhec_http_connections_timed_out_total",
+        "counter",
+        "Connections closed by the header-read or idle timeout.",
+        &timeouts,
+    );
 }

@@ -3,19 +3,28 @@
 //!
 //! # Layout
 //! - the `[daemon]` table of a cell config lives in [`crate::config::daemon`].
-//! - [`store`]: the data folder (history index, active calibration, checks, run directories).
+//! - [`store`]: the data folder (history index, active calibration, checks, run directories);
+//!   [`reconcile`] reads it back at start without trusting it, with the checks of
+//!   [`validate`].
+//! - [`activation`]: which calibration may become the active one.
 //! - [`bump`]: the bump check (silhouette under the active calibration vs a fresh mask).
-//! - [`api`]: the axum router (JSON API, SSE progress, overlays, metrics, OpenAPI, web page).
+//! - [`api`]: the axum router (JSON API, SSE progress, overlays, metrics, OpenAPI, web page);
+//!   [`overlays`] renders and caches the overlay PNGs.
+//! - [`http`]: the HTTP/1 server under the router (connection limit, timeouts).
 //!
 //! One device lease: a calibration or a bump check holds the arm and camera; a second request
 //! gets 409 naming the holder. The loop's planning and solving are CPU-bound and blocking, so
 //! each calibration runs on its own named thread with a single-threaded tokio runtime; the
 //! HTTP runtime only ever waits on channels and locks held for microseconds.
 
+pub mod activation;
 pub mod api;
 pub mod bump;
-
+pub mod http;
+pub mod overlays;
+pub mod reconcile;
 pub mod store;
+pub mod validate;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -31,7 +40,6 @@ use crate::calibrate::{calibrate, Progress, RunOptions};
 use crate::cell::Cell;
 use crate::error::{Error, Result};
 use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
-use crate::run::ResultFile;
 use crate::time::rfc3339;
 
 use crate::config::DaemonSettings;
@@ -141,6 +149,10 @@ pub struct Metrics {
     pub last_iou: AtomicU64,
     /// Last check's boundary distance, as f64 bits.
     pub last_boundary_px: AtomicU64,
+    /// Overlays rendered.
+    pub overlay_renders: AtomicU64,
+    /// Overlays served from the cache.
+    pub overlay_hits: AtomicU64,
 }
 
 /// Final states in [`Metrics::finished`] order.
@@ -163,6 +175,9 @@ pub struct Daemon {
     shutdown_tx: watch::Sender<bool>,
     /// Counters for `/metrics`.
     pub metrics: Metrics,
+    /// The HTTP server's connection counters.
+    pub http: Arc<http::HttpStats>,
+    overlays: overlays::Cache,
     recovery: Recovery,
 }
 
@@ -201,6 +216,8 @@ impl Daemon {
             shutting_down: AtomicBool::new(false),
             shutdown_tx,
             metrics: Metrics::default(),
+            http: Arc::default(),
+            overlays: overlays::Cache::default(),
             recovery,
         }))
     }
@@ -287,7 +304,7 @@ impl Daemon {
         }
         // Hold the jobs lock while choosing the id so two starts cannot pick the same one.
         let jobs_guard = lock(&self.jobs);
-        let id = self.store.next_id();
+        let id = self.store.next_id()?;
         self.lease(Busy::Calibration(id.clone()))?;
         let record = CalibrationRecord {
             id: id.clone(),
@@ -376,19 +393,19 @@ impl Daemon {
         });
     }
 
+    /// Ends a job: frees the arm and counts it first, then publishes the final record, so a
+    /// client that sees the final state can start the next calibration at once (no 409).
     fn finish(&self, job: &Job, state: State, f: impl FnOnce(&mut CalibrationRecord)) {
-        let mut id = String::new();
+        if let Some(k) = FINISHED_STATES.iter().position(|s| *s == state) {
+            self.metrics.finished[k].fetch_add(1, Ordering::Relaxed);
+        }
+        self.release(&Busy::Calibration(job.record().id));
         self.update(job, "state", None, |r| {
             f(r);
             r.state = state;
             r.phase = None;
             r.finished_at = Some(now());
-            id = r.id.clone();
         });
-        if let Some(k) = FINISHED_STATES.iter().position(|s| *s == state) {
-            self.metrics.finished[k].fetch_add(1, Ordering::Relaxed);
-        }
-        self.release(&Busy::Calibration(id));
     }
 
     /// The calibration thread: runs the loop on a single-threaded runtime and records the end.
@@ -441,9 +458,7 @@ impl Daemon {
                 // Activate before the record turns final: a client that sees "succeeded" may
                 // check against the active calibration at once (it got 409 in between).
                 if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
-                    if let Err(e) = self.store.activate(&id, o.result.clone(), &now()) {
-                        eprintln!("easyhec daemon: {id}: cannot activate: {e}");
-                    }
+                    self.activate_new(&id, &o.result);
                 }
                 self.finish(job, state, |r| {
                     r.stop_reason = Some(o.result.stop_reason.clone());
@@ -556,27 +571,16 @@ impl Daemon {
         Ok(job.record())
     }
 
-    /// Makes calibration `id` active: any ended calibration whose run directory holds a
-    /// `result.json` (a succeeded run, or an interrupted one re-solved with `easyhec solve`).
-    pub fn activate(&self, id: &str) -> std::result::Result<store::ActiveFile, Refusal> {
-        let record = self
-            .status(id)
-            .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
-        if !record.state.is_final() {
-            return Err(Refusal::Conflict(format!(
-                "calibration {id} is still {}",
-                record.state.name()
-            )));
+    /// Activates a calibration that just succeeded, unless its pose is not rigid (logged:
+    /// a solver bug must not reach the robot controllers).
+    fn activate_new(&self, id: &str, result: &crate::run::ResultFile) {
+        if let Err((field, m)) = reconcile::check_result_pose(result) {
+            eprintln!("easyhec daemon: {id}: result {field}: {m}; not activated");
+            return;
         }
-        let path = self.store.run_dir(&record).join("result.json");
-        if !path.is_file() {
-            return Err(Refusal::Conflict(format!(
-                "calibration {id} has no result ({} is missing; a dry run has none, an interrupted run gets one from `easyhec solve`)",
-                path.display()
-            )));
+        if let Err(e) = self.store.activate(id, result.clone(), &now()) {
+            eprintln!("easyhec daemon: {id}: cannot activate: {e}");
         }
-        let result = ResultFile::read(&path).map_err(|e| Refusal::Conflict(e.to_string()))?;
-        Ok(self.store.activate(id, result, &now())?)
     }
 
     /// Begins shutdown: refuses new work, cancels a running calibration (stopping the arm
@@ -651,31 +655,28 @@ pub fn resolve_token(cell: &Cell) -> Result<String> {
 }
 
 /// Runs the daemon on `listener` until `shutdown` resolves, then stops any calibration
-/// (arm first) and drains the server. Scheduled bump checks run when configured.
+/// (arm first) and drains the server. Scheduled bump checks run when configured. The soft
+/// open-file limit is raised first, since every connection is a file descriptor.
 pub async fn serve(
     daemon: Arc<Daemon>,
     listener: tokio::net::TcpListener,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> Result<()> {
+    let limits = http::Limits::resolve(&daemon.settings, http::open_file_limit());
     let router = api::router(daemon.clone());
     let scheduler = daemon
         .settings
         .check_interval_s
         .map(|s| tokio::spawn(bump::schedule(daemon.clone(), Duration::from_secs_f64(s))));
     let d = daemon.clone();
-    let addr = listener
-        .local_addr()
-        .map(|a| a.to_string())
-        .unwrap_or_default();
-    let served = axum::serve(listener, router)
-        .with_graceful_shutdown(async move {
-            shutdown.await;
-            eprintln!("easyhec daemon: shutting down (stopping any motion first)");
-            d.shutdown().await;
-        })
-        .await;
+    let stopping = async move {
+        shutdown.await;
+        eprintln!("easyhec daemon: shutting down (stopping any motion first)");
+        d.shutdown().await;
+    };
+    http::run(listener, router, limits, daemon.http.clone(), stopping).await;
     if let Some(s) = scheduler {
         s.abort();
     }
-    served.map_err(|e| Error::Hardware(format!("HTTP server on {addr}: {e}")))
+    Ok(())
 }

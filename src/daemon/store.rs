@@ -11,16 +11,19 @@
 //! Every file is replaced atomically (temp file, fsync, rename: [`crate::io`]). A record is
 //! rewritten at each state change and each round, so after a crash the index says how far a
 //! run got; [`Store::open`] marks runs that were queued or running as `interrupted`, with the
-//! view count read back from their `run.json`.
+//! view count read back from their `run.json`. Nothing read back is trusted: see
+//! [`super::reconcile`] for the checks and the `DATA/quarantine/` folder.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use serde::{Deserialize, Serialize};
 
+use super::reconcile;
+use super::validate::{canonical_dir, id_for, id_number, MAX_ID};
 use crate::error::{Error, Result};
 use crate::io::write_json_atomic;
-use crate::run::{ResultFile, RunFile, UncertaintyEntry};
+use crate::run::{ResultFile, UncertaintyEntry};
 
 /// `index.json` format tag.
 pub const INDEX_FORMAT: &str = "easyhec-daemon-index/1";
@@ -208,6 +211,7 @@ struct Inner {
 /// written through on every change.
 pub struct Store {
     dir: PathBuf,
+    canonical: PathBuf,
     inner: Mutex<Inner>,
 }
 
@@ -218,83 +222,44 @@ pub struct Recovery {
     pub interrupted: Vec<String>,
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path, tag: &str) -> Result<Option<T>> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(Error::io(path, format!("cannot read: {e}"))),
-    };
-    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-        Error::input(
-            path,
-            format!("line {} column {}", e.line(), e.column()),
-            format!("invalid JSON ({e}): restore it from a backup or move it away (the run directories are intact)"),
-        )
-    })?;
-    match value.get("format").and_then(|f| f.as_str()) {
-        Some(t) if t == tag => {}
-        other => {
-            return Err(Error::input(
-                path,
-                "format",
-                format!("{other:?}: this easyhec reads {tag}; move the file away to start afresh"),
-            ))
-        }
-    }
-    serde_json::from_value(value)
-        .map(Some)
-        .map_err(|e| Error::input(path, "content", format!("{e}")))
-}
-
 fn lock(m: &Mutex<Inner>) -> std::sync::MutexGuard<'_, Inner> {
     m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 impl Store {
-    /// Opens (or creates) the data folder and repairs what a crash left: calibrations that
-    /// were queued or running become `interrupted`, with their recorded view count.
+    /// Opens (or creates) the data folder and reconciles it with `runs/`
+    /// ([`super::reconcile`]): a lost index is rebuilt, records and `active.json` that fail
+    /// their checks are quarantined, and calibrations that were queued or running become
+    /// `interrupted`, with their recorded view count.
     pub fn open(dir: &Path, now: &str) -> Result<(Store, Recovery)> {
         std::fs::create_dir_all(dir.join("runs"))
             .map_err(|e| Error::io(dir, format!("cannot create the data folder: {e}")))?;
-        let mut records = read_json::<IndexFile>(&dir.join("index.json"), INDEX_FORMAT)?
-            .map(|f| f.calibrations)
-            .unwrap_or_default();
-        let active = read_json::<ActiveFile>(&dir.join("active.json"), ACTIVE_FORMAT)?;
-        let checks = read_json::<ChecksFile>(&dir.join("checks.json"), CHECKS_FORMAT)?
-            .map(|f| f.checks)
-            .unwrap_or_default();
-        let mut recovery = Recovery::default();
-        for r in records.iter_mut().filter(|r| !r.state.is_final()) {
-            r.state = State::Interrupted;
-            r.phase = None;
-            r.finished_at = Some(now.to_string());
-            if let Ok(run) = RunFile::read(&dir.join(&r.run_dir).join("run.json")) {
-                r.views = run.views.len();
-            }
-            r.error = Some(format!(
-                "the daemon stopped during this run ({} views recorded); re-solve it with `easyhec solve {}`",
-                r.views,
-                dir.join(&r.run_dir).display()
-            ));
-            recovery.interrupted.push(r.id.clone());
-        }
+        let canonical = canonical_dir(dir).map_err(|m| Error::io(dir, m))?;
+        let loaded = reconcile::load(dir, &canonical, now)?;
         let store = Store {
             dir: dir.to_path_buf(),
+            canonical,
             inner: Mutex::new(Inner {
-                records,
-                active,
-                checks,
+                records: loaded.records,
+                active: loaded.active,
+                checks: loaded.checks,
             }),
         };
-        if !recovery.interrupted.is_empty() {
+        if loaded.index_changed {
             store.write_index(&lock(&store.inner))?;
         }
-        Ok((store, recovery))
+        Ok((store, loaded.recovery))
     }
 
     /// The data folder.
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// The data folder as the file system resolves it (symbolic links followed): what paths
+    /// read from records must stay under.
+    pub fn canonical_dir(&self) -> &Path {
+        &self.canonical
     }
 
     /// Absolute run directory of a record.
@@ -312,16 +277,31 @@ impl Store {
         )
     }
 
-    /// A fresh id: one past the highest `cal-NNNN` in the history.
-    pub fn next_id(&self) -> String {
+    /// A fresh id: one past the highest in the history, skipping any id whose run directory
+    /// already exists (a folder the index lost must not be written into). Numbers are checked:
+    /// past [`MAX_ID`] the search starts again from 1, so an id never wraps to `cal-0000`.
+    pub fn next_id(&self) -> Result<String> {
         let inner = lock(&self.inner);
-        let n = inner
+        let taken = |n: u64| {
+            let id = id_for(n);
+            inner.records.iter().any(|r| r.id == id) || self.dir.join("runs").join(&id).exists()
+        };
+        let highest = inner
             .records
             .iter()
-            .filter_map(|r| r.id.strip_prefix("cal-")?.parse::<u64>().ok())
+            .filter_map(|r| id_number(&r.id))
             .max()
             .unwrap_or(0);
-        format!("cal-{:04}", n + 1)
+        (highest + 1..=MAX_ID)
+            .chain(1..=highest)
+            .find(|&n| !taken(n))
+            .map(id_for)
+            .ok_or_else(|| {
+                Error::io(
+                    self.dir.join("runs"),
+                    format!("every id up to cal-{MAX_ID} is taken"),
+                )
+            })
     }
 
     /// Inserts or replaces a record (by id) and rewrites `index.json`.

@@ -52,6 +52,8 @@ pub struct OfflineSolve {
     pub ignore_masks: bool,
     /// With a segmenter: where to write the masks it made.
     pub masks_out: Option<PathBuf>,
+    /// Write the result even when the fit is poor ([`judge_fit`]).
+    pub allow_poor_fit: bool,
 }
 
 /// What an offline solve produced.
@@ -82,6 +84,13 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         (Some(_), true) => load_run_with(&req.run, MaskSource::Image)?,
         (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
     };
+    let total = run.views.len();
+    let k = req.views.unwrap_or(total);
+    if k == 0 || k > total {
+        return Err(Error::Usage(format!(
+            "--views {k}: the run has {total} views"
+        )));
+    }
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let renderer = renderer.as_ref();
@@ -91,13 +100,6 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         let t = Instant::now();
         settled = segment_run(&mut run, config, renderer, req.masks_out.as_deref(), note)?;
         segment_s = Some(t.elapsed().as_secs_f64());
-    }
-    let total = run.views.len();
-    let k = req.views.unwrap_or(total);
-    if k == 0 || k > total {
-        return Err(Error::Usage(format!(
-            "--views {k}: the run has {total} views"
-        )));
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
     let pool_size = if req.selection == Selection::First {
@@ -151,6 +153,9 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
             "the solve diverged (non-finite pose): check the initial guess and the masks".into(),
         ));
     }
+    if !req.allow_poor_fit {
+        judge_fit(&order, &report, k)?;
+    }
     let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
     result.views_used = order.clone();
     result.per_view = order
@@ -187,7 +192,7 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
     let poor_views = order
         .iter()
         .zip(&report.per_view_iou)
-        .filter(|(_, &iou)| iou < 0.8)
+        .filter(|(_, &iou)| iou < POOR_FIT_IOU)
         .map(|(&v, _)| v)
         .collect();
     Ok(OfflineOutcome {
@@ -199,6 +204,26 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         solve_s,
         poor_views,
     })
+}
+
+/// Refuses a fit that no one should use, before anything is written: a mean IoU under
+/// [`POOR_FIT_IOU`] means the rendered robot does not match the masks (wrong joints, intrinsics
+/// or URDF), and a consensus that leaves fewer than two of several views means the views
+/// contradict each other. In both cases the covariance describes a wrong model and would
+/// still look tight, so the solve fails unless `--allow-poor-fit` is given.
+pub fn judge_fit(order: &[usize], report: &SolveReport, solved: usize) -> Result<()> {
+    let mean = report.mean_iou();
+    if mean.is_nan() || mean < POOR_FIT_IOU {
+        return Err(Error::Solve(format!(
+            "poor fit: mean IoU {mean:.3} over views {order:?} is below {POOR_FIT_IOU}; no result written (check joints, intrinsics and URDF against the masks, or pass --allow-poor-fit)"
+        )));
+    }
+    if solved >= 2 && order.len() < 2 {
+        return Err(Error::Solve(format!(
+            "poor fit: the views contradict each other and only view {order:?} of {solved} is left; no result written (check joint-read timing, or pass --allow-poor-fit)"
+        )));
+    }
+    Ok(())
 }
 
 /// No guess: search for one (docs/method.md §6) over the first views.

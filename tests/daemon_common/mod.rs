@@ -270,3 +270,95 @@ pub fn read_events(base: &str, id: &str) -> Vec<(String, Value)> {
     }
     out
 }
+
+/// Raises this process's soft open-file limit to at least `need` (up to the hard limit):
+/// the tests that hold many connections open need one descriptor per socket on each side.
+/// Panics, naming both limits, when the hard limit is too low: such a test is never skipped.
+#[cfg(unix)]
+pub fn raise_open_files(need: usize) {
+    let mut r = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit only writes the struct it is given.
+    assert_eq!(unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut r) }, 0);
+    let need = need as libc::rlim_t;
+    if r.rlim_cur < need {
+        assert!(
+            r.rlim_max >= need,
+            "this test needs {need} open files; the hard limit is {} (raise it: ulimit -Hn)",
+            r.rlim_max
+        );
+        r.rlim_cur = need;
+        // SAFETY: setrlimit only reads the struct it is given.
+        assert_eq!(unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &r) }, 0);
+    }
+}
+
+/// A rigid `camera_from_base` (90° about z, then a shift) and its inverse.
+pub const POSE: [[f64; 4]; 4] = [
+    [0.0, -1.0, 0.0, 0.1],
+    [1.0, 0.0, 0.0, 0.2],
+    [0.0, 0.0, 1.0, 0.8],
+    [0.0, 0.0, 0.0, 1.0],
+];
+/// The inverse of [`POSE`].
+pub const POSE_INV: [[f64; 4]; 4] = [
+    [0.0, 1.0, 0.0, -0.2],
+    [-1.0, 0.0, 0.0, 0.1],
+    [0.0, 0.0, 1.0, -0.8],
+    [0.0, 0.0, 0.0, 1.0],
+];
+
+/// An `easyhec-result/1` body with `camera_from_base` = `rows`.
+pub fn result_json(rows: [[f64; 4]; 4], stop_reason: &str) -> Value {
+    serde_json::json!({
+        "format": "easyhec-result/1",
+        "camera_from_base": rows,
+        "base_from_camera": POSE_INV,
+        "base_link": "link_base",
+        "views_used": [0],
+        "per_view": [{"view": 0, "iou": 0.95}],
+        "stop_reason": stop_reason,
+        "timings_s": {},
+    })
+}
+
+/// Writes `DIR/result.json` (creating `DIR`).
+pub fn write_result(dir: &Path, result: &Value) {
+    std::fs::create_dir_all(dir).unwrap();
+    std::fs::write(dir.join("result.json"), result.to_string()).unwrap();
+}
+
+/// A calibration record as the daemon's index keeps it.
+pub fn record(id: &str, state: &str, dry_run: bool, run_dir: &str) -> Value {
+    serde_json::json!({
+        "id": id,
+        "state": state,
+        "trigger": "api",
+        "dry_run": dry_run,
+        "max_views": 4,
+        "created_at": "2026-11-25T10:00:00Z",
+        "finished_at": "2026-11-25T10:01:00Z",
+        "run_dir": run_dir,
+        "views": 1,
+    })
+}
+
+/// Writes `DATA/index.json` with `records`.
+pub fn write_index(data: &Path, records: &[Value]) {
+    std::fs::create_dir_all(data.join("runs")).unwrap();
+    let index = serde_json::json!({"format": "easyhec-daemon-index/1", "calibrations": records});
+    std::fs::write(data.join("index.json"), index.to_string()).unwrap();
+}
+
+/// The files in `DATA/quarantine/` whose names start with `prefix`.
+pub fn quarantined(data: &Path, prefix: &str) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(data.join("quarantine")) else {
+        return Vec::new();
+    };
+    entries
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix))
+        .collect()
+}

@@ -22,7 +22,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// A UFACTORY controller: private protocol on 502, reports on 30001 (5 Hz) and 30003 (100 Hz).
+    /// A UFACTORY controller: private protocol on 502, reports on 30001 (normal, 5 Hz), 30002
+    /// (rich, 5 Hz, the vendor SDK's default) and 30003 (real, 100 Hz).
     Xarm(XarmArgs),
     /// A Universal Robots e-Series controller (UR5e): RTDE on 30004, dashboard on 29999,
     /// URScript on 30003, with ur_rtde's control-script handshake.
@@ -64,7 +65,7 @@ struct XarmArgs {
     /// Address to listen on.
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
-    /// Pick free ports instead of 502/30001/30003 (printed on start).
+    /// Pick free ports instead of 502/30001/30002/30003 (printed on start).
     #[arg(long)]
     free_ports: bool,
     /// Start joints, radians, comma-separated [default: the demo pose for xarm6, else zeros].

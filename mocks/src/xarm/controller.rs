@@ -7,7 +7,24 @@ use easyhec_drivers::xarm::frame::{f32s_le, reg, status, MoveJoint, Version};
 use easyhec_drivers::xarm::report::{NormalFields, Report};
 use easyhec_drivers::xarm::Model;
 
+use super::rich::{self, RichFields};
 use super::{MockFault, MockXArmConfig, MoveRecord, RequestRecord};
+
+/// Which report a report port streams.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum ReportKind {
+    /// Port 30003, 87 bytes.
+    Real,
+    /// Port 30001, 145 bytes.
+    Normal,
+    /// Port 30002, [`rich::RICH_LEN`] bytes.
+    Rich,
+}
+
+/// Motor temperature reported for every joint, °C (nothing heats up in a simulation).
+const MOTOR_TEMPERATURE_C: i8 = 30;
+/// Joint supply voltage reported, hundredths of a volt (the arm's 48 V bus).
+const JOINT_VOLTAGE_CV: u16 = 4800;
 
 /// What happens when a move reaches a fault's fraction.
 #[derive(Clone, Debug)]
@@ -247,8 +264,67 @@ impl Controller {
         v
     }
 
-    /// The report frame the controller pushes now.
-    pub(super) fn report(&self, normal: bool) -> Report {
+    /// Joint speeds now, rad/s: the running segment's, otherwise 0. A stalled arm keeps
+    /// reporting them, as it keeps reporting "moving".
+    fn joint_velocity(&self) -> Vec<f64> {
+        self.seg
+            .as_ref()
+            .map(|s| s.velocity())
+            .unwrap_or_else(|| vec![0.0; self.q.len()])
+    }
+
+    /// The bytes of the report frame `kind` the controller pushes now.
+    pub(super) fn report_frame(&self, kind: ReportKind) -> Vec<u8> {
+        match kind {
+            ReportKind::Real => self.report(false).encode(),
+            ReportKind::Normal => self.report(true).encode(),
+            ReportKind::Rich => rich::encode(self.report(true).encode(), &self.rich_fields()),
+        }
+    }
+
+    /// The rich report's tail (§1.6.3), from the same state as the normal fields: the model's
+    /// identity and joint ranges, the caps this mock enforces as the joint speed and
+    /// acceleration limits, and the joints' speeds along the running move.
+    fn rich_fields(&self) -> RichFields {
+        let axes = self.cfg.model.axes();
+        let mut temperatures = [0i8; 7];
+        let mut voltages_cv = [0u16; 7];
+        let mut reduced_joint_ranges = [(0f32, 0f32); 7];
+        for (k, &(lo, hi)) in self.limits.iter().enumerate().take(7) {
+            temperatures[k] = MOTOR_TEMPERATURE_C;
+            voltages_cv[k] = JOINT_VOLTAGE_CV;
+            reduced_joint_ranges[k] = (lo as f32, hi as f32);
+        }
+        let mut joint_speeds = [0f32; 7];
+        joint_speeds.copy_from_slice(&self.joints7(&self.joint_velocity()));
+        let speed_cap = self.cfg.speed_cap_rad_s as f32;
+        RichFields {
+            arm_type: self.cfg.model.device_type(),
+            axes: axes as u8,
+            version: format!("v{}", self.cfg.firmware),
+            // The SDK's own defaults for the Cartesian limits: the mock has no kinematics.
+            tcp_limits: [1000.0, 1.0, 50000.0, 0.1, 1000.0],
+            joint_limits: [
+                20.0,
+                0.01,
+                self.cfg.accel_cap_rad_s2 as f32,
+                0.0001,
+                speed_cap,
+            ],
+            rot_limits: [2.3, 2.7],
+            temperatures,
+            // The reported pose is 0 throughout, so the TCP never moves.
+            tcp_speed: 0.0,
+            joint_speeds,
+            collision_detection: true,
+            voltages_cv,
+            reduced_max_speeds: [1000.0, speed_cap],
+            reduced_joint_ranges,
+        }
+    }
+
+    /// The report the controller pushes now (normal fields included or not).
+    fn report(&self, normal: bool) -> Report {
         let mut joints = [0f32; 7];
         joints.copy_from_slice(&self.joints7(&self.q));
         let axes_mask = (1u8 << self.cfg.model.axes()) - 1;
@@ -370,12 +446,7 @@ impl Controller {
                 let kinds = params.first().copied().unwrap_or(1).clamp(1, 3);
                 let mut out = f32s_le(&self.joints7(&self.q));
                 if kinds >= 2 {
-                    let v = self
-                        .seg
-                        .as_ref()
-                        .map(|s| s.velocity())
-                        .unwrap_or_else(|| vec![0.0; self.q.len()]);
-                    out.extend(f32s_le(&self.joints7(&v)));
+                    out.extend(f32s_le(&self.joints7(&self.joint_velocity())));
                 }
                 if kinds >= 3 {
                     out.extend(f32s_le(&[0.0; 7]));

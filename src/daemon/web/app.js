@@ -225,8 +225,10 @@ function showHistory(list, activeId) {
       tr.append(td);
     }
     const td = document.createElement("td");
-    const final = !["queued", "running"].includes(c.state);
-    if (final && c.id !== activeId && !c.dry_run && c.state !== "failed") {
+    // The daemon activates only a succeeded run, or an interrupted one re-solved offline
+    // (its refusal says why otherwise).
+    const activatable = ["succeeded", "interrupted"].includes(c.state);
+    if (activatable && c.id !== activeId && !c.dry_run) {
       const b = document.createElement("button");
       b.textContent = "Activate";
       b.onclick = async () => {

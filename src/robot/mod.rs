@@ -14,6 +14,8 @@ use crate::error::{Error, Result};
 use crate::geometry::from_xyz_rpy;
 use crate::mesh::{load_mesh_file, TriMesh};
 
+mod urdf_numbers;
+
 /// Joint type as FK needs it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JointKind {
@@ -228,10 +230,10 @@ impl RobotModel {
     /// Loads a URDF and its visual meshes.
     pub fn load(src: &RobotSource) -> Result<RobotModel> {
         let urdf_path = &src.urdf;
-        let text = std::fs::read_to_string(urdf_path)
-            .map_err(|e| Error::io(urdf_path, format!("cannot read URDF: {e}")))?;
+        let text = crate::io::read_text_input(urdf_path)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
+        urdf_numbers::check(&urdf, urdf_path)?;
         let links: Vec<String> = urdf.links.iter().map(|l| l.name.clone()).collect();
         let link_index: HashMap<&str, usize> = links
             .iter()
@@ -547,6 +549,21 @@ fn tree_order(joints: &[Joint], links: &[String], urdf_path: &Path) -> Result<(u
     Ok((root, order))
 }
 
+/// A joint listed twice would be driven by two entries of every joint vector, and the second
+/// silently wins: refuse it.
+fn check_unique_joints(names: &[String], urdf_path: &Path) -> Result<()> {
+    for (k, n) in names.iter().enumerate() {
+        if let Some(first) = names[..k].iter().position(|m| m == n) {
+            return Err(Error::input(
+                urdf_path,
+                format!("robot.joints[{k}]"),
+                format!("'{n}' is listed twice (also robot.joints[{first}]): list each joint once"),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Actuated joints in joint-vector order: the configured list (validated: known, not mimic,
 /// not fixed) or, by default, every movable non-mimic joint in tree order.
 fn actuated_joints(
@@ -556,6 +573,9 @@ fn actuated_joints(
     order: &[usize],
     urdf_path: &Path,
 ) -> Result<Vec<usize>> {
+    if let Some(names) = &src.joints {
+        check_unique_joints(names, urdf_path)?;
+    }
     Ok(match &src.joints {
         Some(names) => names
             .iter()

@@ -15,6 +15,13 @@ use crate::geometry::{from_rows, to_rows};
 use crate::mask::Mask;
 use crate::robot::{RobotModel, RobotSource};
 
+mod checks;
+
+pub(crate) use checks::check_run_file;
+pub use checks::{
+    available_memory_bytes, MAX_RUN_JOINTS, MAX_RUN_VIEWS, SOLVE_BYTES_PER_VIEW_PIXEL,
+};
+
 /// Run-directory format tag.
 pub const RUN_FORMAT: &str = "easyhec-run/1";
 /// Result format tag.
@@ -22,9 +29,13 @@ pub const RESULT_FORMAT: &str = "easyhec-result/1";
 
 /// Reads a JSON file and checks its `format` tag; errors name the line or the field.
 fn read_tagged_json(path: &Path, tag: &str) -> Result<serde_json::Value> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
-    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+    let text = crate::io::read_text_input(path)?;
+    parse_tagged_json(&text, path, tag)
+}
+
+/// [`read_tagged_json`] on text already read.
+fn parse_tagged_json(text: &str, path: &Path, tag: &str) -> Result<serde_json::Value> {
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
         Error::input(
             path,
             format!("line {} column {}", e.line(), e.column()),
@@ -44,6 +55,23 @@ fn read_tagged_json(path: &Path, tag: &str) -> Result<serde_json::Value> {
             format!("missing: add \"format\": \"{tag}\""),
         )),
     }
+}
+
+/// Deserialises `value`, naming the field path of the first mismatch (`views[2].joints[1]`)
+/// instead of serde's bare "invalid type: null, expected f64".
+fn from_value_at<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    value: serde_json::Value,
+) -> Result<T> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let field = e.path().to_string();
+        let field = if field == "." {
+            "(top level)".to_string()
+        } else {
+            field
+        };
+        Error::input(path, field, e.into_inner().to_string())
+    })
 }
 
 /// `run.json` → `robot`.
@@ -163,8 +191,23 @@ pub struct RunFile {
 impl RunFile {
     /// Reads and parses `run.json` (format version checked; content checked by [`load_run`]).
     pub fn read(path: &Path) -> Result<RunFile> {
-        let value = read_tagged_json(path, RUN_FORMAT)?;
-        serde_json::from_value(value).map_err(|e| Error::input(path, "run", format!("{e}")))
+        let text = crate::io::read_text_input(path)?;
+        RunFile::parse(&text, path)
+    }
+
+    /// Parses `run.json` text; `path` is what errors name.
+    pub fn parse(text: &str, path: &Path) -> Result<RunFile> {
+        let value = parse_tagged_json(text, path, RUN_FORMAT)?;
+        from_value_at(path, value)
+    }
+
+    /// Every check of the file's content that needs no robot model: intrinsics, joint names,
+    /// view counts and values, repeated views, paths inside `dir` (the run folder) and the
+    /// memory a solve would need. Returns the camera.
+    pub fn check(&self, path: &Path, dir: &Path) -> Result<Intrinsics> {
+        let camera = self.camera(path)?;
+        checks::check_run_file(self, path, dir)?;
+        Ok(camera)
     }
 
     /// Camera model described by this run.
@@ -216,7 +259,7 @@ impl RunFile {
             }
             (Some(_), None) => None,
         };
-        Ok(Intrinsics {
+        let intrinsics = Intrinsics {
             width: c.width,
             height: c.height,
             fx: c.fx,
@@ -224,7 +267,11 @@ impl RunFile {
             cx: c.cx,
             cy: c.cy,
             distortion,
-        })
+        };
+        if let Some((field, allowed)) = intrinsics.range_problem() {
+            return Err(Error::input(path, format!("camera.{field}"), allowed));
+        }
+        Ok(intrinsics)
     }
 }
 
@@ -299,7 +346,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         .map(Path::to_path_buf)
         .unwrap_or_else(|| PathBuf::from("."));
     let file = RunFile::read(&json)?;
-    let camera = file.camera(&json)?;
+    let camera = file.check(&json, &dir)?;
     let source = RobotSource {
         urdf: resolve(&dir, &file.robot.urdf),
         package_dirs: file
@@ -312,13 +359,6 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         ignore_links: file.robot.ignore_links.clone(),
         joints: Some(file.robot.joints.clone()),
     };
-    if file.robot.joints.is_empty() {
-        return Err(Error::input(
-            &json,
-            "robot.joints",
-            "must list the actuated joints in the order of each view's joints",
-        ));
-    }
     let robot = RobotModel::load(&source)?;
     let initial_guess = match &file.initial_guess {
         Some(g) => Some(
@@ -327,30 +367,9 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         ),
         None => None,
     };
-    if file.views.is_empty() {
-        return Err(Error::input(&json, "views", "run has no views"));
-    }
     let mut views = Vec::with_capacity(file.views.len());
     for (i, v) in file.views.iter().enumerate() {
-        if v.joints.len() != file.robot.joints.len() {
-            return Err(Error::input(
-                &json,
-                format!("views[{i}].joints"),
-                format!(
-                    "has {} values but robot.joints names {}",
-                    v.joints.len(),
-                    file.robot.joints.len()
-                ),
-            ));
-        }
-        if let Some(k) = v.joints.iter().position(|q| !q.is_finite()) {
-            return Err(Error::input(
-                &json,
-                format!("views[{i}].joints[{k}]"),
-                "not a finite number",
-            ));
-        }
-        let image = v.image.as_ref().map(|p| resolve(&dir, p));
+        let image = v.image.as_ref().map(|p| dir.join(p));
         let use_image = match mask_source {
             MaskSource::Recorded => false,
             MaskSource::RecordedElseImage => v.mask.is_none(),
@@ -390,7 +409,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
                 "view has no mask: pass --segmenter builtin to segment its image",
             ));
         };
-        let mask_path = resolve(&dir, mask_rel);
+        let mask_path = dir.join(mask_rel);
         if !mask_path.exists() {
             return Err(Error::input(
                 &json,
@@ -510,8 +529,7 @@ impl ResultFile {
     /// Reads a result file, checking the format tag and the transform.
     pub fn read(path: &Path) -> Result<ResultFile> {
         let value = read_tagged_json(path, RESULT_FORMAT)?;
-        let r: ResultFile = serde_json::from_value(value)
-            .map_err(|e| Error::input(path, "result", format!("{e}")))?;
+        let r: ResultFile = from_value_at(path, value)?;
         from_rows(&r.camera_from_base).map_err(|m| Error::input(path, "camera_from_base", m))?;
         Ok(r)
     }

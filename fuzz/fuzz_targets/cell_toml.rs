@@ -1,0 +1,7 @@
+//! Fuzz target `cell_toml`: see `fuzz/src/inputs.rs` for what it asserts.
+#![no_main]
+
+#[path = "../src/inputs.rs"]
+mod inputs;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| inputs::cell_toml(data));

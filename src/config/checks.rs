@@ -1,0 +1,425 @@
+//! The one validation pass over a whole cell config, run before anything is opened, computed
+//! or moved. Each value is checked against its physical range and every size against a
+//! documented upper bound (docs/config.md, "Bounds"), so a typo fails in a line that names the
+//! file, the key and what is allowed, rather than as a hang, an allocation abort or a quietly
+//! wrong calibration.
+
+use std::path::Path;
+
+use super::{
+    ArmConfig, CalibrationSettings, CameraConfig, CellConfig, NoiseModel, SegmenterConfig,
+};
+use super::{ObstacleConfig, SafetyConfig};
+use crate::error::{Error, Result};
+
+/// Upper bounds of every count a cell config sets. Each keeps one plan or solve within a few
+/// seconds and a few hundred MB on a 2-core machine.
+pub mod bounds {
+    /// `calibration.max_views`.
+    pub const MAX_VIEWS: usize = 100;
+    /// `calibration.joint_samples`: the joint samples scored per exploration round.
+    pub const JOINT_SAMPLES: usize = 100_000;
+    /// `calibration.climb_steps`.
+    pub const CLIMB_STEPS: usize = 10_000;
+    /// `calibration.candidates`: camera hypotheses rendered per scored sample.
+    pub const CANDIDATES: usize = 1_000;
+    /// `calibration.max_motion_failures`.
+    pub const MOTION_FAILURES: usize = 100;
+    /// `calibration.score_downsample`.
+    pub const SCORE_DOWNSAMPLE: u32 = 64;
+    /// Any joint speed, rad/s (no arm this project drives turns faster than π rad/s).
+    pub const SPEED_RAD_S: f64 = std::f64::consts::PI;
+    /// Simulated seconds per wall second of the simulated arm.
+    pub const SPEEDUP: f64 = 1_000.0;
+    /// Joint noise, radians (about 6°: anything larger is not encoder noise).
+    pub const JOINT_NOISE_RAD: f64 = 0.1;
+    /// Simulated boundary jitter, pixels.
+    pub const BOUNDARY_JITTER_PX: f64 = 20.0;
+    /// Safety clearance, metres.
+    pub const MARGIN_M: f64 = 0.5;
+    /// Obstacle and workspace sizes, metres.
+    pub const OBSTACLE_SIZE_M: f64 = 100.0;
+}
+
+/// A checker that names `path` in every message.
+struct Check<'a> {
+    path: &'a Path,
+}
+
+impl Check<'_> {
+    fn fail(&self, field: impl Into<String>, got: impl std::fmt::Display, allowed: &str) -> Error {
+        Error::input(self.path, field, format!("is {got}; allowed: {allowed}"))
+    }
+
+    /// `lo <= v <= hi` (or `lo < v` when `open_low`), and finite.
+    fn within(&self, field: &str, v: f64, lo: f64, hi: f64, open_low: bool) -> Result<()> {
+        let low_ok = if open_low { v > lo } else { v >= lo };
+        if v.is_finite() && low_ok && v <= hi {
+            return Ok(());
+        }
+        let bracket = if open_low { "(" } else { "[" };
+        Err(self.fail(field, v, &format!("{bracket}{lo}, {hi}]")))
+    }
+
+    fn count(&self, field: &str, n: usize, lo: usize, hi: usize) -> Result<()> {
+        if (lo..=hi).contains(&n) {
+            return Ok(());
+        }
+        Err(self.fail(field, n, &format!("{lo} to {hi}")))
+    }
+
+    fn finite(&self, field: &str, values: &[f64]) -> Result<()> {
+        match values.iter().position(|v| !v.is_finite()) {
+            Some(k) if values.len() > 1 => {
+                Err(self.fail(format!("{field}[{k}]"), values[k], "a finite number"))
+            }
+            Some(k) => Err(self.fail(field, values[k], "a finite number")),
+            None => Ok(()),
+        }
+    }
+}
+
+impl CellConfig {
+    /// Checks every value that needs only the file: finite numbers in their physical ranges,
+    /// sizes within [`bounds`], no joint listed twice. Values that need the robot (start poses
+    /// against joint limits, ranges against joint names) are checked when the cell is built.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        let c = Check { path };
+        check_robot_joints(&c, self.robot.joints.as_deref())?;
+        check_arm(&c, &self.arm)?;
+        check_camera(&c, &self.camera)?;
+        check_segmenter(&c, &self.segmenter)?;
+        check_calibration(&c, &self.calibration)?;
+        check_safety(&c, &self.safety)?;
+        self.calibration.validate(path)
+    }
+}
+
+fn check_robot_joints(c: &Check, joints: Option<&[String]>) -> Result<()> {
+    let joints = joints.unwrap_or_default();
+    for (k, name) in joints.iter().enumerate() {
+        if let Some(first) = joints[..k].iter().position(|n| n == name) {
+            return Err(c.fail(
+                format!("robot.joints[{k}]"),
+                format!("'{name}', already robot.joints[{first}]"),
+                "each joint once",
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
+    if let ArmConfig::Sim {
+        start,
+        encoder_noise_rad,
+        speedup,
+        ..
+    } = arm
+    {
+        c.finite("arm.start", start)?;
+        c.within(
+            "arm.encoder_noise_rad",
+            *encoder_noise_rad,
+            0.0,
+            bounds::JOINT_NOISE_RAD,
+            false,
+        )?;
+        if let Some(s) = speedup {
+            c.within("arm.speedup", *s, 0.0, bounds::SPEEDUP, true)?;
+        }
+    }
+    Ok(())
+}
+
+fn check_camera(c: &Check, camera: &CameraConfig) -> Result<()> {
+    if let Some((field, allowed)) = camera.camera().and_then(|k| k.range_problem()) {
+        return Err(Error::input(c.path, format!("camera.{field}"), allowed));
+    }
+    Ok(())
+}
+
+fn check_segmenter(c: &Check, segmenter: &SegmenterConfig) -> Result<()> {
+    if let SegmenterConfig::SimTruth { noise: Some(n), .. } = segmenter {
+        check_noise(c, "segmenter.noise", n)?;
+    }
+    Ok(())
+}
+
+fn check_noise(c: &Check, field: &str, n: &NoiseModel) -> Result<()> {
+    let jitter = format!("{field}.boundary_jitter_px");
+    c.within(
+        &jitter,
+        n.boundary_jitter_px,
+        0.0,
+        bounds::BOUNDARY_JITTER_PX,
+        false,
+    )?;
+    c.within(
+        &format!("{field}.blob_probability"),
+        n.blob_probability,
+        0.0,
+        1.0,
+        false,
+    )?;
+    let joint = format!("{field}.joint_noise_rad");
+    c.within(
+        &joint,
+        n.joint_noise_rad,
+        0.0,
+        bounds::JOINT_NOISE_RAD,
+        false,
+    )
+}
+
+fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
+    c.count("calibration.max_views", s.max_views, 1, bounds::MAX_VIEWS)?;
+    c.count(
+        "calibration.joint_samples",
+        s.joint_samples,
+        1,
+        bounds::JOINT_SAMPLES,
+    )?;
+    c.count(
+        "calibration.climb_steps",
+        s.climb_steps,
+        0,
+        bounds::CLIMB_STEPS,
+    )?;
+    c.count(
+        "calibration.candidates",
+        s.candidates,
+        2,
+        bounds::CANDIDATES,
+    )?;
+    c.count(
+        "calibration.max_motion_failures",
+        s.max_motion_failures,
+        0,
+        bounds::MOTION_FAILURES,
+    )?;
+    let downsample = s.score_downsample as usize;
+    c.count(
+        "calibration.score_downsample",
+        downsample,
+        1,
+        bounds::SCORE_DOWNSAMPLE as usize,
+    )?;
+    c.within(
+        "calibration.speed_rad_s",
+        s.speed_rad_s,
+        0.0,
+        bounds::SPEED_RAD_S,
+        true,
+    )?;
+    c.within(
+        "calibration.variance_rel_tol",
+        s.variance_rel_tol,
+        0.0,
+        10.0,
+        true,
+    )?;
+    c.within("calibration.pose_tol_deg", s.pose_tol_deg, 0.0, 10.0, true)?;
+    c.within("calibration.pose_tol_mm", s.pose_tol_mm, 0.0, 100.0, true)?;
+    c.within(
+        "calibration.joint_noise_rad",
+        s.joint_noise_rad,
+        0.0,
+        bounds::JOINT_NOISE_RAD,
+        false,
+    )
+}
+
+fn check_safety(c: &Check, s: &SafetyConfig) -> Result<()> {
+    c.within(
+        "safety.speed_cap_rad_s",
+        s.speed_cap_rad_s,
+        0.0,
+        bounds::SPEED_RAD_S,
+        true,
+    )?;
+    c.within("safety.margin_m", s.margin_m, 0.0, bounds::MARGIN_M, false)?;
+    c.within("safety.min_in_image", s.min_in_image, 0.0, 1.0, true)?;
+    for (name, [lo, hi]) in &s.joint_ranges {
+        let field = format!("safety.joint_ranges.{name}");
+        c.finite(&field, &[*lo, *hi])?;
+        if lo >= hi {
+            return Err(c.fail(
+                field,
+                format!("[{lo}, {hi}]"),
+                "[lower, upper] with lower < upper, radians",
+            ));
+        }
+    }
+    if let Some(w) = &s.workspace {
+        c.finite("safety.workspace.centre", &w.centre)?;
+        c.within(
+            "safety.workspace.radius_m",
+            w.radius_m,
+            0.0,
+            bounds::OBSTACLE_SIZE_M,
+            true,
+        )?;
+    }
+    for (i, o) in s.obstacles.iter().enumerate() {
+        check_obstacle(c, &format!("safety.obstacles[{i}]"), o)?;
+    }
+    Ok(())
+}
+
+fn check_obstacle(c: &Check, at: &str, o: &ObstacleConfig) -> Result<()> {
+    let size_range = |field: &str, v: &[f64]| -> Result<()> {
+        for (k, x) in v.iter().enumerate() {
+            c.within(
+                &format!("{at}.{field}[{k}]"),
+                *x,
+                0.0,
+                bounds::OBSTACLE_SIZE_M,
+                true,
+            )?;
+        }
+        Ok(())
+    };
+    match o {
+        ObstacleConfig::Plane {
+            normal, offset_m, ..
+        } => {
+            c.finite(&format!("{at}.normal"), normal)?;
+            c.finite(&format!("{at}.offset_m"), &[*offset_m])?;
+            if normal.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+                return Err(c.fail(format!("{at}.normal"), "[0, 0, 0]", "a non-zero vector"));
+            }
+        }
+        ObstacleConfig::Box {
+            centre,
+            size,
+            rpy_deg,
+            ..
+        } => {
+            c.finite(&format!("{at}.centre"), centre)?;
+            c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
+            size_range("size", size)?;
+        }
+        ObstacleConfig::Sphere {
+            centre, radius_m, ..
+        } => {
+            c.finite(&format!("{at}.centre"), centre)?;
+            size_range("radius_m", &[*radius_m])?;
+        }
+        ObstacleConfig::Mesh {
+            xyz,
+            rpy_deg,
+            scale,
+            ..
+        } => {
+            c.finite(&format!("{at}.xyz"), xyz)?;
+            c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
+            size_range("scale", scale)?;
+        }
+        ObstacleConfig::KeepOut { min, max, .. } => {
+            c.finite(&format!("{at}.min"), min)?;
+            c.finite(&format!("{at}.max"), max)?;
+            if (0..3).any(|k| min[k] >= max[k]) {
+                return Err(c.fail(
+                    format!("{at}.max"),
+                    format!("{max:?}"),
+                    "above min on every axis",
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(extra: &str) -> Result<()> {
+        let text = format!(
+            r#"
+[robot]
+urdf = "x.urdf"
+[arm]
+kind = "sim"
+start = [0.0, 0.1]
+[camera]
+kind = "sim"
+width = 640
+height = 480
+fx = 600.0
+fy = 600.0
+cx = 319.5
+cy = 239.5
+truth = {{ eye = [1.0, 0.5, 0.8], look_at = [0.0, 0.0, 0.3] }}
+[segmenter]
+kind = "sim-truth"
+{extra}
+"#
+        );
+        let path = Path::new("cell.toml");
+        let cfg: CellConfig =
+            toml::from_str(&text).map_err(|e| Error::input(path, "toml", e.to_string()))?;
+        cfg.validate(path)
+    }
+
+    fn message(extra: &str) -> String {
+        parse(extra).expect_err("should be refused").to_string()
+    }
+
+    #[test]
+    fn a_plain_cell_passes() {
+        parse("").unwrap();
+    }
+
+    #[test]
+    fn nan_and_reversed_joint_ranges_are_refused() {
+        let m = message("[safety]\njoint_ranges = { joint1 = [nan, 1.0] }");
+        assert!(m.contains("safety.joint_ranges.joint1[0]"), "{m}");
+        let m = message("[safety]\njoint_ranges = { joint1 = [1.0, -1.0] }");
+        assert!(m.contains("lower < upper"), "{m}");
+    }
+
+    #[test]
+    fn a_three_value_range_is_refused_not_truncated() {
+        let m = message("[safety]\njoint_ranges = { joint1 = [0.0, 1.0, 2.0] }");
+        assert!(m.contains("toml"), "{m}");
+    }
+
+    #[test]
+    fn sizes_above_their_bounds_are_refused() {
+        let m = message("[calibration]\njoint_samples = 100000000");
+        assert!(
+            m.contains("calibration.joint_samples") && m.contains("1 to 100000"),
+            "{m}"
+        );
+        let m = message("[calibration]\nclimb_steps = 100000000");
+        assert!(m.contains("calibration.climb_steps"), "{m}");
+    }
+
+    /// A whole cell with `arm_start`, `fx` and `robot_joints` substituted.
+    fn cell(arm_start: &str, fx: &str, robot_joints: &str) -> Result<()> {
+        let text = format!(
+            "[robot]\nurdf='x'\n{robot_joints}\n[arm]\nkind='sim'\nstart={arm_start}\n[camera]\nkind='sim'\nwidth=640\nheight=480\nfx={fx}\nfy=600.0\ncx=319.5\ncy=239.5\ntruth={{ eye=[1.0, 0.5, 0.8], look_at=[0.0, 0.0, 0.3] }}\n[segmenter]\nkind='sim-truth'\n"
+        );
+        let cfg: CellConfig = toml::from_str(&text).unwrap();
+        cfg.validate(Path::new("c.toml"))
+    }
+
+    #[test]
+    fn absurd_intrinsics_and_nan_start_are_refused() {
+        let m = cell("[0.0, nan]", "600.0", "").unwrap_err().to_string();
+        assert!(m.contains("arm.start[1]"), "{m}");
+        let m = cell("[0.0]", "1e300", "").unwrap_err().to_string();
+        assert!(m.contains("camera.fx"), "{m}");
+        cell("[0.0]", "600.0", "").unwrap();
+    }
+
+    #[test]
+    fn a_joint_listed_twice_is_refused() {
+        let m = cell("[0.0]", "600.0", "joints=['a','b','a']")
+            .unwrap_err()
+            .to_string();
+        assert!(m.contains("robot.joints[2]"), "{m}");
+    }
+}

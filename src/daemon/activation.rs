@@ -1,0 +1,118 @@
+//! Which calibration may become the active one. The active pose is what bump checks test and
+//! what robot controllers read from `GET /api/v1/calibration`, so a calibration is activated
+//! only when its record says it ran to the end and its own `result.json` holds a rigid pose:
+//!
+//! - state `succeeded`, or `interrupted` with a `result.json` from `easyhec solve` (the loop's
+//!   partial result of a shutdown, stop reason `cancelled after …`, is refused like a
+//!   cancelled run's);
+//! - not a dry run (it only planned);
+//! - `run_dir` is the record's own `runs/ID`, and it and `result.json` resolve inside the data
+//!   folder (a record edited to point at another run or outside the folder is refused);
+//! - `camera_from_base` finite and rigid within 1e-6, `base_from_camera` its inverse.
+//!
+//! Each refusal is a 409 whose message names the calibration and the field.
+
+use std::fmt::Display;
+use std::path::PathBuf;
+
+use super::reconcile::check_result_pose;
+use super::store::{ActiveFile, CalibrationRecord, State, Store};
+use super::validate::{inside, resolved_inside};
+use super::{now, Daemon, Refusal};
+use crate::run::ResultFile;
+
+impl Daemon {
+    /// Makes calibration `id` active, when [`activatable`] allows it.
+    pub fn activate(&self, id: &str) -> Result<ActiveFile, Refusal> {
+        let record = self
+            .status(id)
+            .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+        let result = activatable(&self.store, &record)?;
+        Ok(self.store.activate(id, result, &now())?)
+    }
+}
+
+/// The result calibration `r` may be activated with, or a 409 naming it and the field.
+pub fn activatable(store: &Store, r: &CalibrationRecord) -> Result<ResultFile, Refusal> {
+    check_state(r)?;
+    let path = result_path(store, r)?;
+    let result = ResultFile::read(&path).map_err(|e| refuse(r, "result.json", e))?;
+    check_result_pose(&result).map_err(|(f, m)| refuse(r, &format!("result.json {f}"), m))?;
+    check_not_partial(store, r, &result)?;
+    Ok(result)
+}
+
+/// A 409 naming the calibration and the field.
+fn refuse(r: &CalibrationRecord, field: &str, message: impl Display) -> Refusal {
+    Refusal::Conflict(format!("calibration {}: {field}: {message}", r.id))
+}
+
+/// Only a run that reached its end (or was re-solved after an interruption) and moved the arm.
+fn check_state(r: &CalibrationRecord) -> Result<(), Refusal> {
+    let why = match r.state {
+        State::Succeeded | State::Interrupted => None,
+        State::Queued | State::Running => Some("wait for it to end"),
+        State::Cancelled => Some("a cancelled run stopped early; its partial result is never activated: start a new calibration"),
+        State::Failed => Some("a failed run has no trustworthy result: start a new calibration"),
+    };
+    if let Some(why) = why {
+        return Err(refuse(r, "state", format!("{}: {why}", r.state.name())));
+    }
+    if r.dry_run {
+        return Err(refuse(
+            r,
+            "dry_run",
+            "true: a dry run only plans, so it has no calibration to activate",
+        ));
+    }
+    Ok(())
+}
+
+/// The record's own `DATA/runs/ID/result.json`, resolved inside the data folder.
+fn result_path(store: &Store, r: &CalibrationRecord) -> Result<PathBuf, Refusal> {
+    let own = format!("runs/{}", r.id);
+    if r.run_dir != own {
+        return Err(refuse(
+            r,
+            "run_dir",
+            format!("{:?} is not its own run directory {own:?}", r.run_dir),
+        ));
+    }
+    let dir = inside(store.dir(), store.canonical_dir(), &r.run_dir)
+        .map_err(|m| refuse(r, "run_dir", m))?;
+    let path = dir.join("result.json");
+    if !path.is_file() {
+        return Err(refuse(
+            r,
+            "result.json",
+            format!(
+                "{} is missing (a failed run and a crashed one have none: re-solve an interrupted run with `easyhec solve {}`)",
+                path.display(),
+                dir.display()
+            ),
+        ));
+    }
+    resolved_inside(&path, store.canonical_dir()).map_err(|m| refuse(r, "result.json", m))?;
+    Ok(path)
+}
+
+/// An interrupted run's `result.json` is the loop's partial result until `easyhec solve`
+/// replaces it (the loop writes `cancelled after N views` as its stop reason).
+fn check_not_partial(
+    store: &Store,
+    r: &CalibrationRecord,
+    result: &ResultFile,
+) -> Result<(), Refusal> {
+    if r.state == State::Interrupted && result.stop_reason.starts_with("cancelled") {
+        return Err(refuse(
+            r,
+            "state",
+            format!(
+                "interrupted, and result.json is the loop's partial result (stop_reason {:?}): re-solve it with `easyhec solve {}` first",
+                result.stop_reason,
+                store.run_dir(r).display()
+            ),
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,209 @@
+//! Checks on a `run.json` that need only the file and its folder, run before any mask is read
+//! or any pose is computed. Each failure is one line naming the file, the field path
+//! (`views[3].joints[2]`) and what is allowed.
+
+use std::collections::HashMap;
+use std::path::{Component, Path, PathBuf};
+
+use super::RunFile;
+use crate::error::{Error, Result};
+
+/// Most views a run may hold. A calibration needs 3–10; this bound keeps a solve's memory and
+/// time predictable whatever the file says.
+pub const MAX_RUN_VIEWS: usize = 500;
+/// Most joints a run's robot may list.
+pub const MAX_RUN_JOINTS: usize = 64;
+/// Bytes a solve keeps per pixel of one view (mask, undistorted mask, distance field, render
+/// and gradient buffers), for the up-front memory estimate.
+pub const SOLVE_BYTES_PER_VIEW_PIXEL: u64 = 24;
+
+/// Every content check of `file`, read from `json` in the folder `dir`.
+pub(crate) fn check_run_file(file: &RunFile, json: &Path, dir: &Path) -> Result<()> {
+    check_joint_names(file, json)?;
+    check_view_count(file, json)?;
+    for (i, v) in file.views.iter().enumerate() {
+        check_view_joints(&v.joints, file.robot.joints.len(), i, json)?;
+    }
+    check_repeated_views(file, json)?;
+    check_view_paths(file, json, dir)?;
+    check_memory(file, json)
+}
+
+fn check_joint_names(file: &RunFile, json: &Path) -> Result<()> {
+    let names = &file.robot.joints;
+    if names.is_empty() || names.len() > MAX_RUN_JOINTS {
+        return Err(Error::input(
+            json,
+            "robot.joints",
+            format!(
+                "lists {} joints; allowed: 1 to {MAX_RUN_JOINTS}, the actuated joints in the order of each view's joints",
+                names.len()
+            ),
+        ));
+    }
+    for (k, n) in names.iter().enumerate() {
+        if let Some(first) = names[..k].iter().position(|m| m == n) {
+            return Err(Error::input(
+                json,
+                format!("robot.joints[{k}]"),
+                format!(
+                    "'{n}' is listed twice (also robot.joints[{first}]); allowed: each joint once"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_view_count(file: &RunFile, json: &Path) -> Result<()> {
+    let n = file.views.len();
+    if n == 0 || n > MAX_RUN_VIEWS {
+        return Err(Error::input(
+            json,
+            "views",
+            format!("has {n} views; allowed: 1 to {MAX_RUN_VIEWS}"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_view_joints(joints: &[f64], expected: usize, i: usize, json: &Path) -> Result<()> {
+    if joints.len() != expected {
+        return Err(Error::input(
+            json,
+            format!("views[{i}].joints"),
+            format!(
+                "has {} values but robot.joints names {expected}",
+                joints.len()
+            ),
+        ));
+    }
+    if let Some(k) = joints.iter().position(|q| !q.is_finite()) {
+        return Err(Error::input(
+            json,
+            format!("views[{i}].joints[{k}]"),
+            format!("is {}; allowed: a finite number (rad or m)", joints[k]),
+        ));
+    }
+    Ok(())
+}
+
+/// A view recorded twice counts its evidence twice: the solve would report an uncertainty
+/// √2 too small. Two views with bit-identical joints, or two views sharing one mask file, are
+/// the same view.
+fn check_repeated_views(file: &RunFile, json: &Path) -> Result<()> {
+    let mut by_joints: HashMap<Vec<u64>, usize> = HashMap::new();
+    let mut by_mask: HashMap<&str, usize> = HashMap::new();
+    for (i, v) in file.views.iter().enumerate() {
+        let key: Vec<u64> = v.joints.iter().map(|q| (q + 0.0).to_bits()).collect();
+        if let Some(first) = by_joints.insert(key, i) {
+            return Err(repeated(json, i, first, "joints"));
+        }
+        if let Some(mask) = v.mask.as_deref() {
+            if let Some(first) = by_mask.insert(mask, i) {
+                return Err(repeated(json, i, first, "mask"));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn repeated(json: &Path, i: usize, first: usize, what: &str) -> Error {
+    Error::input(
+        json,
+        format!("views[{i}].{what}"),
+        format!("repeats views[{first}].{what}; allowed: each view once (a repeated view would shrink the reported uncertainty without adding evidence)"),
+    )
+}
+
+fn check_view_paths(file: &RunFile, json: &Path, dir: &Path) -> Result<()> {
+    for (i, v) in file.views.iter().enumerate() {
+        if let Some(m) = &v.mask {
+            inside_run(dir, m, json, &format!("views[{i}].mask"))?;
+        }
+        if let Some(im) = &v.image {
+            inside_run(dir, im, json, &format!("views[{i}].image"))?;
+        }
+    }
+    Ok(())
+}
+
+/// `rel` as a path inside the run folder `dir`: relative, without `..`, and (when it exists)
+/// a regular file whose real path stays inside the folder. A run is data another tool or
+/// person may have written; it must not make easyhec read `/etc/passwd` or block on a FIFO.
+pub(crate) fn inside_run(dir: &Path, rel: &str, json: &Path, field: &str) -> Result<PathBuf> {
+    let p = Path::new(rel);
+    let escapes = p.is_absolute()
+        || p.components().any(|c| {
+            matches!(
+                c,
+                Component::ParentDir | Component::RootDir | Component::Prefix(_)
+            )
+        });
+    if rel.is_empty() || escapes {
+        return Err(Error::input(
+            json,
+            field,
+            format!("is '{rel}'; allowed: a path relative to the run folder, without '..'"),
+        ));
+    }
+    let full = dir.join(p);
+    let Ok(meta) = std::fs::metadata(&full) else {
+        return Ok(full); // Missing files are reported where they are needed.
+    };
+    let real_dir = dir.canonicalize().map_err(|e| Error::io(dir, e))?;
+    let real = full.canonicalize().map_err(|e| Error::io(&full, e))?;
+    if !real.starts_with(&real_dir) {
+        return Err(Error::input(
+            json,
+            field,
+            format!(
+                "'{rel}' leads to {} outside the run folder; allowed: files inside it",
+                real.display()
+            ),
+        ));
+    }
+    if !meta.is_file() {
+        return Err(Error::input(
+            json,
+            field,
+            format!("'{rel}' is not a regular file; allowed: a PNG file"),
+        ));
+    }
+    Ok(full)
+}
+
+/// Refuses, before allocating, a run whose masks alone would not fit in the memory this
+/// machine has available (an allocation failure aborts the process with no message).
+fn check_memory(file: &RunFile, json: &Path) -> Result<()> {
+    let pixels = u64::from(file.camera.width) * u64::from(file.camera.height);
+    let need = pixels
+        .saturating_mul(file.views.len() as u64)
+        .saturating_mul(SOLVE_BYTES_PER_VIEW_PIXEL);
+    let Some(available) = available_memory_bytes() else {
+        return Ok(());
+    };
+    if need > available {
+        return Err(Error::input(
+            json,
+            "views",
+            format!(
+                "{} views of {}x{} need about {:.1} GB to solve; this machine has {:.1} GB available: use fewer views or smaller images",
+                file.views.len(),
+                file.camera.width,
+                file.camera.height,
+                need as f64 / 1e9,
+                available as f64 / 1e9
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// `MemAvailable` from `/proc/meminfo`, when the system reports it.
+pub fn available_memory_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
