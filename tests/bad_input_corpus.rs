@@ -615,6 +615,16 @@ fn solve_cases() -> Vec<Case> {
             },
         ),
         case(
+            "mask all robot",
+            SOLVE,
+            &["000.mask.png", "views[0].mask", "inverted"],
+            |d: &Path| {
+                image::GrayImage::from_pixel(320, 240, image::Luma([255]))
+                    .save(d.join("run/views/000.mask.png"))
+                    .unwrap();
+            },
+        ),
+        case(
             "mask field missing",
             SOLVE,
             &[rj, "views[0].mask"],

@@ -1,6 +1,7 @@
 //! Fuzz target `run_json`: see `fuzz/src/inputs.rs` for what it asserts.
 #![no_main]
 
+#[allow(dead_code)] // each target uses one of the checks
 #[path = "../src/inputs.rs"]
 mod inputs;
 

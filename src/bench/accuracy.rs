@@ -111,7 +111,7 @@ pub struct AccuracyBench {
     #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
     pub robot: PathBuf,
     /// Number of scenes (seeds 0..N-1).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub scenes: u64,
     /// View counts to evaluate.
     #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,5")]

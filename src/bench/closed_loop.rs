@@ -107,13 +107,13 @@ pub struct LoopBench {
     #[arg(long, default_value = "config/sim-xarm6.toml")]
     pub config: PathBuf,
     /// Number of cells (seeds FIRST..FIRST+N-1).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub cells: u64,
     /// First cell seed (a seed set the settings were not chosen on).
     #[arg(long, default_value_t = 0)]
     pub first_seed: u64,
     /// Views per calibration (no early stop).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub views: usize,
     /// Hill-climbing steps per start (`[calibration] climb_steps`; default: the config's).
     #[arg(long)]

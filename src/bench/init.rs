@@ -20,10 +20,10 @@ pub struct InitBench {
     #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
     pub robot: PathBuf,
     /// Number of cells (seeds 0..N-1).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub scenes: u64,
     /// Views per cell.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub views: usize,
     /// Camera distance range, metres.
     #[arg(long, value_delimiter = ',', default_value = "0.6,2.5")]

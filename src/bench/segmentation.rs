@@ -235,10 +235,10 @@ pub struct SegmentBench {
     #[arg(long, default_value = "config/sim-xarm6.toml")]
     pub config: PathBuf,
     /// Number of simulated cells (seeds 0..N-1; 0 skips them).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub scenes: u64,
     /// Views per calibration (no early stop).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub views: usize,
     /// A run directory with images, masks and an initial guess (e.g. the imported Panda
     /// example): its masks are withheld from the segmenter and used as the reference.

@@ -107,16 +107,16 @@ pub struct SpeedBench {
     #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
     pub robot: PathBuf,
     /// Views per solve.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub views: usize,
     /// Image width.
-    #[arg(long, default_value_t = 640)]
+    #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<u32>::new().range(8..=4096))]
     pub width: u32,
     /// Image height.
-    #[arg(long, default_value_t = 480)]
+    #[arg(long, default_value_t = 480, value_parser = clap::builder::RangedU64ValueParser::<u32>::new().range(8..=4096))]
     pub height: u32,
     /// Number of scenes (seeds) timed.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub scenes: u64,
     /// Renderer: cpu, wgpu or auto.
     #[arg(long, default_value = "auto")]
@@ -181,19 +181,19 @@ pub struct ExploreBench {
     #[arg(long, default_value = "../shared/robots/xarm6/robot.urdf")]
     pub robot: PathBuf,
     /// Joint samples.
-    #[arg(long, default_value_t = 2000)]
+    #[arg(long, default_value_t = 2000, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100000))]
     pub samples: usize,
     /// Camera candidates.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = 50, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(2..=1000))]
     pub candidates: usize,
     /// Image width (scored at 1/4).
-    #[arg(long, default_value_t = 640)]
+    #[arg(long, default_value_t = 640, value_parser = clap::builder::RangedU64ValueParser::<u32>::new().range(8..=4096))]
     pub width: u32,
     /// Image height.
-    #[arg(long, default_value_t = 480)]
+    #[arg(long, default_value_t = 480, value_parser = clap::builder::RangedU64ValueParser::<u32>::new().range(8..=4096))]
     pub height: u32,
     /// Rounds timed.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub rounds: usize,
     /// Renderer: cpu, wgpu or auto.
     #[arg(long, default_value = "auto")]

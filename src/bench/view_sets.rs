@@ -439,16 +439,16 @@ pub struct ViewSetsBench {
     #[arg(long, default_value = "config/sim-xarm6.toml")]
     pub config: PathBuf,
     /// Number of cells (seeds FIRST..FIRST+N-1).
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u64).range(1..=1000))]
     pub cells: u64,
     /// First cell seed.
     #[arg(long, default_value_t = 0)]
     pub first_seed: u64,
     /// Random pairs per cell.
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = 12, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=10000))]
     pub random_pairs: usize,
     /// Noisy solves per set.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1000))]
     pub trials: usize,
 }
 

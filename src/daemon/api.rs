@@ -6,9 +6,9 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use axum::body::Bytes;
-use axum::extract::{Path, Request, State};
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::body::{Body, Bytes};
+use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{Html, IntoResponse, Response};
@@ -18,7 +18,7 @@ use serde_json::json;
 use tokio::sync::broadcast;
 
 use super::store::{CalibrationRecord, State as RunState};
-use super::validate::inside;
+use super::validate::{id_number, id_problem, inside};
 use super::{bump, overlays, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
 use crate::geometry::from_rows;
 use crate::run::{RunFile, ViewEntry};
@@ -31,6 +31,33 @@ const APP_JS: &str = include_str!("web/app.js");
 const OPENAPI_JSON: &str = include_str!("openapi.json");
 
 type Shared = Arc<Daemon>;
+
+/// Largest request body (only a start request has one, of a few dozen bytes).
+pub const BODY_LIMIT: usize = 64 * 1024;
+/// Longest error message: a hostile id or field name is echoed only this far.
+const MESSAGE_CHARS: usize = 300;
+
+/// An error message as one short line: control characters (a `%0A` in an id, a `\n` in a
+/// JSON field name) escaped, cut at [`MESSAGE_CHARS`], so a log or a page that shows it
+/// cannot be forged a second line or flooded.
+pub fn one_line(m: &str) -> String {
+    let mut out: String = m
+        .chars()
+        .flat_map(|c| {
+            let esc: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            esc
+        })
+        .take(MESSAGE_CHARS + 1)
+        .collect();
+    if out.chars().count() > MESSAGE_CHARS {
+        out = out.chars().take(MESSAGE_CHARS).collect::<String>() + "…";
+    }
+    out
+}
 
 impl IntoResponse for Refusal {
     fn into_response(self) -> Response {
@@ -52,10 +79,17 @@ impl IntoResponse for Refusal {
                 StatusCode::SERVICE_UNAVAILABLE,
                 json!({"error": "the daemon is shutting down"}),
             ),
-            Refusal::NotFound(m) => (StatusCode::NOT_FOUND, json!({ "error": m })),
-            Refusal::Conflict(m) => (StatusCode::CONFLICT, json!({ "error": m })),
-            Refusal::BadRequest(m) => (StatusCode::BAD_REQUEST, json!({ "error": m })),
-            Refusal::Internal(m) => (StatusCode::INTERNAL_SERVER_ERROR, json!({ "error": m })),
+            Refusal::NotFound(m) => (StatusCode::NOT_FOUND, json!({ "error": one_line(&m) })),
+            Refusal::Conflict(m) => (StatusCode::CONFLICT, json!({ "error": one_line(&m) })),
+            Refusal::UnsupportedMedia(m) => (
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                json!({ "error": one_line(&m) }),
+            ),
+            Refusal::BadRequest(m) => (StatusCode::BAD_REQUEST, json!({ "error": one_line(&m) })),
+            Refusal::Internal(m) => (
+                StatusCode::INTERNAL_SERVER_ERROR,
+                json!({ "error": one_line(&m) }),
+            ),
         };
         (status, Json(body)).into_response()
     }
@@ -101,6 +135,73 @@ pub fn router(daemon: Shared) -> Router {
             )
         })
         .with_state(daemon)
+        .layer(DefaultBodyLimit::max(BODY_LIMIT))
+        .layer(middleware::from_fn(json_errors))
+}
+
+/// Every error as `{"error": …}` on one line, the framework's too (405, 413, a path that
+/// does not decode come from axum as plain text or nothing), and a declared body over
+/// [`BODY_LIMIT`] refused at once: waiting for 100 GB that never come would hold the
+/// connection until the idle timeout.
+async fn json_errors(req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
+    if let Some(n) = declared.filter(|n| *n > BODY_LIMIT as u64) {
+        let m = format!("request body: Content-Length {n} is over the {BODY_LIMIT}-byte limit");
+        return (StatusCode::PAYLOAD_TOO_LARGE, Json(json!({ "error": m }))).into_response();
+    }
+    let (method, path) = (req.method().clone(), req.uri().path().to_string());
+    let resp = next.run(req).await;
+    let status = resp.status();
+    if !(status.is_client_error() || status.is_server_error()) || is_json(resp.headers()) {
+        return resp;
+    }
+    let (mut parts, body) = resp.into_parts();
+    let text = axum::body::to_bytes(body, 4096).await.unwrap_or_default();
+    let text = String::from_utf8_lossy(&text).trim().to_string();
+    let m = match status {
+        StatusCode::METHOD_NOT_ALLOWED => {
+            format!("method {method} is not allowed on {path}: see /openapi.json")
+        }
+        StatusCode::PAYLOAD_TOO_LARGE => format!("request body: over the {BODY_LIMIT}-byte limit"),
+        _ if text.is_empty() => status.to_string(),
+        _ => text,
+    };
+    parts.headers.remove(header::CONTENT_LENGTH);
+    parts.headers.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/json"),
+    );
+    let body = json!({ "error": one_line(&m) }).to_string();
+    Response::from_parts(parts, Body::from(body))
+}
+
+/// Whether a content type is JSON (`application/json`, `…+json`, any parameters).
+fn is_json(h: &HeaderMap) -> bool {
+    h.get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(|v| {
+            v.split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_ascii_lowercase()
+        })
+        .is_some_and(|t| t == "application/json" || t.ends_with("+json"))
+}
+
+/// An id from a path, refused (404) unless it is one this daemon makes: a hostile id
+/// (`../../etc/passwd`, 10,000 digits) never reaches a lookup, and the message says why.
+fn daemon_id(id: String) -> Result<String, Refusal> {
+    match id_number(&id) {
+        Some(_) => Ok(id),
+        None => Err(Refusal::NotFound(format!(
+            "calibration id: {}",
+            id_problem(&id)
+        ))),
+    }
 }
 
 async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
@@ -143,16 +244,12 @@ async fn healthz(State(d): State<Shared>) -> Json<serde_json::Value> {
     }))
 }
 
-async fn start(State(d): State<Shared>, body: Bytes) -> Result<Response, Refusal> {
-    let opts: StartOptions = if body.iter().all(u8::is_ascii_whitespace) {
-        StartOptions::default()
-    } else {
-        serde_json::from_slice(&body).map_err(|e| {
-            Refusal::BadRequest(format!(
-                "request body: {e} (expected {{\"max_views\": N, \"dry_run\": false}}, both optional)"
-            ))
-        })?
-    };
+async fn start(
+    State(d): State<Shared>,
+    headers: HeaderMap,
+    body: Bytes,
+) -> Result<Response, Refusal> {
+    let opts = start_options(&headers, &body)?;
     let id = d.start(opts, "api", None)?;
     Ok((
         StatusCode::ACCEPTED,
@@ -160,6 +257,40 @@ async fn start(State(d): State<Shared>, body: Bytes) -> Result<Response, Refusal
         Json(json!({ "id": id })),
     )
         .into_response())
+}
+
+/// A start request's options: empty means the defaults; otherwise a JSON body (a declared
+/// non-JSON content type is refused, 415), each error naming the field it is about.
+fn start_options(headers: &HeaderMap, body: &[u8]) -> Result<StartOptions, Refusal> {
+    if body.iter().all(u8::is_ascii_whitespace) {
+        return Ok(StartOptions::default());
+    }
+    if headers.contains_key(header::CONTENT_TYPE) && !is_json(headers) {
+        let given = headers
+            .get(header::CONTENT_TYPE)
+            .map(|v| v.to_str().unwrap_or("?"));
+        return Err(Refusal::UnsupportedMedia(format!(
+            "Content-Type: {:?} is not JSON: send the request body as application/json",
+            given.unwrap_or_default()
+        )));
+    }
+    let mut de = serde_json::Deserializer::from_slice(body);
+    let opts = serde_path_to_error::deserialize(&mut de)
+        .map_err(|e| bad_body(&e.path().to_string(), e.inner()))?;
+    de.end().map_err(|e| bad_body(".", &e))?;
+    Ok(opts)
+}
+
+/// A 400 for a start body, naming the field (`at`, `.` for the whole body).
+fn bad_body(at: &str, e: &serde_json::Error) -> Refusal {
+    let field = if at == "." {
+        String::new()
+    } else {
+        format!("{at}: ")
+    };
+    Refusal::BadRequest(format!(
+        "request body: {field}{e} (expected {{\"max_views\": N, \"dry_run\": false}}, both optional)"
+    ))
 }
 
 async fn history(State(d): State<Shared>) -> Json<serde_json::Value> {
@@ -176,6 +307,7 @@ async fn history(State(d): State<Shared>) -> Json<serde_json::Value> {
 }
 
 async fn status(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
     d.status(&id)
         .map(|r| Json(r).into_response())
         .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))
@@ -189,6 +321,7 @@ fn sse_event(e: &Event) -> SseEvent {
 }
 
 async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
     // Subscribe before reading the snapshot so no event falls between them.
     let rx: Option<broadcast::Receiver<Event>> = d.job(&id).map(|j| j.subscribe());
     let snapshot = d
@@ -245,6 +378,7 @@ async fn overlay(
     State(d): State<Shared>,
     Path((id, n)): Path<(String, String)>,
 ) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
     let n: usize = n
         .parse()
         .map_err(|_| Refusal::BadRequest(format!("view {n:?}: use a view index (0, 1, …)")))?;
@@ -338,6 +472,7 @@ async fn render_overlay(
 }
 
 async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
     let r = d.cancel(&id).await?;
     Ok((
         StatusCode::ACCEPTED,
@@ -347,6 +482,7 @@ async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
 }
 
 async fn activate(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
     let a = d.activate(&id)?;
     Ok(Json(a).into_response())
 }

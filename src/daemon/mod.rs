@@ -88,6 +88,8 @@ pub enum Refusal {
     Conflict(String),
     /// The request itself is wrong (400).
     BadRequest(String),
+    /// The request body is not JSON (415).
+    UnsupportedMedia(String),
     /// The cell or the disk failed (500).
     Internal(String),
 }
@@ -185,12 +187,21 @@ pub struct Daemon {
 #[derive(Clone, Debug, Default, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StartOptions {
-    /// Views at most (default: the config's `calibration.max_views`).
-    #[serde(default)]
+    /// Views at most (default: the config's `calibration.max_views`). Leaving the field out
+    /// means the default; `null` is refused like any other non-integer, so a client's
+    /// missing number never passes quietly as "use the config".
+    #[serde(default, deserialize_with = "some_count")]
     pub max_views: Option<usize>,
     /// Plan only, never move.
     #[serde(default)]
     pub dry_run: bool,
+}
+
+/// A present `max_views`: an integer, never `null`.
+fn some_count<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<usize>, D::Error> {
+    <usize as serde::Deserialize>::deserialize(d).map(Some)
 }
 
 impl Daemon {
@@ -297,11 +308,7 @@ impl Daemon {
         trigger: &str,
         warm_start: Option<(String, Isometry3<f64>)>,
     ) -> std::result::Result<String, Refusal> {
-        if opts.max_views == Some(0) {
-            return Err(Refusal::BadRequest(
-                "max_views: a calibration needs at least 1 view".into(),
-            ));
-        }
+        check_max_views(opts.max_views)?;
         // Hold the jobs lock while choosing the id so two starts cannot pick the same one.
         let jobs_guard = lock(&self.jobs);
         let id = self.store.next_id()?;
@@ -622,6 +629,21 @@ impl Daemon {
         let a = self.store.active()?;
         let pose = from_rows(&a.result.camera_from_base).ok()?;
         Some((a.id, pose))
+    }
+}
+
+/// `max_views` within the bounds a cell config has (1 to `bounds::MAX_VIEWS`): a start
+/// request must not ask for a run (and a plan and solve) the config itself could not.
+fn check_max_views(n: Option<usize>) -> std::result::Result<(), Refusal> {
+    use crate::config::checks::bounds::MAX_VIEWS;
+    match n {
+        Some(0) => Err(Refusal::BadRequest(
+            "max_views: a calibration needs at least 1 view".into(),
+        )),
+        Some(n) if n > MAX_VIEWS => Err(Refusal::BadRequest(format!(
+            "max_views: {n} is more than {MAX_VIEWS}, the most a calibration takes (the bound of [calibration] max_views)"
+        ))),
+        _ => Ok(()),
     }
 }
 

@@ -187,13 +187,7 @@ fn read_view(
         return Err(Error::input(mask_path, "mask", "is not a regular file"));
     }
     let mask = Mask::load(mask_path)?;
-    if mask.count() == 0 {
-        return Err(Error::input(
-            mask_path,
-            "mask",
-            "has no robot pixels (>= 128)",
-        ));
-    }
+    crate::run::check_mask_coverage(&mask, mask_path, "mask")?;
     let q = read_numbers(qpos_path)?;
     if q.len() < joint_count {
         return Err(Error::input(

@@ -200,6 +200,40 @@ fn check_memory(file: &RunFile, json: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Largest share of the image a mask may mark as robot. A mask that is (almost) all robot is
+/// inverted or thresholded wrong; solving against it fails with a misleading "robot not
+/// visible" rather than naming the mask.
+pub const MAX_ROBOT_FRACTION: f64 = 0.99;
+
+/// A mask must mark some robot, and not (nearly) the whole image.
+pub(crate) fn check_mask_coverage(
+    mask: &crate::mask::Mask,
+    path: &Path,
+    field: &str,
+) -> Result<()> {
+    let total = (mask.width as usize * mask.height as usize).max(1);
+    let share = mask.count() as f64 / total as f64;
+    if mask.count() == 0 {
+        return Err(Error::input(
+            path,
+            field,
+            "mask has no robot pixels (>= 128): drop the view or fix the mask",
+        ));
+    }
+    if share > MAX_ROBOT_FRACTION {
+        return Err(Error::input(
+            path,
+            field,
+            format!(
+                "mask marks {:.1}% of the image as robot; allowed: at most {}% (is it inverted?)",
+                share * 100.0,
+                MAX_ROBOT_FRACTION * 100.0
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// `MemAvailable` from `/proc/meminfo`, when the system reports it.
 pub fn available_memory_bytes() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;

@@ -17,10 +17,10 @@ use crate::robot::{RobotModel, RobotSource};
 
 mod checks;
 
-pub(crate) use checks::check_run_file;
 pub use checks::{
     available_memory_bytes, MAX_RUN_JOINTS, MAX_RUN_VIEWS, SOLVE_BYTES_PER_VIEW_PIXEL,
 };
+pub(crate) use checks::{check_mask_coverage, check_run_file};
 
 /// Run-directory format tag.
 pub const RUN_FORMAT: &str = "easyhec-run/1";
@@ -428,13 +428,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
                 ),
             ));
         }
-        if mask.count() == 0 {
-            return Err(Error::input(
-                &mask_path,
-                format!("views[{i}].mask"),
-                "mask has no robot pixels (>= 128): drop the view or fix the mask",
-            ));
-        }
+        checks::check_mask_coverage(&mask, &mask_path, &format!("views[{i}].mask"))?;
         views.push(LoadedView {
             index: i,
             joints: v.joints.clone(),
