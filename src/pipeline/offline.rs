@@ -79,33 +79,22 @@ pub struct OfflineOutcome {
 /// happen (segmentation rounds, automatic initialisation, views left out).
 pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
     let started = Instant::now();
-    let mut run = match (&req.segmenter, req.ignore_masks) {
-        (None, _) => load_run(&req.run)?,
-        (Some(_), true) => load_run_with(&req.run, MaskSource::Image)?,
-        (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
-    };
-    let total = run.views.len();
-    let k = req.views.unwrap_or(total);
-    if k == 0 || k > total {
-        return Err(Error::Usage(format!(
-            "--views {k}: the run has {total} views"
-        )));
-    }
+    let (mut run, k) = load_requested(req)?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let renderer = renderer.as_ref();
-    let mut segment_s = None;
+    let mut timings = Timings::default();
     let mut settled = None;
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
         settled = segment_run(&mut run, config, renderer, req.masks_out.as_deref(), note)?;
-        segment_s = Some(t.elapsed().as_secs_f64());
+        timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
     let pool_size = if req.selection == Selection::First {
         k
     } else {
-        total
+        run.views.len()
     };
     let pool: Vec<View> = run.views[..pool_size]
         .iter()
@@ -122,6 +111,10 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         optimizer: req.optimizer,
         ..SolveOptions::default()
     };
+    let explore_opts = ExploreOptions {
+        seed: req.seed,
+        ..ExploreOptions::default()
+    };
     let selected = solve_selected(
         renderer,
         &run.camera,
@@ -130,34 +123,89 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         k,
         req.selection,
         &solve_opts,
-        &ExploreOptions {
-            seed: req.seed,
-            ..ExploreOptions::default()
-        },
+        &explore_opts,
         &StopRule::default(),
     )?;
-    let solve_s = selected.solve_s;
-    let explore_s = selected.explore_s;
+    (timings.solve_s, timings.explore_s) = (selected.solve_s, selected.explore_s);
     let (order, report, stop_reason) = if req.keep_all_views {
         (selected.order, selected.report, selected.stop_reason)
     } else {
         consistent_views(renderer, &run, &pool, selected, &solve_opts, note)?
     };
-    if !report
-        .camera_from_base
-        .to_homogeneous()
-        .iter()
-        .all(|v| v.is_finite())
-    {
-        return Err(Error::Solve(
-            "the solve diverged (non-finite pose): check the initial guess and the masks".into(),
-        ));
-    }
+    check_finite(&report)?;
     if !req.allow_poor_fit {
         judge_fit(&order, &report, k)?;
     }
+    if let Some(dir) = &req.overlays {
+        write_overlays(renderer, &run, &pool, &order, &report, dir)?;
+    }
+    timings.total_s = started.elapsed().as_secs_f64();
+    let result = result_file(req, &run, &order, &report, stop_reason, &timings);
+    let out = req
+        .out
+        .clone()
+        .unwrap_or_else(|| run.dir.join("result.json"));
+    crate::io::write_json_atomic(&out, &result)?;
+    Ok(OfflineOutcome {
+        truth_error: truth_error(&run.dir, &report.camera_from_base),
+        views: order.len(),
+        poor_views: poor_views(&order, &report),
+        result,
+        out,
+        solve_s: timings.solve_s,
+        report,
+    })
+}
+
+/// Loads the run the way the request reads it (recorded masks, or images for a segmenter) and
+/// checks `--views` against it, before any renderer is opened.
+fn load_requested(req: &OfflineSolve) -> Result<(LoadedRun, usize)> {
+    let run = match (&req.segmenter, req.ignore_masks) {
+        (None, _) => load_run(&req.run)?,
+        (Some(_), true) => load_run_with(&req.run, MaskSource::Image)?,
+        (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
+    };
+    let total = run.views.len();
+    let k = req.views.unwrap_or(total);
+    if k == 0 || k > total {
+        return Err(Error::Usage(format!(
+            "--views {k}: the run has {total} views"
+        )));
+    }
+    Ok((run, k))
+}
+
+/// Seconds spent in each phase, as `result.json` records them.
+#[derive(Default)]
+struct Timings {
+    segment_s: Option<f64>,
+    solve_s: f64,
+    explore_s: f64,
+    total_s: f64,
+}
+
+/// A diverged solve is an error, never a result.
+fn check_finite(report: &SolveReport) -> Result<()> {
+    let matrix = report.camera_from_base.to_homogeneous();
+    if matrix.iter().all(|v| v.is_finite()) {
+        return Ok(());
+    }
+    Err(Error::Solve(
+        "the solve diverged (non-finite pose): check the initial guess and the masks".into(),
+    ))
+}
+
+/// The `easyhec-result/1` record of a judged solve.
+fn result_file(
+    req: &OfflineSolve,
+    run: &LoadedRun,
+    order: &[usize],
+    report: &SolveReport,
+    stop_reason: String,
+    timings: &Timings,
+) -> ResultFile {
     let mut result = ResultFile::new(&report.camera_from_base, &run.robot.links[run.robot.base]);
-    result.views_used = order.clone();
+    result.views_used = order.to_vec();
     result.per_view = order
         .iter()
         .zip(&report.per_view_iou)
@@ -171,39 +219,26 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
             stop_reason, report.iterations
         ),
     };
-    if let Some(dir) = &req.overlays {
-        write_overlays(renderer, &run, &pool, &order, &report, dir)?;
-    }
-    result.timings_s.insert("solve".into(), solve_s);
-    if let Some(t) = segment_s {
-        result.timings_s.insert("segment".into(), t);
+    let t = &mut result.timings_s;
+    t.insert("solve".into(), timings.solve_s);
+    if let Some(s) = timings.segment_s {
+        t.insert("segment".into(), s);
     }
     if req.selection == Selection::Explore {
-        result.timings_s.insert("explore".into(), explore_s);
+        t.insert("explore".into(), timings.explore_s);
     }
+    t.insert("total".into(), timings.total_s);
     result
-        .timings_s
-        .insert("total".into(), started.elapsed().as_secs_f64());
-    let out = req
-        .out
-        .clone()
-        .unwrap_or_else(|| run.dir.join("result.json"));
-    crate::io::write_json_atomic(&out, &result)?;
-    let poor_views = order
+}
+
+/// Views whose IoU is under the poor-fit line, for the warning an allowed poor fit prints.
+fn poor_views(order: &[usize], report: &SolveReport) -> Vec<usize> {
+    order
         .iter()
         .zip(&report.per_view_iou)
         .filter(|(_, &iou)| iou < POOR_FIT_IOU)
         .map(|(&v, _)| v)
-        .collect();
-    Ok(OfflineOutcome {
-        truth_error: truth_error(&run.dir, &report.camera_from_base),
-        views: order.len(),
-        result,
-        out,
-        report,
-        solve_s,
-        poor_views,
-    })
+        .collect()
 }
 
 /// Refuses a fit that no one should use, before anything is written: a mean IoU under
