@@ -65,8 +65,8 @@ pub fn camera_candidates(report: &SolveReport, opts: &ExploreOptions) -> Vec<Iso
     match opts.source {
         CandidateSource::Posterior => {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed);
-            let finite = report.covariance.iter().all(|v| v.is_finite());
-            let Some(chol) = report.covariance.cholesky().filter(|_| finite) else {
+            let finite = report.sampling_covariance.iter().all(|v| v.is_finite());
+            let Some(chol) = report.sampling_covariance.cholesky().filter(|_| finite) else {
                 return vec![report.camera_from_base; k];
             };
             (0..k)
@@ -164,7 +164,7 @@ pub fn view_terms(
     }
     let twists: Vec<Twist> = motions
         .iter()
-        .map(|m| joint_twist_in_camera(m, estimate))
+        .map(|m| m.twist_in_camera(estimate))
         .collect();
     let mut b = nalgebra::DMatrix::<f64>::zeros(6, n);
     for (link, h) in per_link.iter().enumerate().take(links) {
@@ -229,20 +229,6 @@ pub fn cost_reduction(
         before - after
     } else {
         -after
-    }
-}
-
-/// A joint's motion as a left se(3) increment in the camera frame: a link it moves by `dq`
-/// has its points move by `dq * (rho + phi x p)` in the camera frame, exactly as under a
-/// camera increment `(rho, phi)`, so the outline cannot tell the two apart.
-pub fn joint_twist_in_camera(motion: &JointMotion, camera_from_base: &Isometry3<f64>) -> Twist {
-    let axis = camera_from_base.rotation * motion.axis_base;
-    if motion.prismatic {
-        Twist::new(axis.x, axis.y, axis.z, 0.0, 0.0, 0.0)
-    } else {
-        let o = (camera_from_base * motion.origin_base).coords;
-        let rho = o.cross(&axis);
-        Twist::new(rho.x, rho.y, rho.z, axis.x, axis.y, axis.z)
     }
 }
 
@@ -472,7 +458,7 @@ mod tests {
             let mut q2 = q;
             q2[j] += dq;
             let after = robot.posed_vertices(&q2);
-            let xi = joint_twist_in_camera(m, &camera_from_base);
+            let xi = m.twist_in_camera(&camera_from_base);
             let (rho, phi) = (xi.fixed_rows::<3>(0), xi.fixed_rows::<3>(3));
             let mut moved = 0;
             for (k, (a, b)) in before.iter().zip(&after).enumerate().step_by(97) {

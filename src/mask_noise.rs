@@ -1,6 +1,8 @@
 //! The synthetic segmentation-noise model ([`NoiseModel`]) applied to a true mask:
 //! - **boundary jitter**: the silhouette boundary is displaced along its normal by a smooth
-//!   random field (six random planar waves, wavelength 8–40 px) with RMS `boundary_jitter_px`;
+//!   random field with RMS `boundary_jitter_px`: smoothed white noise with correlation length
+//!   `boundary_correlation_px` (a segmenter's soft boundary, thresholded), or, when that is 0,
+//!   six random planar waves of wavelength 8–40 px;
 //! - **blobs**: with probability `blob_probability` per view, 1–2 ellipses (3–12 px radii)
 //!   centred near the boundary are painted as robot or cut out as background.
 //!
@@ -17,32 +19,14 @@ pub fn apply_mask_noise(rng: &mut impl Rng, mask: &Mask, noise: &NoiseModel) -> 
     let mut out = mask.clone();
     if noise.boundary_jitter_px > 0.0 {
         let sdf = SignedDistance::of(mask);
-        // Six planar waves; the sum of six unit-amplitude cosines has RMS sqrt(3).
-        let waves: Vec<(f64, f64, f64)> = (0..6)
-            .map(|_| {
-                let angle = rng.random_range(0.0..std::f64::consts::TAU);
-                let k = std::f64::consts::TAU / rng.random_range(8.0..40.0);
-                (
-                    k * angle.cos(),
-                    k * angle.sin(),
-                    rng.random_range(0.0..std::f64::consts::TAU),
-                )
-            })
-            .collect();
-        let amp = noise.boundary_jitter_px / 3f64.sqrt();
-        for v in 0..mask.height {
-            for u in 0..mask.width {
-                let i = (v * mask.width + u) as usize;
-                let d = f64::from(sdf.data[i]);
-                if d.abs() > 4.0 * noise.boundary_jitter_px + 1.0 {
-                    continue;
-                }
-                let field: f64 = waves
-                    .iter()
-                    .map(|(kx, ky, ph)| (kx * f64::from(u) + ky * f64::from(v) + ph).cos())
-                    .sum::<f64>()
-                    * amp;
-                out.data[i] = u8::from(d < field);
+        let field = if noise.boundary_correlation_px > 0.0 {
+            smoothed_field(rng, mask.width, mask.height, noise)
+        } else {
+            planar_wave_field(rng, mask.width, mask.height, noise)
+        };
+        for (i, (&d, &f)) in sdf.data.iter().zip(&field).enumerate() {
+            if f64::from(d).abs() <= 4.0 * noise.boundary_jitter_px + 1.0 {
+                out.data[i] = u8::from(f64::from(d) < f);
             }
         }
     }
@@ -78,4 +62,74 @@ pub fn apply_mask_noise(rng: &mut impl Rng, mask: &Mask, noise: &NoiseModel) -> 
         }
     }
     out
+}
+
+/// Boundary displacement per pixel: six planar waves, RMS `boundary_jitter_px`.
+fn planar_wave_field(rng: &mut impl Rng, width: u32, height: u32, noise: &NoiseModel) -> Vec<f64> {
+    let waves: Vec<(f64, f64, f64)> = (0..6)
+        .map(|_| {
+            let angle = rng.random_range(0.0..std::f64::consts::TAU);
+            let k = std::f64::consts::TAU / rng.random_range(8.0..40.0);
+            (
+                k * angle.cos(),
+                k * angle.sin(),
+                rng.random_range(0.0..std::f64::consts::TAU),
+            )
+        })
+        .collect();
+    // The sum of six unit-amplitude cosines has RMS sqrt(3).
+    let amp = noise.boundary_jitter_px / 3f64.sqrt();
+    (0..height)
+        .flat_map(|v| (0..width).map(move |u| (f64::from(u), f64::from(v))))
+        .map(|(u, v)| {
+            waves
+                .iter()
+                .map(|(kx, ky, ph)| (kx * u + ky * v + ph).cos())
+                .sum::<f64>()
+                * amp
+        })
+        .collect()
+}
+
+/// Boundary displacement per pixel: white noise smoothed by a Gaussian of standard deviation
+/// `boundary_correlation_px / sqrt(2)` (so the field's correlation is `exp(-d^2 / 2 l^2)`),
+/// scaled to RMS `boundary_jitter_px`.
+fn smoothed_field(rng: &mut impl Rng, width: u32, height: u32, noise: &NoiseModel) -> Vec<f64> {
+    use rand_distr::{Distribution, StandardNormal};
+    let (w, h) = (width as usize, height as usize);
+    let white: Vec<f64> = (0..w * h).map(|_| StandardNormal.sample(rng)).collect();
+    let sigma = noise.boundary_correlation_px / std::f64::consts::SQRT_2;
+    let radius = (3.0 * sigma).ceil() as isize;
+    let kernel: Vec<f64> = (-radius..=radius)
+        .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let blur = |src: &[f64], stride: usize, step: usize, len: usize, lines: usize| {
+        let mut dst = vec![0.0; src.len()];
+        for line in 0..lines {
+            for i in 0..len {
+                let mut acc = 0.0;
+                for (k, weight) in kernel.iter().enumerate() {
+                    // Mirror at the borders so the field has the same variance everywhere.
+                    let j = (i as isize + k as isize - radius).unsigned_abs();
+                    let j = if j >= len {
+                        (2 * len - 2).saturating_sub(j)
+                    } else {
+                        j
+                    };
+                    acc += weight * src[line * stride + j.min(len - 1) * step];
+                }
+                dst[line * stride + i * step] = acc;
+            }
+        }
+        dst
+    };
+    let rows = blur(&white, w, 1, w, h);
+    let field = blur(&rows, 1, w, h, w);
+    let rms = (field.iter().map(|f| f * f).sum::<f64>() / field.len().max(1) as f64).sqrt();
+    let scale = if rms > 0.0 {
+        noise.boundary_jitter_px / rms
+    } else {
+        0.0
+    };
+    field.into_iter().map(|f| f * scale).collect()
 }

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use crate::camera::Intrinsics;
 use crate::mask::Mask;
 use crate::mesh::{Edge, TriMesh, NO_TRIANGLE};
-use crate::robot::RobotModel;
+use crate::robot::{JointMotion, RobotModel};
 
 /// Points closer to the camera than this (metres) are not rendered.
 pub const NEAR_PLANE_M: f64 = 0.01;
@@ -34,6 +34,9 @@ pub struct PosedRobot {
     pub topology: Arc<TriMesh>,
     /// Link index of every vertex (empty when unknown): which body a sample moves with.
     pub vertex_link: Arc<Vec<u32>>,
+    /// Each actuated joint's axis at this pose and the links it moves (empty when unknown):
+    /// how an error in a reported joint moves the outline, for the covariance.
+    pub joint_motions: Arc<Vec<JointMotion>>,
 }
 
 impl PosedRobot {
@@ -43,6 +46,7 @@ impl PosedRobot {
             vertices_base: robot.posed_vertices(q),
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
+            joint_motions: Arc::new(robot.joint_motions(q)),
         }
     }
 
@@ -98,6 +102,7 @@ impl PosedRobot {
             vertices_base,
             topology: Arc::new(topology),
             vertex_link: Arc::new(vertex_link),
+            joint_motions: self.joint_motions.clone(),
         }
     }
 }
@@ -122,6 +127,7 @@ impl CoarseRobot {
             vertices_base: robot.visual.vertices.clone(),
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
+            joint_motions: Arc::new(Vec::new()),
         }
         .decimated(cell_m);
         CoarseRobot {
@@ -143,6 +149,7 @@ impl CoarseRobot {
                 .collect(),
             topology: self.topology.clone(),
             vertex_link: self.vertex_link.clone(),
+            joint_motions: Arc::new(robot.joint_motions(q)),
         }
     }
 }

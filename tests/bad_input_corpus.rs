@@ -853,6 +853,9 @@ fn calibrate_cases() -> Vec<Case> {
         case("camera width huge", CAL, &[c, "camera.width"], cell_line("camera", "width = 100000")),
         case("camera height zero", CAL, &[c, "camera.height"], cell_line("camera", "height = 0")),
         case("noise blob probability", CAL, &[c, "segmenter.noise.blob_probability"], cell_line("segmenter", "noise = { boundary_jitter_px = 0.5, blob_probability = 2.0, joint_noise_rad = 0.0 }")),
+        case("noise preset unknown", CAL, &[c, "unknown noise preset 'fancy'", "segmenter"], cell_line("segmenter", "noise = \"fancy\"")),
+        case("noise correlation huge", CAL, &[c, "segmenter.noise.boundary_correlation_px"], cell_line("segmenter", "noise = { boundary_jitter_px = 0.5, boundary_correlation_px = 1e9, blob_probability = 0.3, joint_noise_rad = 0.0 }")),
+        case("stop centre bound zero", CAL, &[c, "calibration.stop_centre_95_mm"], cell_line("calibration", "stop_centre_95_mm = 0.0")),
         case("noise jitter NaN", CAL, &[c, "segmenter.noise.boundary_jitter_px"], cell_line("segmenter", "noise = { boundary_jitter_px = nan, blob_probability = 0.3, joint_noise_rad = 0.0 }")),
         case("robot joints repeated", CAL, &[c, "robot.joints[1]"], cell_line("robot", "joints = [\"joint1\", \"joint1\", \"joint3\", \"joint4\", \"joint5\", \"joint6\"]")),
         case("robot urdf missing", CAL, &["missing.urdf"], cell_line("robot", "urdf = \"missing.urdf\"")),
@@ -1152,6 +1155,32 @@ fn export_cases() -> Vec<Case> {
             EXPORT,
             &[R, "camera_from_base[1][2]"],
             |d: &Path| edit_json(&d.join(R), |v| v["camera_from_base"][1][2] = Value::Null),
+        ),
+        case(
+            "result centre bound negative",
+            EXPORT,
+            &[R, "uncertainty.camera_centre_95_mm", "allowed"],
+            |d: &Path| {
+                edit_json(
+                    &d.join(R),
+                    |v| v["uncertainty"] = json!({"rotation_deg": [0.01, 0.01, 0.01], "translation_mm": [0.1, 0.1, 0.1], "camera_centre_95_mm": -1.0}),
+                )
+            },
+        ),
+        case(
+            "result covariance not symmetric",
+            EXPORT,
+            &[R, "uncertainty.covariance[0][1]", "symmetric"],
+            |d: &Path| {
+                edit_json(&d.join(R), |v| {
+                    let mut c = vec![vec![0.0; 6]; 6];
+                    for (k, row) in c.iter_mut().enumerate() {
+                        row[k] = 1e-8;
+                    }
+                    c[0][1] = 1e-9;
+                    v["uncertainty"] = json!({"rotation_deg": [0.01, 0.01, 0.01], "translation_mm": [0.1, 0.1, 0.1], "covariance": c})
+                })
+            },
         ),
         case(
             "result missing",

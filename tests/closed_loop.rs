@@ -89,6 +89,49 @@ fn every_shipped_config_parses_and_builds() {
     assert!(n >= 3, "expected the sim configs, found {n}");
 }
 
+/// The uncertainty rule stops the loop as soon as the reported 95% centre bound meets the
+/// target, and no sooner than `min_views`; a target no solve reaches leaves the other rules.
+#[test]
+fn the_loop_stops_once_the_centre_bound_meets_its_target() {
+    let path = config_path("sim-xarm6.toml");
+    let stop_with = |target: Option<f64>| {
+        let mut cfg = quick(read_config(&path).unwrap(), 4);
+        cfg.calibration.min_views = 2;
+        cfg.calibration.stop_centre_95_mm = target;
+        let cell = Cell::build(cfg, &path).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap()
+    };
+    let loose = stop_with(Some(50.0));
+    let bound = loose
+        .result
+        .uncertainty
+        .as_ref()
+        .unwrap()
+        .camera_centre_95_mm
+        .unwrap();
+    assert_eq!(
+        loose.result.views_used.len(),
+        2,
+        "{}",
+        loose.result.stop_reason
+    );
+    assert!(
+        loose.result.stop_reason.contains("camera centre within") && bound <= 50.0,
+        "{} (bound {bound} mm)",
+        loose.result.stop_reason
+    );
+    let unreachable = stop_with(Some(1e-3));
+    assert!(
+        !unreachable
+            .result
+            .stop_reason
+            .contains("camera centre within"),
+        "{}",
+        unreachable.result.stop_reason
+    );
+}
+
 #[test]
 fn simulated_xarm6_calibration_reaches_the_truth_and_records_a_solvable_run() {
     let path = config_path("sim-xarm6.toml");

@@ -75,6 +75,16 @@ fn synth_then_solve_recovers_the_camera() {
             && u.translation_mm.iter().all(|&s| s > 0.0 && s < 5.0),
         "{u:?}"
     );
+    // The centre bound and the covariance it comes from are written, and agree: the bound
+    // exceeds the largest 1-sigma of the centre (its covariance has the same eigenvalues as
+    // the translation block of the increment's).
+    let bound = u.camera_centre_95_mm.expect("a centre bound");
+    let c = u.covariance.expect("a covariance");
+    let largest = (0..3).map(|k| c[k][k]).fold(0.0, f64::max).sqrt() * 1000.0;
+    assert!(
+        bound > largest && bound < 10.0 * largest,
+        "bound {bound} mm, largest sigma {largest} mm"
+    );
     for i in 0..3 {
         let png = image::open(dir.path().join(format!("ov/{i:03}.overlay.png")))
             .unwrap()

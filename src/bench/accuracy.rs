@@ -4,13 +4,13 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::{median, scene_views, Report};
+use super::{median, seeded_scene, Report};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::render::CpuRenderer;
 use crate::robot::RobotModel;
 use crate::solve::{solve, Optimizer, SolveOptions};
-use crate::synth::{generate, SynthOptions};
+use crate::synth::SynthOptions;
 
 /// One solve's outcome in the accuracy benchmark.
 #[derive(Clone, Debug)]
@@ -44,18 +44,7 @@ pub fn accuracy(
     let max_views = view_counts.iter().copied().max().unwrap_or(1);
     let mut trials = Vec::new();
     for &seed in seeds {
-        let scene = generate(
-            robot,
-            &SynthOptions {
-                seed,
-                views: max_views,
-                ..synth.clone()
-            },
-        )?;
-        let views = scene_views(robot, &scene);
-        let init = scene
-            .initial_guess
-            .expect("benchmark scenes carry an initial guess");
+        let (scene, views, init) = seeded_scene(robot, seed, max_views, synth)?;
         for &k in view_counts {
             let opts = SolveOptions {
                 optimizer,

@@ -4,6 +4,7 @@
 //! summary the CLI prints. Benchmark-only protocols live here, not in the product loop.
 //!
 //! - [`accuracy`]: pose error over seeded synthetic scenes by view count.
+//! - [`coverage`]: how often the reported uncertainty covers the true error.
 //! - [`init`]: automatic initialisation over cameras anywhere on a hemisphere.
 //! - [`closed_loop`]: exploration against random selection on seeded simulated cells.
 //! - [`view_sets`]: how far choosing two views can go, against the score's model.
@@ -12,6 +13,7 @@
 
 pub mod accuracy;
 pub mod closed_loop;
+pub mod coverage;
 pub mod init;
 pub mod segmentation;
 pub mod speed;
@@ -28,6 +30,7 @@ use crate::synth::Scene;
 
 pub use accuracy::AccuracyBench;
 pub use closed_loop::LoopBench;
+pub use coverage::CoverageBench;
 pub use init::InitBench;
 pub use segmentation::SegmentBench;
 pub use speed::{ExploreBench, SpeedBench};
@@ -63,6 +66,28 @@ pub fn scene_views(robot: &RobotModel, scene: &Scene) -> Vec<View> {
             observed: scene.camera.undistort_mask(m),
         })
         .collect()
+}
+
+/// A seeded benchmark scene of `views` views, its solver views and its initial guess.
+pub fn seeded_scene(
+    robot: &RobotModel,
+    seed: u64,
+    views: usize,
+    synth: &crate::synth::SynthOptions,
+) -> Result<(Scene, Vec<View>, nalgebra::Isometry3<f64>)> {
+    let scene = crate::synth::generate(
+        robot,
+        &crate::synth::SynthOptions {
+            seed,
+            views,
+            ..synth.clone()
+        },
+    )?;
+    let solver_views = scene_views(robot, &scene);
+    let init = scene.initial_guess.ok_or_else(|| {
+        crate::error::Error::Solve("benchmark scenes carry an initial guess".into())
+    })?;
+    Ok((scene, solver_views, init))
 }
 
 /// Median of a slice (NaN-free).

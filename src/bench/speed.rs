@@ -61,7 +61,7 @@ pub fn explore_round(
         &guess,
         &SolveOptions::default(),
     )?;
-    report.covariance *= 400.0;
+    report.sampling_covariance *= 400.0;
     let cands = crate::explore::camera_candidates(
         &report,
         &crate::explore::ExploreOptions {

@@ -410,7 +410,7 @@ fn widened_posterior(
     score_downsample: u32,
 ) -> SolveReport {
     let mut widened = report.clone();
-    let u = &report.uncertainty;
+    let u = crate::solve::uncertainty_of(&report.sampling_covariance, &report.camera_from_base);
     let rot_rad = u
         .rotation_deg
         .iter()
@@ -424,7 +424,7 @@ fn widened_posterior(
     let wanted_px = 2.0 * f64::from(score_downsample);
     if typical_px.is_finite() && typical_px > 0.0 && typical_px < wanted_px {
         let k = wanted_px / typical_px;
-        widened.covariance *= k * k;
+        widened.sampling_covariance *= k * k;
     }
     widened
 }
@@ -523,6 +523,7 @@ mod tests {
             vertices_base: Vec::new(),
             topology: std::sync::Arc::new(crate::mesh::TriMesh::default()),
             vertex_link: std::sync::Arc::new(Vec::new()),
+            joint_motions: std::sync::Arc::new(Vec::new()),
         }
     }
 

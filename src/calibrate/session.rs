@@ -80,6 +80,10 @@ impl<'a> Session<'a> {
             min_band_px: cell.config.segmenter.min_band_px(),
             final_band_px: cell.config.segmenter.final_band_px(),
         });
+        let solve_opts = SolveOptions {
+            joint_noise_rad: settings.joint_noise_rad,
+            ..SolveOptions::default()
+        };
         Ok(Session {
             cell,
             opts,
@@ -88,7 +92,7 @@ impl<'a> Session<'a> {
             rec,
             pb,
             renderer,
-            solve_opts: SolveOptions::default(),
+            solve_opts,
             started,
             solve_s: 0.0,
             explore_s: 0.0,
@@ -168,6 +172,9 @@ impl<'a> Session<'a> {
                 s.max_views
             )));
         }
+        if let Some(reason) = self.precise_enough() {
+            return Ok(Some(reason));
+        }
         let (ranked, best) = self.plan(round);
         if let Some(reason) = self.converged(best) {
             return Ok(Some(reason));
@@ -221,6 +228,22 @@ impl<'a> Session<'a> {
             stats.sampled, stats.safe, stats.scored
         ));
         (ranked, best)
+    }
+
+    /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
+    /// the camera centre within `stop_centre_95_mm`. The bound is calibrated to cover the
+    /// true error (docs/uncertainty.md), so stopping on it keeps the promise.
+    fn precise_enough(&self) -> Option<String> {
+        let target = self.settings.stop_centre_95_mm?;
+        let report = self.report.as_ref()?;
+        let bound = report.uncertainty.camera_centre_95_mm;
+        let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
+        (self.views.len() >= self.settings.min_views && fits && bound <= target).then(|| {
+            format!(
+                "camera centre within {bound:.2} mm (95%) after {} views, target {target} mm",
+                self.views.len()
+            )
+        })
     }
 
     /// The variance rule: the best disagreement settled, enough views, and the estimate

@@ -255,9 +255,8 @@ pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> G
         camera_from_base: crate::geometry::to_rows(camera_from_base),
         true_joints: Vec::new(),
         noise: crate::config::NoiseModel {
-            boundary_jitter_px: 0.0,
-            blob_probability: 0.0,
             joint_noise_rad,
+            ..crate::config::NoiseModel::none()
         },
         seed: config.calibration.seed,
         scene: match &config.camera {

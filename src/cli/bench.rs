@@ -5,8 +5,8 @@ use clap::Subcommand;
 
 #[cfg(feature = "sim")]
 use easyhec::bench::{
-    AccuracyBench, ExploreBench, InitBench, LoopBench, Report, SegmentBench, SpeedBench,
-    ViewSetsBench,
+    AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, Report, SegmentBench,
+    SpeedBench, ViewSetsBench,
 };
 
 /// The benchmarks.
@@ -15,6 +15,9 @@ use easyhec::bench::{
 pub enum BenchCommand {
     /// Median pose error over seeded synthetic scenes, views 1..K, LM and/or Adam.
     Accuracy(AccuracyBench),
+    /// Whether the reported uncertainty covers the true error as often as it claims: axes
+    /// within 2σ and camera centres within the 95% bound, over seeded synthetic scenes.
+    Coverage(CoverageBench),
     /// Automatic initialisation (no guess): success rate, errors and time over seeded cells
     /// with the camera anywhere on a hemisphere around the robot.
     Init(InitBench),
@@ -47,6 +50,7 @@ impl BenchCommand {
         let mut log = |line: &str| eprintln!("{line}");
         let report: Report = match self {
             BenchCommand::Accuracy(b) => b.run(&mut log)?,
+            BenchCommand::Coverage(b) => b.run(&mut log)?,
             BenchCommand::Init(b) => b.run(&mut log)?,
             BenchCommand::Loop(b) => b.run(&mut log)?,
             BenchCommand::ViewSets(b) => b.run(&mut log)?,

@@ -124,6 +124,9 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
             u.translation_mm[1],
             u.translation_mm[2]
         );
+        if let Some(bound) = u.camera_centre_95_mm {
+            eprintln!("camera centre within {bound:.2} mm of the estimate (95%)");
+        }
     }
     report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
     Ok(())

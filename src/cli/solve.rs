@@ -92,12 +92,13 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     }
     let report = &outcome.report;
     println!(
-        "camera_from_base solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm -> {}",
+        "camera_from_base solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%) -> {}",
         outcome.views,
         outcome.solve_s,
         report.mean_iou(),
         report.uncertainty.rotation_deg,
         report.uncertainty.translation_mm,
+        report.uncertainty.camera_centre_95_mm,
         outcome.out.display()
     );
     if let Some((path, rot, trans)) = &outcome.truth_error {

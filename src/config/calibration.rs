@@ -53,6 +53,11 @@ pub struct CalibrationSettings {
     /// …and this, millimetres.
     #[serde(default = "default_pose_tol_mm")]
     pub pose_tol_mm: f64,
+    /// Uncertainty rule: stop once `min_views` are taken and the reported 95% bound on the
+    /// camera centre is at most this many millimetres (absent: only the variance rule and
+    /// `max_views` stop the loop).
+    #[serde(default = "default_stop_centre")]
+    pub stop_centre_95_mm: Option<f64>,
     /// Clear arm faults automatically and re-plan from where the arm stopped.
     #[serde(default)]
     pub clear_faults: bool,
@@ -101,6 +106,9 @@ fn default_pose_tol_deg() -> f64 {
 }
 fn default_pose_tol_mm() -> f64 {
     0.2
+}
+fn default_stop_centre() -> Option<f64> {
+    Some(1.0)
 }
 fn default_max_failures() -> usize {
     3

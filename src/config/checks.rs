@@ -35,6 +35,9 @@ pub mod bounds {
     pub const JOINT_NOISE_RAD: f64 = 0.1;
     /// Simulated boundary jitter, pixels.
     pub const BOUNDARY_JITTER_PX: f64 = 20.0;
+    /// Correlation length of the simulated boundary displacement, pixels (the smoothing
+    /// kernel spans six times this, so it stays a small fraction of any image).
+    pub const BOUNDARY_CORRELATION_PX: f64 = 32.0;
     /// Safety clearance, metres.
     pub const MARGIN_M: f64 = 0.5;
     /// Obstacle and workspace sizes, metres.
@@ -156,6 +159,13 @@ fn check_noise(c: &Check, field: &str, n: &NoiseModel) -> Result<()> {
         false,
     )?;
     c.within(
+        &format!("{field}.boundary_correlation_px"),
+        n.boundary_correlation_px,
+        0.0,
+        bounds::BOUNDARY_CORRELATION_PX,
+        false,
+    )?;
+    c.within(
         &format!("{field}.blob_probability"),
         n.blob_probability,
         0.0,
@@ -221,6 +231,9 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
     )?;
     c.within("calibration.pose_tol_deg", s.pose_tol_deg, 0.0, 10.0, true)?;
     c.within("calibration.pose_tol_mm", s.pose_tol_mm, 0.0, 100.0, true)?;
+    if let Some(target) = s.stop_centre_95_mm {
+        c.within("calibration.stop_centre_95_mm", target, 0.0, 1000.0, true)?;
+    }
     c.within(
         "calibration.joint_noise_rad",
         s.joint_noise_rad,

@@ -4,7 +4,9 @@
 //! active calibration's recorded frames for its background plate), render the robot's silhouette under the active
 //! `camera_from_base` at the reported joints, and compare: mask IoU and the mean distance
 //! between the two outlines, both ways, in pixels. Below `bump_min_iou` or above
-//! `bump_max_boundary_px` the calibration is marked stale; with `recalibrate_on_bump` a
+//! `bump_max_boundary_px` plus what the calibration's own uncertainty explains (twice the RMS
+//! outline displacement its covariance predicts at the check view) the calibration is marked
+//! stale, so an honestly uncertain calibration is not called bumped for its own uncertainty; with `recalibrate_on_bump` a
 //! recalibration starts, warm-started from the stale pose (a knocked camera moves by
 //! centimetres and degrees, well inside the solver's basin).
 
@@ -13,14 +15,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use easyhec_drivers::{ArmStatus, Frame};
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6, Vector6};
 
 use super::store::CheckRecord;
 use super::{now, Busy, Daemon, Refusal, StartOptions};
 use crate::camera::{Intrinsics, LensWarp};
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
-use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
 use crate::run::RunFile;
 
 /// Agreement of an observed mask with a rendered one.
@@ -72,7 +74,7 @@ pub async fn check(
     daemon.release(&Busy::Check);
     let m = &daemon.metrics;
     m.checks.fetch_add(1, Ordering::Relaxed);
-    let (joints, moved, a) = match measured {
+    let (joints, moved, a, explained_px) = match measured {
         Ok(v) => v,
         Err(e) => {
             m.check_errors.fetch_add(1, Ordering::Relaxed);
@@ -81,7 +83,8 @@ pub async fn check(
         }
     };
     let s = daemon.settings();
-    let stale = a.iou < s.bump_min_iou || a.boundary_px > s.bump_max_boundary_px;
+    let max_boundary_px = s.bump_max_boundary_px + explained_px;
+    let stale = a.iou < s.bump_min_iou || a.boundary_px > max_boundary_px;
     m.last_iou.store(a.iou.to_bits(), Ordering::Relaxed);
     m.last_boundary_px
         .store(a.boundary_px.to_bits(), Ordering::Relaxed);
@@ -94,7 +97,8 @@ pub async fn check(
         iou: a.iou,
         boundary_px: a.boundary_px,
         min_iou: s.bump_min_iou,
-        max_boundary_px: s.bump_max_boundary_px,
+        max_boundary_px,
+        explained_px,
         stale,
         recalibration: None,
     };
@@ -104,8 +108,8 @@ pub async fn check(
     }
     m.bumps.fetch_add(1, Ordering::Relaxed);
     eprintln!(
-        "easyhec daemon: bump detected: calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {} px)",
-        a.iou, s.bump_min_iou, a.boundary_px, s.bump_max_boundary_px
+        "easyhec daemon: bump detected: calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {:.2} px)",
+        a.iou, s.bump_min_iou, a.boundary_px, max_boundary_px
     );
     daemon.store().mark_stale(&id, &record.at)?;
     if s.recalibrate_on_bump {
@@ -153,8 +157,14 @@ async fn measure(
     daemon: &Arc<Daemon>,
     id: &str,
     pose: &Isometry3<f64>,
-) -> Result<(Vec<f64>, bool, Agreement)> {
+) -> Result<(Vec<f64>, bool, Agreement, f64)> {
     let cell = daemon.cell().clone();
+    let covariance = daemon
+        .store()
+        .active()
+        .and_then(|a| a.result.uncertainty)
+        .and_then(|u| u.covariance)
+        .map(|rows| Matrix6::from_fn(|r, c| rows[r][c]));
     match cell.arm.status().await? {
         ArmStatus::Fault(f) => {
             return Err(Error::Hardware(format!(
@@ -191,7 +201,7 @@ async fn measure(
     let pose = *pose;
     let q = joints.clone();
     let (daemon, id) = (daemon.clone(), id.to_string());
-    let agreement = tokio::task::spawn_blocking(move || -> Result<Agreement> {
+    let agreement = tokio::task::spawn_blocking(move || -> Result<(Agreement, f64)> {
         let camera = cell.camera.intrinsics().clone();
         if frame.width != camera.width || frame.height != camera.height {
             return Err(Error::Hardware(format!(
@@ -217,19 +227,37 @@ async fn measure(
             cell.segmenter.segment(&frame)?
         };
         let observed = camera.undistort_mask(&mask);
-        let rendered = CpuRenderer
-            .render(
-                &PosedRobot::new(&cell.robot, &q),
-                &camera.undistorted(),
-                &pose,
-                None,
-            )
-            .mask;
-        Ok(agreement(&observed, &rendered))
+        let pinhole = camera.undistorted();
+        let rendered = CpuRenderer.render(
+            &PosedRobot::new(&cell.robot, &q),
+            &pinhole,
+            &pose,
+            Some(1.0),
+        );
+        let explained = covariance.map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
+        Ok((agreement(&observed, &rendered.mask), explained))
     })
     .await
     .map_err(|e| Error::Hardware(format!("check task: {e}")))??;
-    Ok((joints, moved, agreement))
+    Ok((joints, moved, agreement.0, agreement.1))
+}
+
+/// Outline distance (pixels) the calibration's own uncertainty explains at this view: twice
+/// the RMS, over the rendered outline, of each sample's 1-sigma displacement along its normal
+/// under `covariance` (of the left increment of `camera_from_base`).
+pub fn explained_px(rendered: &Silhouette, camera: &Intrinsics, covariance: &Matrix6<f64>) -> f64 {
+    let (mut sum, mut length) = (0.0, 0.0);
+    for s in &rendered.boundary {
+        let jp = s.pixel_jacobian(camera);
+        let j: Vector6<f64> = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+        sum += (j.transpose() * covariance * j)[(0, 0)].max(0.0) * s.length_px;
+        length += s.length_px;
+    }
+    if length > 0.0 && sum.is_finite() {
+        2.0 * (sum / length).sqrt()
+    } else {
+        0.0
+    }
 }
 
 /// Scheduled checks every `interval` while the daemon runs; skipped while the arm is leased

@@ -180,8 +180,13 @@ pub struct CheckRecord {
     pub boundary_px: f64,
     /// Thresholds applied: IoU below…
     pub min_iou: f64,
-    /// …or boundary distance above this marks the calibration stale.
+    /// …or boundary distance above this marks the calibration stale: `bump_max_boundary_px`
+    /// plus `explained_px`.
     pub max_boundary_px: f64,
+    /// Outline distance the calibration's own uncertainty explains at this view, pixels
+    /// (twice the RMS displacement its covariance predicts; 0 without a covariance).
+    #[serde(default)]
+    pub explained_px: f64,
     /// The verdict.
     pub stale: bool,
     /// The recalibration this check started, if any.

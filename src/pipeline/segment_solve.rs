@@ -57,7 +57,8 @@ pub fn segment_frames<F: std::borrow::Borrow<Frame>>(
 }
 
 /// Prior band per view, pixels: the smallest band, plus three sigma of the pose uncertainty
-/// projected into the image, plus the outline offset a view's misfit implies (a view that
+/// projected into the image (of the sampling covariance, which the band widths were tuned
+/// on), plus the outline offset a view's misfit implies (a view that
 /// fits at IoU 0.7 has outlines about 0.3 · area / perimeter apart: wrong joints, a bad mask).
 /// `report`'s per-view fits belong to `rendered[first_view..]`; frames it did not solve get
 /// its mean fit.
@@ -68,7 +69,7 @@ pub fn bands_px(
     first_view: usize,
     min_band_px: f32,
 ) -> Vec<f32> {
-    let u = &report.uncertainty;
+    let u = crate::solve::uncertainty_of(&report.sampling_covariance, &report.camera_from_base);
     let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let depth_m = report.camera_from_base.translation.vector.norm().max(0.3);
     let sigma_px =

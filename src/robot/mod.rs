@@ -67,6 +67,22 @@ pub struct JointMotion {
     pub moves_link: Vec<bool>,
 }
 
+impl JointMotion {
+    /// The joint's motion as a left se(3) increment in the camera frame: a link it moves by
+    /// `dq` has its points move by `dq * (rho + phi x p)` in the camera frame, exactly as
+    /// under a camera increment `(rho, phi)`, so the outline cannot tell the two apart.
+    pub fn twist_in_camera(&self, camera_from_base: &Isometry3<f64>) -> crate::geometry::Twist {
+        let axis = camera_from_base.rotation * self.axis_base;
+        if self.prismatic {
+            crate::geometry::Twist::new(axis.x, axis.y, axis.z, 0.0, 0.0, 0.0)
+        } else {
+            let o = (camera_from_base * self.origin_base).coords;
+            let rho = o.cross(&axis);
+            crate::geometry::Twist::new(rho.x, rho.y, rho.z, axis.x, axis.y, axis.z)
+        }
+    }
+}
+
 /// Everything needed to build a [`RobotModel`], as a run or cell config states it.
 #[derive(Clone, Debug, Default)]
 pub struct RobotSource {

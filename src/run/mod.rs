@@ -483,24 +483,74 @@ pub struct PerView {
 /// `uncertainty`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct UncertaintyEntry {
-    /// Rotation about camera x, y, z, degrees.
+    /// Rotation about camera x, y, z, degrees (1 sigma).
     pub rotation_deg: [f64; 3],
-    /// Translation along camera x, y, z, millimetres.
+    /// Translation along camera x, y, z, millimetres (1 sigma).
     pub translation_mm: [f64; 3],
+    /// Radius of the ball around the estimated camera centre that holds the true one with
+    /// 95% probability, millimetres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_centre_95_mm: Option<f64>,
+    /// Covariance of the left increment `(rho, phi)` of `camera_from_base` (`rho` metres,
+    /// `phi` radians, both in the camera frame), row-major 6x6: what the figures above
+    /// summarise, for tools that propagate it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<Box<[[f64; 6]; 6]>>,
 }
 
 impl UncertaintyEntry {
     /// The entry for `u`, or `None` for a degenerate fit (no meaningful curvature): the
     /// field is then left out rather than written as nulls.
     pub fn of(u: &crate::solve::Uncertainty) -> Option<UncertaintyEntry> {
+        let covariance: [[f64; 6]; 6] =
+            std::array::from_fn(|r| std::array::from_fn(|c| u.covariance[(r, c)]));
         u.rotation_deg
             .iter()
             .chain(&u.translation_mm)
+            .chain(std::iter::once(&u.camera_centre_95_mm))
+            .chain(covariance.iter().flatten())
             .all(|v| v.is_finite())
             .then_some(UncertaintyEntry {
                 rotation_deg: u.rotation_deg,
                 translation_mm: u.translation_mm,
+                camera_centre_95_mm: Some(u.camera_centre_95_mm),
+                covariance: Some(Box::new(covariance)),
             })
+    }
+
+    /// The first value that no solve could have written, as `(field path, problem)`: every
+    /// figure finite and not negative, the covariance symmetric with a non-negative diagonal.
+    pub fn problem(&self) -> Option<(String, String)> {
+        let figures = self
+            .rotation_deg
+            .iter()
+            .map(|v| ("rotation_deg", *v))
+            .chain(self.translation_mm.iter().map(|v| ("translation_mm", *v)))
+            .chain(self.camera_centre_95_mm.map(|v| ("camera_centre_95_mm", v)));
+        for (field, v) in figures {
+            if !(v.is_finite() && v >= 0.0) {
+                return Some((
+                    format!("uncertainty.{field}"),
+                    format!("is {v}; allowed: a finite number >= 0"),
+                ));
+            }
+        }
+        let c = self.covariance.as_ref()?;
+        for r in 0..6 {
+            for k in 0..6 {
+                let v = c[r][k];
+                let bad = !v.is_finite()
+                    || (r == k && v < 0.0)
+                    || (v - c[k][r]).abs() > 1e-9 * (c[r][r].abs() + c[k][k].abs()).max(1e-30);
+                if bad {
+                    return Some((
+                        format!("uncertainty.covariance[{r}][{k}]"),
+                        format!("is {v}; allowed: finite, symmetric, diagonal >= 0"),
+                    ));
+                }
+            }
+        }
+        None
     }
 }
 
@@ -525,6 +575,9 @@ impl ResultFile {
         let value = read_tagged_json(path, RESULT_FORMAT)?;
         let r: ResultFile = from_value_at(path, value)?;
         from_rows(&r.camera_from_base).map_err(|m| Error::input(path, "camera_from_base", m))?;
+        if let Some((field, problem)) = r.uncertainty.as_ref().and_then(UncertaintyEntry::problem) {
+            return Err(Error::input(path, &field, problem));
+        }
         Ok(r)
     }
 

@@ -12,10 +12,10 @@ use crate::render::{BoundarySample, PosedRobot, Silhouette, SilhouetteRenderer, 
 
 /// One pyramid level: the downsampled camera and observations, and the Cauchy scale there.
 pub(super) struct Level {
-    camera: Intrinsics,
+    pub(super) camera: Intrinsics,
     /// Cauchy scale at this level, pixels.
-    robust_scale_px: f64,
-    views: Vec<ObservedLevel>,
+    pub(super) robust_scale_px: f64,
+    pub(super) views: Vec<ObservedLevel>,
 }
 
 /// How far along a pixel row/column the observed transition is searched, pixels.
@@ -84,7 +84,7 @@ impl Level {
 }
 
 /// One view's observation at one pyramid level.
-struct ObservedLevel {
+pub(super) struct ObservedLevel {
     mask: Mask,
     /// Observed outline crossings: position, outline length they stand for.
     outline: Vec<([f64; 2], f64)>,
@@ -258,7 +258,6 @@ pub(super) fn accumulate_keeping(
     opts: &SolveOptions,
 ) -> (Normal, Vec<Silhouette>) {
     let c = level.robust_scale_px;
-    let cap = GRID_CELL_PX * GRID_REACH as f64;
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
@@ -267,42 +266,76 @@ pub(super) fn accumulate_keeping(
         .zip(&level.views)
         .map(|(sil, obs)| {
             let mut n = Normal::zero();
-            let mut jacobians = Vec::with_capacity(sil.boundary.len());
-            // Rendered outline -> observed outline along the same pixel row (or column): the
-            // observed transition of the same sense nearest the rendered crossing. Both sit on
-            // the same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).
-            for s in &sil.boundary {
-                let jp = s.pixel_jacobian(&level.camera);
-                let jn = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
-                jacobians.push(jn);
-                match scanline_residual(&obs.mask, s, SCAN_REACH_PX) {
-                    Some(r) => n.add(r, &jn, s.length_px, c),
-                    None => n.add_outlier(SCAN_REACH_PX as f64, s.length_px, c),
-                }
-            }
-            // Observed outline -> rendered outline: signed distance to the tangent of the
-            // nearest rendered sample; keeps the render from sliding out of view or shrinking.
-            let grid = SampleGrid::new(
-                &sil.boundary,
-                level.camera.width,
-                level.camera.height,
-                GRID_CELL_PX,
-            );
-            for &(y, ds) in &obs.outline {
-                match grid.nearest(&sil.boundary, y, GRID_REACH) {
-                    Some(i) => {
-                        let s = &sil.boundary[i];
-                        let r =
-                            s.normal[0] * (y[0] - s.pixel[0]) + s.normal[1] * (y[1] - s.pixel[1]);
-                        n.add(r, &(-jacobians[i]), ds, c);
-                    }
-                    None => n.add_outlier(cap, ds, c),
-                }
-            }
+            view_residuals(sil, obs, &level.camera, |res| match res.r {
+                Some(r) => n.add(r, &res.j, res.ds, c),
+                None => n.add_outlier(res.cap, res.ds, c),
+            });
             n
         })
         .reduce(Normal::zero, Normal::merge);
     (normal, silhouettes)
+}
+
+/// One outline residual of a view: where it sits, what it is and how it moves with the pose.
+pub(super) struct Residual {
+    /// Signed distance (pixels); `None` when no match lies within reach.
+    pub(super) r: Option<f64>,
+    /// What an unmatched residual counts as, pixels.
+    pub(super) cap: f64,
+    /// Derivative of `r` with respect to the left increment of `camera_from_base`.
+    pub(super) j: Twist,
+    /// Outline length it stands for, pixels.
+    pub(super) ds: f64,
+    /// Image position, pixels.
+    pub(super) pixel: [f64; 2],
+    /// The rendered outline sample it is measured against (its vertex gives its link).
+    pub(super) sample: usize,
+}
+
+/// Every outline residual of one view, both ways: rendered outline -> observed outline along
+/// the same pixel row (or column), then observed outline -> nearest rendered sample's tangent.
+/// The normal equations and the covariance read the same residuals from here.
+pub(super) fn view_residuals(
+    sil: &Silhouette,
+    obs: &ObservedLevel,
+    camera: &Intrinsics,
+    mut sink: impl FnMut(Residual),
+) {
+    let mut jacobians = Vec::with_capacity(sil.boundary.len());
+    // The observed transition of the same sense nearest the rendered crossing. Both sit on the
+    // same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).
+    for (i, s) in sil.boundary.iter().enumerate() {
+        let jp = s.pixel_jacobian(camera);
+        let jn: Twist = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+        jacobians.push(jn);
+        sink(Residual {
+            r: scanline_residual(&obs.mask, s, SCAN_REACH_PX),
+            cap: SCAN_REACH_PX as f64,
+            j: jn,
+            ds: s.length_px,
+            pixel: s.pixel,
+            sample: i,
+        });
+    }
+    // Signed distance to the tangent of the nearest rendered sample; keeps the render from
+    // sliding out of view or shrinking.
+    let grid = SampleGrid::new(&sil.boundary, camera.width, camera.height, GRID_CELL_PX);
+    for &(y, ds) in &obs.outline {
+        let nearest = grid.nearest(&sil.boundary, y, GRID_REACH);
+        let r = nearest.map(|i| {
+            let s = &sil.boundary[i];
+            s.normal[0] * (y[0] - s.pixel[0]) + s.normal[1] * (y[1] - s.pixel[1])
+        });
+        let i = nearest.unwrap_or(0);
+        sink(Residual {
+            r,
+            cap: GRID_CELL_PX * GRID_REACH as f64,
+            j: jacobians.get(i).map_or(Twist::zeros(), |j| -j),
+            ds,
+            pixel: y,
+            sample: i,
+        });
+    }
 }
 
 /// Robust cost per pixel of outline (infinite when nothing of the robot is in view).

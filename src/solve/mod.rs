@@ -25,6 +25,7 @@ use crate::render::{PosedRobot, SilhouetteRenderer};
 
 mod adam;
 mod boundary;
+mod covariance;
 mod lm;
 mod refine;
 mod search;
@@ -93,6 +94,17 @@ pub struct SolveOptions {
     /// Inflation of the covariance for the correlation of neighbouring outline samples
     /// (pixels of outline per independent observation).
     pub correlation_length_px: f64,
+    /// Image tile (pixels) within which outline residuals count as one observation in the
+    /// covariance: a few correlation lengths of a segmenter's boundary error.
+    pub covariance_tile_px: f64,
+    /// Standard deviation of each reported joint's error, radians (metres for prismatic
+    /// joints): encoder noise plus what the kinematic model gets wrong. The covariance
+    /// carries it; the fit cannot see it.
+    pub joint_noise_rad: f64,
+    /// Model-error floor of the reported rotation, degrees per camera axis.
+    pub floor_rotation_deg: f64,
+    /// Model-error floor of the reported translation increment, millimetres per camera axis.
+    pub floor_translation_mm: f64,
     /// Below this mean IoU the LM result triggers a wide coarse search and a second solve.
     pub recover_below_iou: f64,
     /// Seed of the coarse search and the posterior refinement.
@@ -120,6 +132,10 @@ impl Default for SolveOptions {
             adam_steps: 1000,
             adam_learning_rate: 3e-3,
             correlation_length_px: 16.0,
+            covariance_tile_px: 10.0,
+            joint_noise_rad: 5e-4,
+            floor_rotation_deg: 0.0,
+            floor_translation_mm: 0.0,
             recover_below_iou: 0.8,
             search_seed: 0,
             refine_samples: 64,
@@ -135,8 +151,13 @@ impl Default for SolveOptions {
 pub struct SolveReport {
     /// The estimate.
     pub camera_from_base: Isometry3<f64>,
-    /// 6x6 covariance of the left increment `(rho, phi)` at the estimate.
+    /// 6x6 covariance of the left increment `(rho, phi)` at the estimate: the reported one,
+    /// built to cover the true error (module `covariance`).
     pub covariance: Matrix6<f64>,
+    /// The covariance the posterior refinement and exploration draw pose hypotheses from:
+    /// the fit's curvature scaled by the outline noise. Their settings were tuned on it; it
+    /// is no promise about the error.
+    pub sampling_covariance: Matrix6<f64>,
     /// 1-sigma uncertainty derived from `covariance`.
     pub uncertainty: Uncertainty,
     /// Residual variance of one pixel of outline at full resolution, px^2 (the per-sample
@@ -224,10 +245,12 @@ fn finish(
     let (n, silhouettes) = accumulate_keeping(renderer, &robots, &level, &pose, opts);
     let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
-    let covariance = match n.h.try_inverse() {
-        Some(inv) => inv * sigma2 * opts.correlation_length_px,
-        None => Matrix6::from_diagonal_element(f64::INFINITY),
-    };
+    let unpinned = || Matrix6::from_diagonal_element(f64::INFINITY);
+    let covariance = covariance::pose_covariance(&level, &silhouettes, &robots, &pose, opts)
+        .unwrap_or_else(unpinned);
+    let sampling_covariance =
+        n.h.try_inverse()
+            .map_or_else(unpinned, |inv| inv * sigma2 * opts.correlation_length_px);
     let uncertainty = uncertainty_of(&covariance, &pose);
     let renders: Vec<(f64, f64)> = silhouettes
         .par_iter()
@@ -238,6 +261,7 @@ fn finish(
     Ok(SolveReport {
         camera_from_base: pose,
         covariance,
+        sampling_covariance,
         uncertainty,
         outline_noise_px2: sigma2 * opts.correlation_length_px,
         per_view_iou: renders.iter().map(|r| r.0).collect(),

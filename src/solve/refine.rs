@@ -168,6 +168,7 @@ impl Band {
                 edges: Vec::new(),
             }),
             vertex_link: std::sync::Arc::new(vertex_link),
+            joint_motions: view.robot.joint_motions.clone(),
         };
         Band {
             robot,
@@ -195,10 +196,10 @@ pub(super) fn refine(
     if opts.refine_samples < 2 {
         return Ok(report);
     }
-    if !report.covariance.iter().all(|v| v.is_finite()) {
+    if !report.sampling_covariance.iter().all(|v| v.is_finite()) {
         return Ok(report);
     }
-    let Some(chol) = (report.covariance * opts.refine_inflation).cholesky() else {
+    let Some(chol) = (report.sampling_covariance * opts.refine_inflation).cholesky() else {
         return Ok(report);
     };
     let started = std::time::Instant::now();

@@ -1,0 +1,165 @@
+//! The covariance of the estimate, built to cover the true error:
+//!
+//! - **Correlated outline noise.** A segmenter's boundary errors are smooth along the outline,
+//!   so neighbouring residuals are not independent evidence. The covariance is a sandwich
+//!   `H^-1 M H^-1`: `H` the robust (Cauchy-weighted) normal matrix, `M` the scatter of the
+//!   residual pulls summed over image tiles, so residuals within a tile count as one
+//!   observation whatever their correlation, and blobs count as large as they pull.
+//! - **Joint errors.** The solver takes each view's reported joints as true. A joint error
+//!   moves every link after it rigidly, which the outline sees as a camera motion on those
+//!   links only; its pull on the normal equations, `H_links * xi_joint * dq`, enters `M` with
+//!   the stated joint noise.
+//! - **A model-error floor** for what no residual shows: mesh and kinematic deviations of the
+//!   real robot from its URDF and intrinsics error. It is added per axis of the increment.
+//!
+//! Disagreement between views needs no term of its own: it shows as residual pulls, which the
+//! sandwich counts.
+
+use std::collections::HashMap;
+
+use nalgebra::{Isometry3, Matrix6};
+use rayon::prelude::*;
+
+use super::boundary::{view_residuals, Level};
+use super::SolveOptions;
+use crate::geometry::Twist;
+use crate::render::{PosedRobot, Silhouette};
+
+/// One view's part of the sandwich.
+struct ViewPart {
+    /// Robust normal matrix.
+    h: Matrix6<f64>,
+    /// Scatter of the tile-summed residual pulls.
+    tiles_meat: Matrix6<f64>,
+    /// Tiles the outline crossed.
+    tiles: usize,
+    /// Scatter of the pull the view's joint errors put on the normal equations.
+    joints_meat: Matrix6<f64>,
+}
+
+/// The covariance of the left increment of `camera_from_base` at `pose`, from the fine level's
+/// residuals of `silhouettes` (rendered at `pose`); `None` when the outlines leave a direction
+/// unpinned.
+pub(super) fn pose_covariance(
+    level: &Level,
+    silhouettes: &[Silhouette],
+    robots: &[&PosedRobot],
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> Option<Matrix6<f64>> {
+    let parts: Vec<ViewPart> = silhouettes
+        .par_iter()
+        .zip(&level.views)
+        .zip(robots)
+        .map(|((sil, obs), robot)| view_part(level, sil, obs, robot, pose, opts))
+        .collect();
+    let h: Matrix6<f64> = parts.iter().map(|p| p.h).sum();
+    let tiles: usize = parts.iter().map(|p| p.tiles).sum();
+    // Residuals at the estimate have the six fitted directions taken out of them: scale
+    // their scatter back up by tiles / (tiles - 6).
+    let dof = tiles.saturating_sub(6).max(1) as f64;
+    let meat: Matrix6<f64> = parts
+        .iter()
+        .map(|p| p.tiles_meat * (tiles as f64 / dof) + p.joints_meat)
+        .sum();
+    let h_inv = h.cholesky()?.inverse();
+    let rotation = opts.floor_rotation_deg.to_radians().powi(2);
+    let translation = (opts.floor_translation_mm / 1000.0).powi(2);
+    let floor = Matrix6::from_diagonal(&Twist::new(
+        translation,
+        translation,
+        translation,
+        rotation,
+        rotation,
+        rotation,
+    ));
+    Some(h_inv * meat * h_inv + floor)
+}
+
+/// One image tile's share of a view's residuals.
+#[derive(Clone)]
+struct Tile {
+    /// Summed residual pull.
+    pull: Twist,
+    /// Per joint: the pull a unit error of that joint would add here.
+    joint_pulls: Vec<Twist>,
+}
+
+/// One view's robust normal matrix and its meat: tile-summed residual pulls, plus the pull of
+/// its joints' errors across tiles (their pull within a tile is in the residuals already).
+fn view_part(
+    level: &Level,
+    sil: &Silhouette,
+    obs: &super::boundary::ObservedLevel,
+    robot: &PosedRobot,
+    pose: &Isometry3<f64>,
+    opts: &SolveOptions,
+) -> ViewPart {
+    let c = level.robust_scale_px;
+    let tile = opts.covariance_tile_px.max(1.0);
+    let motions = robot.joint_motions.as_slice();
+    let twists: Vec<Twist> = motions.iter().map(|m| m.twist_in_camera(pose)).collect();
+    let empty = Tile {
+        pull: Twist::zeros(),
+        joint_pulls: vec![Twist::zeros(); motions.len()],
+    };
+    let mut h = Matrix6::zeros();
+    let mut tiles: HashMap<(i64, i64), Tile> = HashMap::new();
+    view_residuals(sil, obs, &level.camera, |res| {
+        let Some(r) = res.r else { return };
+        let u = (r / c) * (r / c);
+        let w = 1.0 / (1.0 + u);
+        // The bread is the derivative of the Cauchy influence `r w(r)`, not the IRLS weight:
+        // near the scale the weight overstates how firmly a residual holds the pose.
+        let held = res.j * ((1.0 - u) * w * w * res.ds);
+        h += held * res.j.transpose();
+        let key = (
+            (res.pixel[0] / tile).floor() as i64,
+            (res.pixel[1] / tile).floor() as i64,
+        );
+        let t = tiles.entry(key).or_insert_with(|| empty.clone());
+        t.pull += res.j * (w * r * res.ds);
+        let link = sil
+            .boundary
+            .get(res.sample)
+            .and_then(|s| robot.vertex_link.get(s.vertex as usize));
+        if let Some(&l) = link {
+            for ((m, xi), jp) in motions.iter().zip(&twists).zip(&mut t.joint_pulls) {
+                if m.moves_link.get(l as usize) == Some(&true) {
+                    *jp += held * res.j.dot(xi);
+                }
+            }
+        }
+    });
+    let tiles_meat: Matrix6<f64> = tiles.values().map(|t| t.pull * t.pull.transpose()).sum();
+    ViewPart {
+        h,
+        tiles_meat,
+        tiles: tiles.len(),
+        joints_meat: joints_meat(&tiles, motions.len(), opts.joint_noise_rad),
+    }
+}
+
+/// The scatter of the pull of a view's joint errors between tiles: `q^2 sum_k (b_k b_k^T -
+/// sum_t b_tk b_tk^T)`, `b_tk` joint k's pull in tile t, `b_k` its sum. The within-tile part
+/// is left out because the tile scatter of the residuals already holds it. Clamped to
+/// positive semi-definite.
+fn joints_meat(tiles: &HashMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Matrix6<f64> {
+    let q2 = noise_rad * noise_rad;
+    if q2 <= 0.0 || joints == 0 {
+        return Matrix6::zeros();
+    }
+    let mut meat = Matrix6::zeros();
+    for k in 0..joints {
+        let b: Twist = tiles.values().map(|t| t.joint_pulls[k]).sum();
+        let within: Matrix6<f64> = tiles
+            .values()
+            .map(|t| t.joint_pulls[k] * t.joint_pulls[k].transpose())
+            .sum();
+        meat += (b * b.transpose() - within) * q2;
+    }
+    let eig = meat.symmetric_eigen();
+    eig.eigenvectors
+        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose()
+}
