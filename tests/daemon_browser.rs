@@ -266,6 +266,11 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             "return document.getElementById('unc-rot').textContent",
         );
         assert!(unc.as_str().unwrap().contains('°'), "{unc}");
+        let centre = js(
+            &session,
+            "return document.getElementById('unc-centre').textContent",
+        );
+        assert!(centre.as_str().unwrap().starts_with("within "), "{centre}");
         let matrix = js(
             &session,
             "return document.getElementById('matrix').textContent",

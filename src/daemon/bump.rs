@@ -282,3 +282,48 @@ pub async fn schedule(daemon: Arc<Daemon>, interval: Duration) {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::geometry::look_at_camera_from_base;
+    use crate::robot::RobotModel;
+
+    /// The xArm6 seen from 1.5 m, rendered with outline samples.
+    fn seen() -> (Silhouette, Intrinsics) {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
+        let robot = RobotModel::from_urdf(urdf).unwrap();
+        let camera = Intrinsics::pinhole(640, 480, 600.0, 600.0, 319.5, 239.5);
+        let pose = look_at_camera_from_base(
+            &Vector3::new(1.3, 0.5, 0.8),
+            &Vector3::new(0.1, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        let posed = PosedRobot::new(&robot, &[0.3, -0.4, -0.5, 0.2, 0.9, 0.1]);
+        (
+            CpuRenderer.render(&posed, &camera, &pose, Some(1.0)),
+            camera,
+        )
+    }
+
+    #[test]
+    fn explained_distance_is_twice_the_predicted_outline_sigma() {
+        let (sil, camera) = seen();
+        assert_eq!(explained_px(&sil, &camera, &Matrix6::zeros()), 0.0);
+        // 1 mm of sideways translation at about 1.5 m moves an outline by at most 0.4 px, by
+        // about half that on average over its directions.
+        let mut sideways = Matrix6::zeros();
+        sideways[(0, 0)] = 1e-6;
+        let one_mm = explained_px(&sil, &camera, &sideways);
+        assert!((0.1..=0.8).contains(&one_mm), "{one_mm} px for 1 mm");
+        // The same in depth moves the outline far less: only by scaling the image.
+        let mut depth = Matrix6::zeros();
+        depth[(2, 2)] = 1e-6;
+        assert!(explained_px(&sil, &camera, &depth) < 0.5 * one_mm);
+        // Standard deviations scale with the square root of the covariance.
+        let four = explained_px(&sil, &camera, &(sideways * 4.0));
+        assert!((four - 2.0 * one_mm).abs() < 1e-9 * one_mm.max(1.0));
+    }
+}

@@ -192,6 +192,8 @@ function showActive(a) {
   if (r.uncertainty) {
     $("unc-rot").textContent = r.uncertainty.rotation_deg.map((v) => v.toFixed(4)).join(", ") + " °";
     $("unc-trans").textContent = r.uncertainty.translation_mm.map((v) => v.toFixed(3)).join(", ") + " mm";
+    const bound = r.uncertainty.camera_centre_95_mm;
+    $("unc-centre").textContent = bound == null ? "—" : "within " + bound.toFixed(2) + " mm";
   }
   $("views-used").textContent = r.views_used.join(", ");
   $("result-reason").textContent = r.stop_reason;
