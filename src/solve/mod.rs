@@ -11,7 +11,9 @@
 //!
 //! Layout: `boundary` holds the outline residuals and their normal equations, `lm` and `adam`
 //! the two optimisers, `search` the coarse global search a poor fit falls back to, `refine`
-//! the posterior refinement after LM, and `uncertainty` the 1-sigma summary of a covariance.
+//! the posterior refinement after LM, `covariance` the reported covariance (a sandwich built to
+//! cover the true error, docs/uncertainty.md), and `uncertainty` its summaries (1-sigma per
+//! axis, the 95% camera-centre bound).
 
 use nalgebra::{Isometry3, Matrix6};
 use rayon::prelude::*;
