@@ -766,6 +766,18 @@ fn solve_cases() -> Vec<Case> {
             nothing,
         ),
         case(
+            "--joint-noise-rad huge",
+            &["solve", "run", "--joint-noise-rad", "1"],
+            &["--joint-noise-rad", "allowed: 0 to 0.1"],
+            nothing,
+        ),
+        case(
+            "--joint-noise-rad NaN",
+            &["solve", "run", "--joint-noise-rad", "nan"],
+            &["--joint-noise-rad", "allowed"],
+            nothing,
+        ),
+        case(
             "--segmenter unknown",
             &["solve", "run", "--segmenter", "sam"],
             &["--segmenter", "sam"],

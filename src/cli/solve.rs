@@ -53,6 +53,10 @@ pub struct SolveArgs {
     /// views left that agree); by default such a solve fails and writes nothing.
     #[arg(long)]
     pub allow_poor_fit: bool,
+    /// 1-sigma error of each recorded joint, radians (encoder noise plus kinematic error):
+    /// carried into the reported uncertainty (docs/uncertainty.md). 0 to 0.1.
+    #[arg(long, default_value_t = 5e-4, value_parser = joint_noise)]
+    pub joint_noise_rad: f64,
 }
 
 /// Solves the run and prints the outcome (remarks on stderr as they happen).
@@ -82,6 +86,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         ignore_masks: a.ignore_masks,
         masks_out: a.masks_out,
         allow_poor_fit: a.allow_poor_fit,
+        joint_noise_rad: a.joint_noise_rad,
     };
     let outcome = solve_run(&request, &mut |line| eprintln!("{line}"))?;
     if !outcome.poor_views.is_empty() {
@@ -108,4 +113,15 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--joint-noise-rad`: a finite 0 to 0.1 rad (the cell config's bound).
+fn joint_noise(text: &str) -> Result<f64, String> {
+    let v: f64 = text.parse().map_err(|e| format!("{e}"))?;
+    let bound = easyhec::config::checks::bounds::JOINT_NOISE_RAD;
+    if v.is_finite() && (0.0..=bound).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v}; allowed: 0 to {bound} rad"))
+    }
 }

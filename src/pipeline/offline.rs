@@ -54,6 +54,8 @@ pub struct OfflineSolve {
     pub masks_out: Option<PathBuf>,
     /// Write the result even when the fit is poor ([`judge_fit`]).
     pub allow_poor_fit: bool,
+    /// 1-sigma error of each recorded joint, radians, for the reported covariance.
+    pub joint_noise_rad: f64,
 }
 
 /// What an offline solve produced.
@@ -109,6 +111,7 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
     };
     let solve_opts = SolveOptions {
         optimizer: req.optimizer,
+        joint_noise_rad: req.joint_noise_rad,
         ..SolveOptions::default()
     };
     let explore_opts = ExploreOptions {
