@@ -149,7 +149,9 @@ impl CoarseRobot {
                 .collect(),
             topology: self.topology.clone(),
             vertex_link: self.vertex_link.clone(),
-            joint_motions: Arc::new(robot.joint_motions(q)),
+            // Coarse poses are only scored, never solved from: no covariance reads their
+            // joints, and thousands are posed per round.
+            joint_motions: Arc::new(Vec::new()),
         }
     }
 }
