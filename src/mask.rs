@@ -91,6 +91,48 @@ impl Mask {
         out
     }
 
+    /// Where `self`'s outline lies against `reference`'s: for every crossing of the
+    /// reference's outline with a pixel row or column, the signed distance (pixels, positive
+    /// when `self` reaches further out of the robot) to the nearest crossing of `self` of the
+    /// same sense on that row or column, within `reach_px`; crossings with none are left out.
+    /// A mean near 0 means no boundary bias, whatever the holes or blobs (those find no match
+    /// or are counted by the IoU).
+    pub fn boundary_offsets(&self, reference: &Mask, reach_px: u32) -> Vec<f64> {
+        let (w, h) = (i64::from(reference.width), i64::from(reference.height));
+        let reach = i64::from(reach_px);
+        let mut out = Vec::new();
+        // One line (row when `rows`) through `fixed`; `at(mask, k)` reads position k on it.
+        let mut scan = |len: i64, at: &dyn Fn(&Mask, i64) -> bool| {
+            for k in 0..len - 1 {
+                let (a, b) = (at(reference, k), at(reference, k + 1));
+                if a == b {
+                    continue;
+                }
+                // Outward is towards the background side: +1 when the robot is at k.
+                let outward = if a { 1 } else { -1 };
+                let same_sense =
+                    |j: i64| j >= 0 && j + 1 < len && at(self, j) == a && at(self, j + 1) == b;
+                // The nearest match; a tie between outward and inward is ambiguous and skipped.
+                let found = (0..=reach).find_map(|d| {
+                    match (same_sense(k + d * outward), same_sense(k - d * outward)) {
+                        (true, true) if d > 0 => Some(None),
+                        (true, _) => Some(Some(d as f64)),
+                        (false, true) => Some(Some(-d as f64)),
+                        (false, false) => None,
+                    }
+                });
+                out.extend(found.flatten());
+            }
+        };
+        for v in 0..h {
+            scan(w, &|m: &Mask, k| m.get(k, v));
+        }
+        for u in 0..w {
+            scan(h, &|m: &Mask, k| m.get(u, k));
+        }
+        out
+    }
+
     /// Number of robot pixels.
     pub fn count(&self) -> usize {
         self.data.iter().filter(|&&v| v != 0).count()
@@ -300,6 +342,32 @@ fn dt_1d(f: &[f32], d: &mut [f32], v: &mut [usize], z: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn square(size: u32, lo: u32, hi: u32) -> Mask {
+        let mut m = Mask::new(size, size);
+        for v in lo..hi {
+            for u in lo..hi {
+                m.set(u, v, true);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn boundary_offsets_measure_a_grown_outline_outward() {
+        let reference = square(40, 10, 30);
+        let grown = square(40, 9, 31);
+        let offsets = grown.boundary_offsets(&reference, 4);
+        // Every row and column crossing the square twice: 2 x 20 x 2 crossings.
+        assert_eq!(offsets.len(), 80);
+        assert!(offsets.iter().all(|&d| d == 1.0), "{offsets:?}");
+        let shrunk = square(40, 12, 28);
+        let inward = shrunk.boundary_offsets(&reference, 4);
+        // Rows and columns 10, 11, 28 and 29 no longer cross `shrunk`.
+        assert_eq!(inward.len(), 64);
+        assert!(inward.iter().all(|&d| d == -2.0), "{inward:?}");
+        assert!(shrunk.boundary_offsets(&reference, 1).is_empty());
+    }
 
     #[test]
     fn edt_matches_brute_force() {

@@ -5,8 +5,6 @@
 use std::path::{Path, PathBuf};
 
 use super::{median, seeded_sim_cell, Report};
-use crate::backend::open_renderer;
-use crate::backend::Backend;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::camera::LensWarp;
 use crate::cell::Cell;
@@ -14,11 +12,25 @@ use crate::config::SegmenterConfig;
 use crate::config::{read_config, RendererChoice, ScenePreset};
 use crate::config::{CellConfig, SelectionSetting};
 use crate::error::{Error, Result};
+use crate::explore::Selection;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::mask::Mask;
-use crate::render::PosedRobot;
-use crate::run::{load_run, load_run_with, MaskSource};
-use crate::solve::{solve, SolveOptions, View};
+use crate::pipeline::offline::{solve_run, OfflineSolve};
+use crate::run::load_run;
+use crate::solve::{Optimizer, SolveOptions};
+
+/// How far (pixels) a mask's outline is searched for the reference's when measuring boundary
+/// bias: further away it is a miss or a blob, which the IoU counts.
+const OFFSET_REACH_PX: u32 = 5;
+
+/// Mean and mean absolute value of boundary offsets, pixels (0 for none).
+fn offset_summary(offsets: &[f64]) -> (f64, f64) {
+    let n = offsets.len().max(1) as f64;
+    (
+        offsets.iter().sum::<f64>() / n,
+        offsets.iter().map(|d| d.abs()).sum::<f64>() / n,
+    )
+}
 
 /// One seeded cell calibrated from colour frames alone.
 #[derive(Clone, Debug)]
@@ -27,6 +39,9 @@ pub struct CellTrial {
     pub seed: u64,
     /// IoU of each final mask against the true silhouette.
     pub ious: Vec<f64>,
+    /// Boundary offsets of all final masks against the true silhouettes (see
+    /// [`Mask::boundary_offsets`]), pixels, positive outward.
+    pub boundary_offsets: Vec<f64>,
     /// Rotation error of the final estimate, degrees.
     pub rotation_deg: f64,
     /// Translation error of the final estimate, mm.
@@ -84,6 +99,7 @@ pub fn cell_trial(
         .lock()
         .map_err(|_| Error::Solve("truth recorder poisoned".into()))?;
     let mut ious = Vec::new();
+    let mut boundary_offsets = Vec::new();
     for (i, v) in run.file.views.iter().enumerate() {
         let mask_rel = v
             .mask
@@ -100,11 +116,13 @@ pub fn cell_trial(
             data: truth_mask.iter().map(|&b| u8::from(b >= 128)).collect(),
         };
         ious.push(mask.iou(&t));
+        boundary_offsets.extend(mask.boundary_offsets(&t, OFFSET_REACH_PX));
     }
     let est = outcome.report.camera_from_base;
     Ok(CellTrial {
         seed,
         ious,
+        boundary_offsets,
         rotation_deg: rotation_error_deg(&est, &truth),
         translation_mm: translation_error_mm(&est, &truth),
     })
@@ -145,85 +163,73 @@ impl crate::segment::Segmenter for TruthRecorder {
 /// The builtin segmenter on a run directory whose masks are the reference.
 #[derive(Clone, Debug)]
 pub struct RunFigures {
-    /// IoU of each builtin mask against the recorded one.
+    /// Views both calibrations kept.
+    pub views: Vec<usize>,
+    /// IoU of each of those views' builtin mask against the recorded one.
     pub ious: Vec<f64>,
+    /// Boundary offset (mean, mean absolute; pixels, positive outward) of each of those
+    /// views' builtin mask against the recorded one (see [`Mask::boundary_offsets`]).
+    pub offsets: Vec<(f64, f64)>,
     /// Rotation between the image-only calibration and the recorded-mask one, degrees.
     pub rotation_deg: f64,
     /// Translation between them, mm.
     pub translation_mm: f64,
-    /// Segment-and-solve rounds.
-    pub rounds: usize,
 }
 
-/// Solves `run` from its recorded masks, then from its images alone (masks withheld) with the
-/// builtin segmenter, and compares masks and poses. The run needs an `initial_guess`.
-pub fn run_figures(run_dir: &Path, renderer: &dyn Backend) -> Result<RunFigures> {
-    let reference = load_run(run_dir)?;
-    let guess = reference.initial_guess.ok_or_else(|| {
-        Error::input(
-            run_dir.join("run.json"),
-            "initial_guess",
-            "the segment benchmark needs one",
-        )
-    })?;
-    let opts = SolveOptions::default();
-    let views: Vec<View> = reference
-        .views
-        .iter()
-        .map(|v| View {
-            robot: PosedRobot::new(&reference.robot, &v.joints),
-            observed: v.observed.clone(),
-        })
-        .collect();
-    let ref_report = solve(renderer, &reference.camera, &views, &guess, &opts)?;
-    let images = load_run_with(run_dir, MaskSource::Image)?;
-    let mut frames = Vec::new();
-    for v in &images.views {
-        let path = v.image.as_ref().expect("checked by load_run_with");
-        frames.push(crate::segment::read_frame(
-            path,
-            images.camera.width,
-            images.camera.height,
-        )?);
-    }
-    let refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
-    let robots: Vec<PosedRobot> = images
-        .views
-        .iter()
-        .map(|v| PosedRobot::new(&images.robot, &v.joints))
-        .collect();
-    let config = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
-    let segmenter = crate::segment::build(&config, &run_dir.join("run.json"))?;
-    let settled = crate::pipeline::segment_solve::segment_and_solve(
+/// Solves `run` as `easyhec solve` does, once from its recorded masks and once from its
+/// images alone (`--segmenter builtin --ignore-masks`), and compares the masks of the views
+/// both kept and the two poses. Results and masks go to a temporary folder.
+pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigures> {
+    let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let masks_dir = scratch.path().join("masks");
+    let request = |out: &str, segmenter: Option<SegmenterConfig>| OfflineSolve {
+        run: run_dir.to_path_buf(),
+        views: None,
+        selection: Selection::First,
+        seed: 0,
+        optimizer: Optimizer::Lm,
+        out: Some(scratch.path().join(out)),
+        overlays: None,
         renderer,
-        &images.camera,
-        segmenter.as_ref(),
-        &refs,
-        &robots,
-        &|_| Ok(guess),
-        Some((&guess, 80.0)),
-        config.min_band_px(),
-        config.final_band_px(),
-        &opts,
-        4,
-    )?;
-    let ious = settled
-        .masks
+        keep_all_views: false,
+        ignore_masks: segmenter.is_some(),
+        masks_out: segmenter.is_some().then(|| masks_dir.clone()),
+        segmenter,
+        allow_poor_fit: true,
+        joint_noise_rad: SolveOptions::default().joint_noise_rad,
+    };
+    let quiet = &mut |_: &str| {};
+    let reference = solve_run(&request("recorded.json", None), quiet)?;
+    let builtin = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
+    let images = solve_run(&request("images.json", Some(builtin)), quiet)?;
+    let recorded = load_run(run_dir)?;
+    let views: Vec<usize> = images
+        .result
+        .views_used
         .iter()
-        .zip(&reference.views)
-        .map(|(m, v): (&Mask, _)| images.camera.undistort_mask(m).iou(&v.observed))
+        .copied()
+        .filter(|v| reference.result.views_used.contains(v))
         .collect();
+    let (mut ious, mut offsets) = (Vec::new(), Vec::new());
+    for &v in &views {
+        let made = Mask::load(&masks_dir.join(format!("{v:03}.mask.png")))?;
+        let made = recorded.camera.undistort_mask(&made);
+        let truth = &recorded.views[v].observed;
+        ious.push(made.iou(truth));
+        offsets.push(offset_summary(
+            &made.boundary_offsets(truth, OFFSET_REACH_PX),
+        ));
+    }
+    let (a, b) = (
+        &images.report.camera_from_base,
+        &reference.report.camera_from_base,
+    );
     Ok(RunFigures {
+        views,
         ious,
-        rotation_deg: rotation_error_deg(
-            &settled.report.camera_from_base,
-            &ref_report.camera_from_base,
-        ),
-        translation_mm: translation_error_mm(
-            &settled.report.camera_from_base,
-            &ref_report.camera_from_base,
-        ),
-        rounds: settled.rounds,
+        offsets,
+        rotation_deg: rotation_error_deg(a, b),
+        translation_mm: translation_error_mm(a, b),
     })
 }
 
@@ -235,7 +241,7 @@ pub struct SegmentBench {
     #[arg(long, default_value = "config/sim-xarm6.toml")]
     pub config: PathBuf,
     /// Number of simulated cells (seeds 0..N-1; 0 skips them).
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(0..=1000))]
     pub scenes: u64,
     /// Views per calibration (no early stop).
     #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
@@ -246,8 +252,8 @@ pub struct SegmentBench {
     pub run: Option<PathBuf>,
     /// Frame dressing of the simulated cells: hard (clutter, light robot on light walls,
     /// shadows, exposure changes, moving boxes) or easy.
-    #[arg(long, default_value = "hard")]
-    pub frames: String,
+    #[arg(long, value_enum, default_value_t = ScenePreset::Hard)]
+    pub frames: ScenePreset,
     /// Renderer: cpu, wgpu or auto.
     #[arg(long, default_value = "auto")]
     pub renderer: RendererChoice,
@@ -265,9 +271,7 @@ impl SegmentBench {
             frames,
             renderer,
         } = self.clone();
-        let preset: ScenePreset = frames
-            .parse()
-            .map_err(|e: String| Error::Usage(format!("--frames: {e}")))?;
+        let preset = frames;
         if scenes > 0 {
             let mut base = read_config(&config)?;
             base.calibration.renderer = renderer;
@@ -289,8 +293,13 @@ impl SegmentBench {
             let ious: Vec<f64> = trials.iter().flat_map(|t| t.ious.clone()).collect();
             let rot: Vec<f64> = trials.iter().map(|t| t.rotation_deg).collect();
             let trans: Vec<f64> = trials.iter().map(|t| t.translation_mm).collect();
+            let offsets: Vec<f64> = trials
+                .iter()
+                .flat_map(|t| t.boundary_offsets.iter().copied())
+                .collect();
+            let (bias, spread) = offset_summary(&offsets);
             report.line(format!(
-                "builtin on {scenes} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
+                "builtin on {scenes} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); outline offset against the truth mean {bias:+.3} px, mean |offset| {spread:.3} px ({crossings} crossings); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
                 median(&ious),
                 ious.iter().sum::<f64>() / ious.len().max(1) as f64,
                 ious.iter().copied().fold(f64::INFINITY, f64::min),
@@ -298,21 +307,23 @@ impl SegmentBench {
                 median(&trans),
                 rot.iter().copied().fold(0.0, f64::max),
                 trans.iter().copied().fold(0.0, f64::max),
+                crossings = offsets.len(),
             ));
         }
         if let Some(run) = run {
-            let r = open_renderer(renderer, false)
-                .map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
-            let f = run_figures(&run, r.as_ref())?;
+            let f = run_figures(&run, renderer)?;
+            let round = |x: f64| (x * 1000.0).round() / 1000.0;
             report.line(format!(
-                "builtin on {} ({} views, masks withheld): mean IoU {:.4} (per view {:?}); images-only vs recorded-mask calibration {:.4} deg / {:.3} mm after {} rounds",
+                "builtin on {} (masks withheld), views {:?} both calibrations kept: IoU {:?}; outline offset (mean, mean |offset|) {:?} px; images-only vs recorded-mask calibration {:.4} deg / {:.3} mm",
                 run.display(),
-                f.ious.len(),
-                f.ious.iter().sum::<f64>() / f.ious.len().max(1) as f64,
-                f.ious.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
+                f.views,
+                f.ious.iter().map(|&x| round(x)).collect::<Vec<_>>(),
+                f.offsets
+                    .iter()
+                    .map(|&(m, a)| (round(m), round(a)))
+                    .collect::<Vec<_>>(),
                 f.rotation_deg,
                 f.translation_mm,
-                f.rounds
             ));
         }
         Ok(report)

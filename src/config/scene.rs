@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 
 /// A named bundle of scene effects; the effects' own tables override it.
-#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenePreset {
     /// The plain frames: none of the effects unless a table turns one on.
@@ -25,13 +25,8 @@ impl FromStr for ScenePreset {
 
     /// `easy` or `hard` (command-line spelling).
     fn from_str(s: &str) -> std::result::Result<ScenePreset, String> {
-        match s {
-            "easy" => Ok(ScenePreset::Easy),
-            "hard" => Ok(ScenePreset::Hard),
-            other => Err(format!(
-                "unknown scene preset '{other}': expected easy or hard"
-            )),
-        }
+        <ScenePreset as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown scene preset '{s}': expected easy or hard"))
     }
 }
 

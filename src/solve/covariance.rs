@@ -27,8 +27,10 @@ use crate::render::{PosedRobot, Silhouette};
 
 /// One view's part of the sandwich.
 struct ViewPart {
-    /// Robust normal matrix.
+    /// Robust normal matrix, from the slope of the Cauchy influence.
     h: Matrix6<f64>,
+    /// The same from the IRLS weight: the stand-in when the slope's is not positive definite.
+    h_weight: Matrix6<f64>,
     /// Scatter of the tile-summed residual pulls.
     tiles_meat: Matrix6<f64>,
     /// Tiles the outline crossed.
@@ -62,7 +64,11 @@ pub(super) fn pose_covariance(
         .iter()
         .map(|p| p.tiles_meat * (tiles as f64 / dof) + p.joints_meat)
         .sum();
-    let h_inv = h.cholesky()?.inverse();
+    // Past the Cauchy scale the influence's slope is negative, so a fit with many residuals
+    // there (a poor one, flagged as such) can leave `h` indefinite; the IRLS weight's matrix
+    // then stands in: tighter, but a finite answer where the slope has none.
+    let h_weight: Matrix6<f64> = parts.iter().map(|p| p.h_weight).sum();
+    let h_inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
     let rotation = opts.floor_rotation_deg.to_radians().powi(2);
     let translation = (opts.floor_translation_mm / 1000.0).powi(2);
     let floor = Matrix6::from_diagonal(&Twist::new(
@@ -104,6 +110,7 @@ fn view_part(
         joint_pulls: vec![Twist::zeros(); motions.len()],
     };
     let mut h = Matrix6::zeros();
+    let mut h_weight = Matrix6::zeros();
     let mut tiles: HashMap<(i64, i64), Tile> = HashMap::new();
     view_residuals(sil, obs, &level.camera, |res| {
         let Some(r) = res.r else { return };
@@ -113,6 +120,7 @@ fn view_part(
         // near the scale the weight overstates how firmly a residual holds the pose.
         let held = res.j * ((1.0 - u) * w * w * res.ds);
         h += held * res.j.transpose();
+        h_weight += res.j * res.j.transpose() * (w * res.ds);
         let key = (
             (res.pixel[0] / tile).floor() as i64,
             (res.pixel[1] / tile).floor() as i64,
@@ -134,6 +142,7 @@ fn view_part(
     let tiles_meat: Matrix6<f64> = tiles.values().map(|t| t.pull * t.pull.transpose()).sum();
     ViewPart {
         h,
+        h_weight,
         tiles_meat,
         tiles: tiles.len(),
         joints_meat: joints_meat(&tiles, motions.len(), opts.joint_noise_rad),

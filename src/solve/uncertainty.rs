@@ -82,9 +82,17 @@ pub fn norm_quantile_95(c: &Matrix3<f64>) -> f64 {
 pub fn uncertainty_of(covariance: &Matrix6<f64>, camera_from_base: &Isometry3<f64>) -> Uncertainty {
     let ct = translation_covariance(covariance, camera_from_base);
     let centre = camera_centre_covariance(covariance, camera_from_base);
+    // An unpinned direction makes every figure infinite, never a NaN that prints as 0.
+    let sigma = |variance: f64| {
+        if variance.is_nan() {
+            f64::INFINITY
+        } else {
+            variance.max(0.0).sqrt()
+        }
+    };
     Uncertainty {
-        rotation_deg: [0, 1, 2].map(|k| covariance[(3 + k, 3 + k)].max(0.0).sqrt().to_degrees()),
-        translation_mm: [0, 1, 2].map(|k| ct[(k, k)].max(0.0).sqrt() * 1000.0),
+        rotation_deg: [0, 1, 2].map(|k| sigma(covariance[(3 + k, 3 + k)]).to_degrees()),
+        translation_mm: [0, 1, 2].map(|k| sigma(ct[(k, k)]) * 1000.0),
         camera_centre_95_mm: norm_quantile_95(&centre) * 1000.0,
         covariance: *covariance,
     }
@@ -103,6 +111,15 @@ mod tests {
         let three = norm_quantile_95(&Matrix3::identity());
         assert!((three - 2.796).abs() < 0.03, "{three}");
         assert!(norm_quantile_95(&Matrix3::from_element(f64::NAN)).is_infinite());
+    }
+
+    #[test]
+    fn an_unpinned_covariance_reports_infinite_figures_not_zero() {
+        let pose = Isometry3::new(Vector3::new(0.1, -0.2, 1.0), Vector3::new(0.3, 0.2, -0.1));
+        let u = uncertainty_of(&Matrix6::from_diagonal_element(f64::INFINITY), &pose);
+        assert!(u.rotation_deg.iter().all(|v| v.is_infinite()), "{u:?}");
+        assert!(u.translation_mm.iter().all(|v| v.is_infinite()), "{u:?}");
+        assert!(u.camera_centre_95_mm.is_infinite());
     }
 
     #[test]
