@@ -55,14 +55,7 @@ fn main() -> ExitCode {
             e.exit()
         }
         Err(e) => {
-            // One line, as for every other bad input; `--help` has the details.
-            let text = e.render().to_string();
-            let first = text
-                .lines()
-                .next()
-                .unwrap_or("invalid arguments")
-                .trim_start_matches("error: ");
-            eprintln!("error: {first} (see easyhec --help)");
+            eprintln!("error: {} (see easyhec --help)", one_line(&e));
             return ExitCode::FAILURE;
         }
     };
@@ -83,5 +76,25 @@ fn main() -> ExitCode {
             eprintln!("error: {}", chain.join(": "));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// A command-line error as one line, as for every other bad input: clap's first line, plus the
+/// allowed values when clap lists them (`--help` has the rest).
+fn one_line(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let mut lines = text.lines().map(str::trim);
+    let first = lines
+        .next()
+        .unwrap_or("invalid arguments")
+        .trim_start_matches("error: ");
+    match lines.find(|l| l.starts_with("[possible values:")) {
+        Some(values) => format!(
+            "{first}: allowed: {}",
+            values
+                .trim_start_matches("[possible values: ")
+                .trim_end_matches(']')
+        ),
+        None => first.to_string(),
     }
 }

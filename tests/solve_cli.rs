@@ -347,3 +347,56 @@ fn views_whose_joints_do_not_match_their_images_are_left_out() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("views [1, 3] fit poorly"), "{stderr}");
 }
+
+/// Every flag with fixed choices lists them in `--help`, and a wrong one is refused with them.
+#[test]
+fn help_lists_every_choice_flags_values() {
+    let help = |args: &[&str]| {
+        let out = Command::new(common::easyhec_bin())
+            .args(args)
+            .arg("--help")
+            .output()
+            .expect("easyhec runs");
+        assert_ok(&out);
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let expected: &[(&[&str], &[&str])] = &[
+        (
+            &["solve"],
+            &[
+                "first", "explore", "random", "lm", "adam", "cpu", "wgpu", "auto", "builtin",
+            ],
+        ),
+        (&["export"], &["opencv", "ros", "easy-handeye", "urdf"]),
+        (&["calibrate"], &["cpu", "wgpu", "auto"]),
+        (
+            &["bench", "loop"],
+            &["explore", "random", "information", "variance"],
+        ),
+        (&["bench", "segment"], &["easy", "hard"]),
+        (&["bench", "coverage"], &["standard", "segmenter", "none"]),
+    ];
+    for (command, values) in expected {
+        let text = help(command);
+        assert!(text.contains("ossible values"), "{command:?}: {text}");
+        for v in *values {
+            assert!(
+                text.contains(&format!("- {v}:"))
+                    || text.contains(&format!(" {v},"))
+                    || text.contains(&format!(" {v}]")),
+                "{command:?} --help does not list {v}:\n{text}"
+            );
+        }
+    }
+    let out = Command::new(common::easyhec_bin())
+        .args(["export", "result.json", "--format", "yaml"])
+        .output()
+        .expect("easyhec runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("allowed: opencv, ros, easy-handeye, urdf"),
+        "{stderr}"
+    );
+}

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::{median, seeded_scene, Report};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::render::CpuRenderer;
 use crate::robot::RobotModel;
@@ -106,8 +106,8 @@ pub struct AccuracyBench {
     #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,5")]
     pub views: Vec<usize>,
     /// Optimisers to run.
-    #[arg(long, value_delimiter = ',', default_value = "lm")]
-    pub optimizers: Vec<String>,
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "lm")]
+    pub optimizers: Vec<Optimizer>,
 }
 
 impl AccuracyBench {
@@ -122,8 +122,11 @@ impl AccuracyBench {
         } = self.clone();
         let model = RobotModel::from_urdf(robot)?;
         let seeds: Vec<u64> = (0..scenes).collect();
-        for name in optimizers {
-            let optimizer: Optimizer = name.parse().map_err(Error::Usage)?;
+        for optimizer in optimizers {
+            let name = match optimizer {
+                Optimizer::Lm => "lm",
+                Optimizer::Adam => "adam",
+            };
             let trials = accuracy(
                 &model,
                 &seeds,
@@ -137,7 +140,7 @@ impl AccuracyBench {
                 ))
                 },
             )?;
-            report.line(summarize(&name, &trials, &views));
+            report.line(summarize(name, &trials, &views));
         }
         Ok(report)
     }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use super::{median, seeded_sim_cell, Report};
 use crate::config::{read_config, RendererChoice, ScoreSetting, SelectionSetting};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 
 /// One simulated calibration in the closed-loop benchmark.
@@ -119,14 +119,19 @@ pub struct LoopBench {
     #[arg(long)]
     pub climb_steps: Option<usize>,
     /// Selections to run.
-    #[arg(long, value_delimiter = ',', default_value = "explore,random")]
-    pub selections: Vec<String>,
-    /// Renderer: cpu, wgpu or auto.
-    #[arg(long, default_value = "auto")]
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "explore,random"
+    )]
+    pub selections: Vec<SelectionSetting>,
+    /// The renderer backend.
+    #[arg(long, value_enum, default_value_t = RendererChoice::Auto)]
     pub renderer: RendererChoice,
-    /// Exploration score: information (default) or variance (the paper's).
-    #[arg(long)]
-    pub score: Option<String>,
+    /// Exploration score (default: the config's).
+    #[arg(long, value_enum)]
+    pub score: Option<ScoreSetting>,
 }
 
 impl LoopBench {
@@ -148,26 +153,14 @@ impl LoopBench {
         if let Some(n) = climb_steps {
             base.calibration.climb_steps = n;
         }
-        match score.as_deref() {
-            None => {}
-            Some("information") => base.calibration.score = ScoreSetting::Information,
-            Some("variance") => base.calibration.score = ScoreSetting::Variance,
-            Some(other) => {
-                return Err(Error::Usage(format!(
-                    "--score {other}: use information or variance"
-                )))
-            }
+        if let Some(score) = score {
+            base.calibration.score = score;
         }
         let mut all: Vec<(String, Vec<LoopTrial>)> = Vec::new();
-        for name in &selections {
-            let selection = match name.as_str() {
-                "explore" => SelectionSetting::Explore,
-                "random" => SelectionSetting::Random,
-                other => {
-                    return Err(Error::Usage(format!(
-                        "--selections {other}: use explore or random"
-                    )))
-                }
+        for &selection in &selections {
+            let name = match selection {
+                SelectionSetting::Explore => "explore",
+                SelectionSetting::Random => "random",
             };
             let mut trials = Vec::new();
             for seed in first_seed..first_seed + cells {
@@ -193,7 +186,7 @@ impl LoopBench {
                 ));
                 trials.push(t);
             }
-            all.push((name.clone(), trials));
+            all.push((name.to_string(), trials));
         }
         report.line(format!(
             "| selection | {} |",

@@ -48,8 +48,8 @@ pub struct CoverageBench {
     /// View counts to evaluate.
     #[arg(long, value_delimiter = ',', default_value = "1,3,5")]
     pub views: Vec<usize>,
-    /// Segmentation-noise preset of the scenes: standard, segmenter or none.
-    #[arg(long, default_value = "segmenter")]
+    /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
+    #[arg(long, default_value = "segmenter", value_parser = ["standard", "segmenter", "none"])]
     pub noise: String,
 }
 

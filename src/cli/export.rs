@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, Context};
+use anyhow::Context;
 use clap::Args;
 use easyhec::error::Error;
 use easyhec::interop::export::check_frame_name;
@@ -13,9 +13,9 @@ use easyhec::run::ResultFile;
 pub struct ExportArgs {
     /// easyhec-result/1 file.
     pub result: PathBuf,
-    /// opencv | ros | easy-handeye | urdf
-    #[arg(long)]
-    pub format: String,
+    /// The form to write.
+    #[arg(long, value_enum)]
+    pub format: ExportFormat,
     /// Name of the camera optical frame in ROS/URDF forms.
     #[arg(long, default_value = "camera_color_optical_frame")]
     pub camera_frame: String,
@@ -26,7 +26,7 @@ pub struct ExportArgs {
 
 /// Writes a result in another tool's form.
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
-    let format: ExportFormat = a.format.parse().map_err(|e: String| anyhow!(e))?;
+    let format = a.format;
     let result = ResultFile::read(&a.result)?;
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;

@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, bail};
-use clap::Args;
+use anyhow::anyhow;
+use clap::{Args, ValueEnum};
 use easyhec::config::{RendererChoice, SegmenterConfig};
 use easyhec::explore::Selection;
 use easyhec::pipeline::offline::{solve_run, OfflineSolve};
@@ -16,33 +16,32 @@ pub struct SolveArgs {
     /// Number of views to use (default: all).
     #[arg(long)]
     pub views: Option<usize>,
-    /// How views are chosen: first (0..K-1); explore (view 0, then the view where the
-    /// camera hypotheses disagree most, re-solving each round); random (like explore, random).
-    #[arg(long, default_value = "first")]
-    pub select: String,
+    /// How views are chosen.
+    #[arg(long, value_enum, default_value_t = SelectArg::First)]
+    pub select: SelectArg,
     /// Seed for --select random.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Result path (default RUN/result.json).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// lm (default) or adam (the paper's baseline).
-    #[arg(long, default_value = "lm")]
-    pub optimizer: String,
+    /// The optimiser.
+    #[arg(long, value_enum, default_value_t = Optimizer::Lm)]
+    pub optimizer: Optimizer,
     /// Write one agreement overlay PNG per view into this folder.
     #[arg(long)]
     pub overlays: Option<PathBuf>,
-    /// Renderer: cpu, wgpu (any adapter) or auto (wgpu on a hardware GPU, else cpu).
-    #[arg(long, default_value = "auto")]
+    /// The renderer backend.
+    #[arg(long, value_enum, default_value_t = RendererChoice::Auto)]
     pub renderer: RendererChoice,
     /// Keep every view even when some do not fit any pose the others agree on (by default
     /// such views are left out of the result and named on stderr).
     #[arg(long)]
     pub keep_all_views: bool,
-    /// Segment views that have an image but no mask with this segmenter (builtin), in
+    /// Segment views that have an image but no mask with this segmenter, in
     /// segment → solve → re-segment rounds.
-    #[arg(long)]
-    pub segmenter: Option<String>,
+    #[arg(long, value_enum)]
+    pub segmenter: Option<SegmenterArg>,
     /// With --segmenter: segment every view's image, ignoring recorded masks.
     #[arg(long, requires = "segmenter")]
     pub ignore_masks: bool,
@@ -59,17 +58,36 @@ pub struct SolveArgs {
     pub joint_noise_rad: f64,
 }
 
+/// `--select`: how a solve picks its views.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum SelectArg {
+    /// Views 0..K-1.
+    First,
+    /// View 0, then the view where the camera hypotheses disagree most, re-solving each round.
+    Explore,
+    /// Like explore, but random (seeded by --seed).
+    Random,
+}
+
+/// `--segmenter`: segmenters that work on recorded images.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum SegmenterArg {
+    /// Background plate, prior silhouette and colour models, no training (docs/method.md).
+    Builtin,
+}
+
 /// Solves the run and prints the outcome (remarks on stderr as they happen).
 pub fn run(a: SolveArgs) -> anyhow::Result<()> {
-    let optimizer: Optimizer = a.optimizer.parse().map_err(|e: String| anyhow!(e))?;
-    let selection = match a.select.as_str() {
-        "first" => Selection::First,
-        "random" => Selection::Random(a.seed),
-        "explore" => Selection::Explore,
-        other => bail!("--select {other}: use first, random or explore"),
+    let optimizer = a.optimizer;
+    let selection = match a.select {
+        SelectArg::First => Selection::First,
+        SelectArg::Random => Selection::Random(a.seed),
+        SelectArg::Explore => Selection::Explore,
     };
-    let segmenter = match &a.segmenter {
-        Some(name) => Some(SegmenterConfig::by_name(name).map_err(|e| anyhow!(e))?),
+    let segmenter = match a.segmenter {
+        Some(SegmenterArg::Builtin) => {
+            Some(SegmenterConfig::by_name("builtin").map_err(|e| anyhow!(e))?)
+        }
         None => None,
     };
     let request = OfflineSolve {

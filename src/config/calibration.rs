@@ -152,7 +152,7 @@ impl InitialGuess {
 }
 
 /// How the next pose is chosen.
-#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum SelectionSetting {
     /// Where the camera hypotheses disagree most.
@@ -163,7 +163,7 @@ pub enum SelectionSetting {
 }
 
 /// How exploration ranks joint samples.
-#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScoreSetting {
     /// How much a view lowers the predicted rotation and translation covariance of the
@@ -218,7 +218,17 @@ impl CalibrationSettings {
 
 /// Which renderer backend to use (`--renderer`, `[calibration] renderer`). Plain data, kept
 /// with the configuration; `backend::open_renderer` acts on it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Deserialize,
+    serde::Serialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum RendererChoice {
     /// The CPU reference renderer.
@@ -233,11 +243,7 @@ pub enum RendererChoice {
 impl std::str::FromStr for RendererChoice {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "cpu" => Ok(RendererChoice::Cpu),
-            "wgpu" => Ok(RendererChoice::Wgpu),
-            "auto" => Ok(RendererChoice::Auto),
-            other => Err(format!("unknown renderer {other:?}: use cpu, wgpu or auto")),
-        }
+        <RendererChoice as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown renderer {s:?}: use cpu, wgpu or auto"))
     }
 }

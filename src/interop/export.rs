@@ -33,7 +33,7 @@ pub fn check_frame_name(name: &str) -> std::result::Result<(), String> {
 }
 
 /// Export targets.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ExportFormat {
     /// OpenCV FileStorage YAML with the 4x4 `camera_from_base` and `base_from_camera`, plus a
     /// plain-text 4x4 when written to a `.txt` path.
@@ -49,16 +49,8 @@ pub enum ExportFormat {
 impl std::str::FromStr for ExportFormat {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        Ok(match s {
-            "opencv" => ExportFormat::Opencv,
-            "ros" => ExportFormat::Ros,
-            "easy-handeye" => ExportFormat::EasyHandeye,
-            "urdf" => ExportFormat::Urdf,
-            other => {
-                return Err(format!(
-                    "unknown export format '{other}': use opencv, ros, easy-handeye or urdf"
-                ))
-            }
+        <ExportFormat as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            format!("unknown export format '{s}': use opencv, ros, easy-handeye or urdf")
         })
     }
 }

@@ -52,7 +52,7 @@ pub struct View {
 }
 
 /// Which optimiser to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Optimizer {
     /// Coarse-to-fine Levenberg–Marquardt on the boundary residual (default).
     #[default]
@@ -64,11 +64,8 @@ pub enum Optimizer {
 impl std::str::FromStr for Optimizer {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "lm" => Ok(Optimizer::Lm),
-            "adam" => Ok(Optimizer::Adam),
-            other => Err(format!("unknown optimizer '{other}': use lm or adam")),
-        }
+        <Optimizer as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown optimizer '{s}': use lm or adam"))
     }
 }
 
