@@ -5,12 +5,12 @@ mod cli;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
     name = "easyhec",
-    version,
+    version = cli::version::version_line(),
     about = "Markerless eye-to-hand camera calibration by silhouette alignment"
 )]
 struct Cli {
@@ -37,6 +37,12 @@ enum Command {
     Bench(cli::bench::BenchCommand),
     /// Serve calibrations of a cell over HTTP (API, web page, bump checks) until stopped.
     Daemon(cli::daemon::DaemonArgs),
+    /// Print a shell completion script (e.g. `easyhec completions bash > /etc/bash_completion.d/easyhec`).
+    Completions {
+        /// The shell to complete in.
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
 }
 
 fn main() -> ExitCode {
@@ -68,6 +74,15 @@ fn main() -> ExitCode {
         Command::Export(a) => cli::export::run(a),
         Command::Bench(b) => b.run(),
         Command::Daemon(a) => cli::daemon::run(a),
+        Command::Completions { shell } => {
+            clap_complete::generate(
+                shell,
+                &mut Cli::command(),
+                "easyhec",
+                &mut std::io::stdout(),
+            );
+            Ok(())
+        }
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,

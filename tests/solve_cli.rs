@@ -400,3 +400,42 @@ fn help_lists_every_choice_flags_values() {
         "{stderr}"
     );
 }
+
+/// `easyhec completions bash` is a script bash accepts that completes subcommands and flags;
+/// `--version` names the features built in.
+#[test]
+fn completions_and_version() {
+    let run = |args: &[&str]| {
+        let out = Command::new(common::easyhec_bin())
+            .args(args)
+            .output()
+            .expect("easyhec runs");
+        assert_ok(&out);
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let script = run(&["completions", "bash"]);
+    for word in [
+        "solve",
+        "calibrate",
+        "--segmenter",
+        "--ignore-masks",
+        "easy-handeye",
+    ] {
+        assert!(script.contains(word), "the bash completion lacks {word}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("easyhec.bash");
+    std::fs::write(&path, &script).unwrap();
+    let syntax = Command::new("bash").arg("-n").arg(&path).output().unwrap();
+    assert_ok(&syntax);
+    for shell in ["zsh", "fish"] {
+        assert!(run(&["completions", shell]).contains("solve"), "{shell}");
+    }
+    let version = run(&["--version"]);
+    assert!(
+        version.starts_with(&format!("easyhec {}", env!("CARGO_PKG_VERSION")))
+            && version.contains("(features: ")
+            && version.contains("sim"),
+        "{version}"
+    );
+}

@@ -9,6 +9,7 @@ pub mod import;
 pub mod solve;
 #[cfg(feature = "sim")]
 pub mod synth;
+pub mod version;
 
 use std::path::Path;
 
