@@ -382,6 +382,7 @@ fn truncated_cells_cut_the_robot_at_the_border_and_write_runs_with_images() {
         base_link: None,
         ignore_links: Vec::new(),
         joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),
+        xacro_args: Default::default(),
     };
     write_imaged_scene(&imaged, entry, dir.path(), 11, &NoiseModel::none()).unwrap();
     let run: serde_json::Value =

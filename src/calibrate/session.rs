@@ -631,6 +631,7 @@ fn robot_entry(cell: &Cell) -> RobotEntry {
             .iter()
             .map(|s| s.to_string())
             .collect(),
+        xacro_args: src.xacro_args.clone(),
     }
 }
 

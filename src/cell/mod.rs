@@ -135,6 +135,7 @@ fn robot_source(config: &CellConfig, path: &Path) -> RobotSource {
         base_link: r.base_link.clone(),
         ignore_links: r.ignore_links.clone(),
         joints: r.joints.clone(),
+        xacro_args: r.xacro_args.clone(),
     }
 }
 

@@ -165,6 +165,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         base_link: None,
         ignore_links: a.ignore_links,
         joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),
+        xacro_args: Default::default(),
     };
     match &imaged {
         Some(imaged) => write_imaged_scene(imaged, entry, &a.out, a.seed, &noise)?,

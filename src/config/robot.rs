@@ -23,4 +23,7 @@ pub struct RobotConfig {
     /// Actuated joints in the arm's order; default every movable joint in URDF order.
     #[serde(default)]
     pub joints: Option<Vec<String>>,
+    /// Arguments of a `.xacro` description, passed to the xacro tool as `name:=value`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub xacro_args: BTreeMap<String, String>,
 }

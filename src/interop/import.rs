@@ -64,6 +64,7 @@ pub fn import_easyhec(opts: &EasyHecImport) -> Result<RunFile> {
             base_link: None,
             ignore_links: opts.ignore_links.clone(),
             joints: opts.joints.clone(),
+            xacro_args: BTreeMap::new(),
         },
         camera: CameraEntry::of(&camera),
         initial_guess,

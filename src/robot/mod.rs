@@ -14,7 +14,11 @@ use crate::error::{Error, Result};
 use crate::geometry::from_xyz_rpy;
 use crate::mesh::{load_mesh_file, TriMesh};
 
+mod packages;
 mod urdf_numbers;
+mod xacro;
+
+use packages::resolve_mesh_uri;
 
 /// Joint type as FK needs it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,6 +100,8 @@ pub struct RobotSource {
     pub ignore_links: Vec<String>,
     /// Actuated joints in the order joint vectors use; default: every movable, non-mimic joint.
     pub joints: Option<Vec<String>>,
+    /// Arguments of a `.xacro` description (`name:=value`).
+    pub xacro_args: BTreeMap<String, String>,
 }
 
 /// A loaded robot: kinematics plus merged visual geometry.
@@ -119,67 +125,6 @@ pub struct RobotModel {
     pub vertex_link: Arc<Vec<u32>>,
     /// Where it was loaded from (collision geometry is read from the same files).
     pub source: RobotSource,
-}
-
-fn resolve_mesh_uri(
-    uri: &str,
-    urdf_dir: &Path,
-    package_dirs: &BTreeMap<String, PathBuf>,
-) -> Result<PathBuf, String> {
-    if let Some(rest) = uri.strip_prefix("package://") {
-        let (pkg, rel) = rest
-            .split_once('/')
-            .ok_or_else(|| format!("malformed package URI '{uri}'"))?;
-        if let Some(dir) = package_dirs.get(pkg) {
-            return Ok(dir.join(rel));
-        }
-        if let Ok(paths) = std::env::var("ROS_PACKAGE_PATH") {
-            for root in std::env::split_paths(&paths) {
-                if let Some(dir) = find_ros_package(&root, pkg, 6) {
-                    return Ok(dir.join(rel));
-                }
-            }
-        }
-        return Err(format!(
-            "cannot resolve '{uri}': add \"{pkg}\" to robot.package_dirs or to ROS_PACKAGE_PATH"
-        ));
-    }
-    let path = uri.strip_prefix("file://").unwrap_or(uri);
-    let p = Path::new(path);
-    Ok(if p.is_absolute() {
-        p.to_path_buf()
-    } else {
-        urdf_dir.join(p)
-    })
-}
-
-/// Finds package `name` under `dir` as ROS does: a folder whose `package.xml` declares that
-/// `<name>` (or, lacking a manifest, a folder of that name); no descent below a package.
-fn find_ros_package(dir: &Path, name: &str, depth: usize) -> Option<PathBuf> {
-    let manifest = dir.join("package.xml");
-    if let Ok(text) = std::fs::read_to_string(&manifest) {
-        let declared = text
-            .split("<name>")
-            .nth(1)
-            .and_then(|t| t.split("</name>").next())
-            .map(str::trim);
-        return (declared == Some(name)).then(|| dir.to_path_buf());
-    }
-    if dir.file_name().and_then(|n| n.to_str()) == Some(name) && dir.is_dir() {
-        return Some(dir.to_path_buf());
-    }
-    if depth == 0 {
-        return None;
-    }
-    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
-        .ok()?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_dir())
-        .collect();
-    entries.sort();
-    entries
-        .into_iter()
-        .find_map(|sub| find_ros_package(&sub, name, depth - 1))
 }
 
 /// Loads one `<visual>`/`<collision>` geometry as a mesh in its own frame plus the scale to
@@ -246,7 +191,7 @@ impl RobotModel {
     /// Loads a URDF and its visual meshes.
     pub fn load(src: &RobotSource) -> Result<RobotModel> {
         let urdf_path = &src.urdf;
-        let text = crate::io::read_text_input(urdf_path)?;
+        let text = xacro::urdf_text(urdf_path, &src.xacro_args)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
         urdf_numbers::check(&urdf, urdf_path)?;

@@ -90,6 +90,9 @@ pub struct RobotEntry {
     pub ignore_links: Vec<String>,
     /// Actuated joints, in the order of each view's `joints`.
     pub joints: Vec<String>,
+    /// Arguments of a `.xacro` description.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub xacro_args: BTreeMap<String, String>,
 }
 
 /// `run.json` → `camera`.
@@ -358,6 +361,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         base_link: file.robot.base_link.clone(),
         ignore_links: file.robot.ignore_links.clone(),
         joints: Some(file.robot.joints.clone()),
+        xacro_args: file.robot.xacro_args.clone(),
     };
     let robot = RobotModel::load(&source)?;
     let initial_guess = match &file.initial_guess {
