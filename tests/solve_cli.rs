@@ -162,7 +162,7 @@ fn exports_parse_back_to_the_same_transform() {
             "{what}"
         );
     };
-    // OpenCV YAML (strip the %YAML directive line that serde_yaml does not take).
+    // OpenCV YAML (strip the %YAML directive line that serde_yaml_ng does not take).
     let cv = export("opencv");
     let body: String = cv
         .lines()
@@ -170,7 +170,7 @@ fn exports_parse_back_to_the_same_transform() {
         .collect::<Vec<_>>()
         .join("\n")
         .replace("!!opencv-matrix", "");
-    let y: serde_yaml::Value = serde_yaml::from_str(&body).unwrap();
+    let y: serde_yaml_ng::Value = serde_yaml_ng::from_str(&body).unwrap();
     let data: Vec<f64> = y["camera_from_base"]["data"]
         .as_sequence()
         .unwrap()
@@ -181,7 +181,7 @@ fn exports_parse_back_to_the_same_transform() {
     let m = from_rows(&rows).unwrap();
     assert!(rotation_error_deg(&m, &pose) < 1e-8 && translation_error_mm(&m, &pose) < 1e-6);
     // ROS tf YAML.
-    let y: serde_yaml::Value = serde_yaml::from_str(&export("ros")).unwrap();
+    let y: serde_yaml_ng::Value = serde_yaml_ng::from_str(&export("ros")).unwrap();
     let tr = &y["transform"]["translation"];
     let ro = &y["transform"]["rotation"];
     check(
@@ -195,7 +195,7 @@ fn exports_parse_back_to_the_same_transform() {
     );
     assert_eq!(y["header"]["frame_id"].as_str(), Some("link_base"));
     // easy_handeye YAML.
-    let y: serde_yaml::Value = serde_yaml::from_str(&export("easy-handeye")).unwrap();
+    let y: serde_yaml_ng::Value = serde_yaml_ng::from_str(&export("easy-handeye")).unwrap();
     let t = &y["transformation"];
     check(
         ["x", "y", "z"].map(|k| t[k].as_f64().unwrap()),

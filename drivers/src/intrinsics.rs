@@ -25,7 +25,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde_yaml::Value;
+use serde_yaml_ng::Value;
 
 use crate::Intrinsics;
 
@@ -88,7 +88,7 @@ pub fn parse_intrinsics(
         .filter(|line| !line.trim_start().starts_with("%YAML"))
         .map(|line| format!("{line}\n"))
         .collect();
-    let root: Value = serde_yaml::from_str(&body).map_err(|e| {
+    let root: Value = serde_yaml_ng::from_str(&body).map_err(|e| {
         let at = e
             .location()
             .map(|l| format!("line {}", l.line() + 1))
@@ -396,7 +396,7 @@ impl Reader<'_> {
 
 /// A YAML value in one line, for messages.
 fn show(v: &Value) -> String {
-    serde_yaml::to_string(v)
+    serde_yaml_ng::to_string(v)
         .map(|s| s.trim().replace('\n', " "))
         .unwrap_or_else(|_| "?".to_string())
 }
