@@ -1293,3 +1293,86 @@ fn overlays_are_rendered_once_and_then_cached() {
         "{text}"
     );
 }
+
+/// Under systemd (`Type=notify`, `WatchdogSec`): the daemon reports READY=1 once it listens,
+/// pings the watchdog at half the interval, and says STOPPING=1 on SIGTERM before it exits 0.
+#[test]
+fn daemon_speaks_the_systemd_notify_protocol() {
+    use std::os::unix::net::UnixDatagram;
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let socket = dir.path().join("notify");
+    let manager = UnixDatagram::bind(&socket).unwrap();
+    manager
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_easyhec"))
+        .args(["daemon", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .arg("--data")
+        .arg(dir.path().join("data"))
+        .env_remove("EASYHEC_TOKEN")
+        .env("NOTIFY_SOCKET", &socket)
+        .env("WATCHDOG_USEC", "200000")
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("easyhec runs");
+    let next = || {
+        let mut buf = [0u8; 256];
+        let n = manager.recv(&mut buf).expect("a notice within 60 s");
+        String::from_utf8_lossy(&buf[..n]).into_owned()
+    };
+    let ready = next();
+    assert!(
+        ready.starts_with("READY=1\nSTATUS=listening on http://127.0.0.1:"),
+        "{ready}"
+    );
+    let t = Instant::now();
+    let pings = (0..3).filter(|_| next() == "WATCHDOG=1").count();
+    assert_eq!(pings, 3);
+    assert!(t.elapsed() < Duration::from_secs(5), "pings every 0.1 s");
+    let status = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let stopping = (0..100).map(|_| next()).find(|m| m != "WATCHDOG=1");
+    assert_eq!(stopping.as_deref(), Some("STOPPING=1"));
+    assert!(child.wait().unwrap().success());
+}
+
+/// `contrib/easyhec.service` passes `systemd-analyze verify` (with ExecStart pointed at this
+/// build, since verify checks that the program exists). Where systemd is not installed the
+/// test says so and checks nothing else.
+#[test]
+fn service_unit_verifies() {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let unit = std::fs::read_to_string(root.join("contrib/easyhec.service")).unwrap();
+    assert!(unit.contains("Type=notify") && unit.contains("WatchdogSec="));
+    assert!(unit.contains("User=easyhec") && unit.contains("--data /var/lib/easyhec"));
+    if Command::new("systemd-analyze")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
+        eprintln!("SKIPPED: systemd-analyze is not installed, so the unit is not verified");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("easyhec.service");
+    std::fs::write(
+        &copy,
+        unit.replace("/usr/local/bin/easyhec", env!("CARGO_BIN_EXE_easyhec")),
+    )
+    .unwrap();
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&copy)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success() && out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -49,10 +49,33 @@ pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
             "easyhec daemon listening on http://{addr} (data {})",
             data.display()
         );
-        serve(daemon, listener, stop_signal()).await?;
+        #[cfg(unix)]
+        let _watchdog = service_manager_ready(addr);
+        let stop = async {
+            stop_signal().await;
+            #[cfg(unix)]
+            easyhec::daemon::systemd::notify("STOPPING=1");
+        };
+        serve(daemon, listener, stop).await?;
         eprintln!("easyhec daemon: stopped");
         anyhow::Ok(())
     })
+}
+
+/// Tells a service manager (systemd, `Type=notify`) the daemon is listening, and pings its
+/// watchdog from the runtime for as long as the returned task lives.
+#[cfg(unix)]
+fn service_manager_ready(addr: std::net::SocketAddr) -> Option<tokio::task::JoinHandle<()>> {
+    use easyhec::daemon::systemd;
+    systemd::notify(&format!("READY=1\nSTATUS=listening on http://{addr}"));
+    let period = systemd::watchdog_period()?;
+    Some(tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        loop {
+            tick.tick().await;
+            systemd::notify("WATCHDOG=1");
+        }
+    }))
 }
 
 /// Resolves on ctrl-c or SIGTERM.

@@ -24,6 +24,8 @@ pub mod http;
 pub mod overlays;
 pub mod reconcile;
 pub mod store;
+#[cfg(unix)]
+pub mod systemd;
 pub mod validate;
 
 use std::collections::BTreeMap;
