@@ -85,8 +85,8 @@ impl CollisionModel {
     /// Reads the collision elements of `robot`'s URDF (the file it was loaded from).
     pub fn load(robot: &RobotModel) -> Result<CollisionModel> {
         let src = &robot.source;
-        let text = std::fs::read_to_string(&src.urdf)
-            .map_err(|e| Error::io(&src.urdf, format!("cannot read URDF: {e}")))?;
+        // The same text the kinematics came from: a xacro description is expanded again.
+        let text = crate::robot::description_text(src)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(&src.urdf, "robot", format!("malformed URDF: {e}")))?;
         let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();

@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
+use easyhec::collision::CollisionModel;
 use easyhec::robot::{RobotModel, RobotSource};
 
 const PACKAGE: &str = "demo_arm_description";
@@ -28,6 +29,10 @@ const XACRO: &str = r#"<?xml version="1.0"?>
                 scale="0.08 0.08 ${length}"/>
         </geometry>
       </visual>
+      <collision>
+        <origin xyz="0 0 ${length / 2}" rpy="0 0 0"/>
+        <geometry><box size="0.08 0.08 ${length}"/></geometry>
+      </collision>
     </link>
   </xacro:macro>
 
@@ -148,6 +153,14 @@ fn xacro_description_with_ament_meshes_matches_the_expanded_urdf() {
             assert!(x.rotation.angle_to(&y.rotation) < 1e-12);
         }
     }
+    // The safety checker's collision geometry comes from the same expansion: one box per
+    // segment, none lost to the xacro markup.
+    let collision = CollisionModel::load(&from_xacro).unwrap();
+    assert_eq!(collision.elements.len(), 4);
+    assert_eq!(
+        collision.elements.len(),
+        CollisionModel::load(&from_urdf).unwrap().elements.len()
+    );
     // The tool link sits at the forearm's end: 0.1 + 0.2 up, then the arm in the lifted plane.
     let tool = from_xacro
         .links

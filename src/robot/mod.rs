@@ -20,6 +20,12 @@ mod xacro;
 
 use packages::resolve_mesh_uri;
 
+/// The URDF text of `src`'s description: the file, or a `.xacro` file's expansion. Everything
+/// that reads the description (kinematics, collision geometry) goes through here.
+pub fn description_text(src: &RobotSource) -> Result<String> {
+    xacro::urdf_text(&src.urdf, &src.xacro_args)
+}
+
 /// Joint type as FK needs it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JointKind {
@@ -191,7 +197,7 @@ impl RobotModel {
     /// Loads a URDF and its visual meshes.
     pub fn load(src: &RobotSource) -> Result<RobotModel> {
         let urdf_path = &src.urdf;
-        let text = xacro::urdf_text(urdf_path, &src.xacro_args)?;
+        let text = description_text(src)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
         urdf_numbers::check(&urdf, urdf_path)?;

@@ -75,6 +75,38 @@ fn check_args(path: &Path, args: &BTreeMap<String, String>) -> Result<()> {
     Ok(())
 }
 
+/// How much of xacro's stderr is kept: the end, where its error is.
+const STDERR_TAIL_BYTES: usize = 64 * 1024;
+
+/// Reads `pipe` to its end, so the child never blocks on a full pipe, keeping at most the
+/// first `keep` bytes (output) or, with `tail`, the last ones (a log, whose end holds the
+/// error). Returns them and the total byte count.
+fn drain_keeping(mut pipe: impl Read, keep: usize, tail: bool) -> (Vec<u8>, usize) {
+    let mut kept = Vec::new();
+    let mut total = 0usize;
+    let mut chunk = [0u8; 8192];
+    while let Ok(n) = pipe.read(&mut chunk) {
+        if n == 0 {
+            break;
+        }
+        total += n;
+        if tail {
+            kept.extend_from_slice(&chunk[..n]);
+            // Trimmed in halves, so each byte moves a bounded number of times.
+            if kept.len() > 2 * keep {
+                kept.drain(..kept.len() - keep);
+            }
+        } else if kept.len() < keep {
+            let room = (keep - kept.len()).min(n);
+            kept.extend_from_slice(&chunk[..room]);
+        }
+    }
+    if kept.len() > keep {
+        kept.drain(..kept.len() - keep);
+    }
+    (kept, total)
+}
+
 /// Runs `xacro PATH name:=value…`, bounded in time and output.
 fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
     let mut child = Command::new("xacro")
@@ -91,19 +123,11 @@ fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
                 format!("is a xacro file, and the xacro tool could not start ({e}): install it with `python3 -m pip install xacro`"),
             )
         })?;
-    let limit = MAX_TEXT_INPUT_BYTES;
-    let mut stdout = child.stdout.take().expect("piped");
-    let mut stderr = child.stderr.take().expect("piped");
-    let out = std::thread::spawn(move || {
-        let mut buf = Vec::new();
-        let read = (&mut stdout).take(limit + 1).read_to_end(&mut buf);
-        read.map(|_| buf)
-    });
-    let err = std::thread::spawn(move || {
-        let mut buf = String::new();
-        let _ = (&mut stderr).take(64 * 1024).read_to_string(&mut buf);
-        buf
-    });
+    let limit = MAX_TEXT_INPUT_BYTES as usize;
+    let stdout = child.stdout.take().expect("piped");
+    let stderr = child.stderr.take().expect("piped");
+    let out = std::thread::spawn(move || drain_keeping(stdout, limit, false));
+    let err = std::thread::spawn(move || drain_keeping(stderr, STDERR_TAIL_BYTES, true));
     let started = Instant::now();
     let status = loop {
         match child.try_wait() {
@@ -122,9 +146,17 @@ fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
             }
         }
     };
-    let stdout = out.join().ok().and_then(|r| r.ok()).unwrap_or_default();
-    let stderr = err.join().unwrap_or_default();
+    let (stdout, stdout_bytes) = out.join().unwrap_or_default();
+    let (stderr, _) = err.join().unwrap_or_default();
+    if stdout_bytes > limit {
+        return Err(Error::input(
+            path,
+            "robot.urdf",
+            format!("expands to more than {limit} bytes"),
+        ));
+    }
     if !status.success() {
+        let stderr = String::from_utf8_lossy(&stderr);
         let reason = stderr
             .lines()
             .map(str::trim)
@@ -136,13 +168,22 @@ fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
             format!("xacro failed ({status}): {reason}"),
         ));
     }
-    if stdout.len() as u64 > limit {
-        return Err(Error::input(
-            path,
-            "robot.urdf",
-            format!("expands to more than {limit} bytes"),
-        ));
-    }
     String::from_utf8(stdout)
         .map_err(|_| Error::input(path, "robot.urdf", "xacro's expansion is not UTF-8"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn draining_keeps_the_head_of_output_and_the_tail_of_a_log() {
+        let data: Vec<u8> = (0..50_000u32).map(|i| (i % 251) as u8).collect();
+        let (head, total) = drain_keeping(&data[..], 1000, false);
+        assert_eq!((head.as_slice(), total), (&data[..1000], 50_000));
+        let (tail, total) = drain_keeping(&data[..], 1000, true);
+        assert_eq!((tail.as_slice(), total), (&data[49_000..], 50_000));
+        let (all, _) = drain_keeping(&data[..10], 1000, true);
+        assert_eq!(all, &data[..10]);
+    }
 }
