@@ -36,7 +36,9 @@ use crate::mask::Mask;
 use crate::mask_noise::apply_mask_noise;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
-use crate::run::{CameraEntry, GroundTruth, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
+use crate::run::{
+    mask_file_name, CameraEntry, GroundTruth, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT,
+};
 use crate::scene::{SimFrame, SimScene};
 
 /// Scene generator settings.
@@ -405,7 +407,7 @@ fn write_run(
         .map_err(|e| Error::io(out, format!("cannot create run folder: {e}")))?;
     let mut views = Vec::new();
     for (i, (mask, q)) in scene.masks.iter().zip(&scene.recorded_joints).enumerate() {
-        let rel = format!("views/{i:03}.mask.png");
+        let rel = format!("views/{}", mask_file_name(i));
         write_atomic(&out.join(&rel), &mask.to_png_bytes())?;
         let image = match frames.and_then(|(f, _)| f.get(i)) {
             Some(frame) => {

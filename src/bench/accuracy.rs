@@ -123,10 +123,7 @@ impl AccuracyBench {
         let model = RobotModel::from_urdf(robot)?;
         let seeds: Vec<u64> = (0..scenes).collect();
         for optimizer in optimizers {
-            let name = match optimizer {
-                Optimizer::Lm => "lm",
-                Optimizer::Adam => "adam",
-            };
+            let name = super::value_name(&optimizer);
             let trials = accuracy(
                 &model,
                 &seeds,
@@ -140,7 +137,7 @@ impl AccuracyBench {
                 ))
                 },
             )?;
-            report.line(summarize(name, &trials, &views));
+            report.line(summarize(&name, &trials, &views));
         }
         Ok(report)
     }

@@ -158,10 +158,7 @@ impl LoopBench {
         }
         let mut all: Vec<(String, Vec<LoopTrial>)> = Vec::new();
         for &selection in &selections {
-            let name = match selection {
-                SelectionSetting::Explore => "explore",
-                SelectionSetting::Random => "random",
-            };
+            let name = super::value_name(&selection);
             let mut trials = Vec::new();
             for seed in first_seed..first_seed + cells {
                 let cfg = seeded_sim_cell(&base, &config, seed)?;
@@ -186,7 +183,7 @@ impl LoopBench {
                 ));
                 trials.push(t);
             }
-            all.push((name.to_string(), trials));
+            all.push((name, trials));
         }
         report.line(format!(
             "| selection | {} |",

@@ -206,3 +206,10 @@ pub(crate) fn uniform_joints(limits: &[(f64, f64)], rng: &mut impl rand::Rng) ->
         .map(|&(lo, hi)| rng.random_range(lo..=hi))
         .collect()
 }
+
+/// A command-line choice's spelling (`lm`, `explore`), from its value enum, for report lines.
+fn value_name(value: &impl clap::ValueEnum) -> String {
+    value
+        .to_possible_value()
+        .map_or_else(String::new, |v| v.get_name().to_string())
+}

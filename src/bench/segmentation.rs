@@ -212,7 +212,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         .collect();
     let (mut ious, mut offsets) = (Vec::new(), Vec::new());
     for &v in &views {
-        let made = Mask::load(&masks_dir.join(format!("{v:03}.mask.png")))?;
+        let made = Mask::load(&masks_dir.join(crate::run::mask_file_name(v)))?;
         let made = recorded.camera.undistort_mask(&made);
         let truth = &recorded.views[v].observed;
         ious.push(made.iou(truth));

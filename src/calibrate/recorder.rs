@@ -13,7 +13,9 @@ use crate::error::{Error, Result};
 use crate::geometry::to_rows;
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::run::{CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT};
+use crate::run::{
+    mask_file_name, CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT,
+};
 use crate::time::rfc3339;
 
 /// Writes the run directory incrementally.
@@ -62,7 +64,7 @@ impl Recorder {
     pub fn add_view(&mut self, joints: &[f64], frame: &Frame, mask: &Mask) -> Result<usize> {
         let i = self.run.views.len();
         let image_rel = format!("views/{i:03}.png");
-        let mask_rel = format!("views/{i:03}.mask.png");
+        let mask_rel = format!("views/{}", mask_file_name(i));
         let img = image::RgbImage::from_raw(frame.width, frame.height, frame.rgb.clone())
             .ok_or_else(|| {
                 Error::Hardware(format!(

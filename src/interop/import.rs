@@ -274,7 +274,7 @@ fn read_initial_guess(opts: &EasyHecImport) -> Result<Option<PoseEntry>> {
 fn view_entry(i: usize, v: &SourceView) -> ViewEntry {
     ViewEntry {
         joints: v.joints.clone(),
-        mask: Some(format!("views/{i:03}.mask.png")),
+        mask: Some(format!("views/{}", crate::run::mask_file_name(i))),
         image: v.color.as_ref().map(|_| format!("views/{i:03}.png")),
         captured_at: None,
     }

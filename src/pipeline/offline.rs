@@ -466,7 +466,10 @@ fn segment_run(
     };
     for (&i, mask) in need.iter().zip(&settled.masks) {
         if let Some(dir) = masks_out {
-            crate::io::write_atomic(&dir.join(format!("{i:03}.mask.png")), &mask.to_png_bytes())?;
+            crate::io::write_atomic(
+                &dir.join(crate::run::mask_file_name(i)),
+                &mask.to_png_bytes(),
+            )?;
         }
         run.views[i].observed = run.camera.undistort_mask(mask);
         run.views[i].needs_mask = false;

@@ -24,6 +24,12 @@ pub(crate) use checks::{check_mask_coverage, check_run_file};
 
 /// Run-directory format tag.
 pub const RUN_FORMAT: &str = "easyhec-run/1";
+
+/// A view's mask file name (`007.mask.png`): in a run folder's `views/`, and in a solve's
+/// `--masks-out` folder, which readers pair with the run's views by it.
+pub fn mask_file_name(view: usize) -> String {
+    format!("{view:03}.mask.png")
+}
 /// Result format tag.
 pub const RESULT_FORMAT: &str = "easyhec-result/1";
 
