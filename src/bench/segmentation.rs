@@ -246,8 +246,9 @@ pub struct SegmentBench {
     /// Views per calibration (no early stop).
     #[arg(long, default_value_t = 5, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100))]
     pub views: usize,
-    /// A run directory with images, masks and an initial guess (e.g. the imported Panda
-    /// example): its masks are withheld from the segmenter and used as the reference.
+    /// A run directory with images and masks (e.g. the imported Panda example), solved as
+    /// `easyhec solve` does: its masks are withheld from the segmenter and used as the
+    /// reference.
     #[arg(long)]
     pub run: Option<PathBuf>,
     /// Frame dressing of the simulated cells: hard (clutter, light robot on light walls,
