@@ -35,6 +35,10 @@ pub enum Error {
     /// wrong size, an arm that moved since its path was checked, a segmenter's device error).
     #[error("{0}")]
     Hardware(String),
+    /// The ROS 2 side failed: a DDS participant, topic or writer could not be made, or a
+    /// publication was refused.
+    #[error("ROS 2: {0}")]
+    Ros2(String),
     /// A driver call failed. The driver's error is kept whole, so a caller can tell a refused
     /// target from a fault, a stall, a timeout or a lost link (`DriverError::kind`, or match
     /// the variant) instead of reading a string.

@@ -41,6 +41,8 @@ pub mod overlay;
 pub mod pipeline;
 pub mod render;
 pub mod robot;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod run;
 pub mod safety;
 #[cfg(feature = "sim")]

@@ -32,6 +32,8 @@ enum Command {
     Import(cli::import::ImportCommand),
     /// Write a result in the form another tool reads.
     Export(cli::export::ExportArgs),
+    /// Publish a result on ROS 2's /tf_static until stopped (build with --features ros2).
+    Publish(cli::publish::PublishArgs),
     /// Benchmarks (figures in docs/benchmarks.md).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -72,6 +74,7 @@ fn main() -> ExitCode {
         Command::Synth(a) => cli::synth::run(a),
         Command::Import(i) => i.run(),
         Command::Export(a) => cli::export::run(a),
+        Command::Publish(a) => cli::publish::run(a),
         Command::Bench(b) => b.run(),
         Command::Daemon(a) => cli::daemon::run(a),
         Command::Completions { shell } => {

@@ -507,6 +507,15 @@ fn check_pose_moves_through_the_checker_before_checking() {
     );
 }
 
+/// A valid `[ros2]` table, `tweak`ed.
+fn ros2_table(
+    tweak: fn(&mut easyhec::config::ros2::Ros2Settings),
+) -> easyhec::config::ros2::Ros2Settings {
+    let mut r: easyhec::config::ros2::Ros2Settings = toml::from_str("domain_id = 3").unwrap();
+    tweak(&mut r);
+    r
+}
+
 #[test]
 fn bad_daemon_config_is_one_line_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -534,7 +543,7 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
     assert!(err.contains("tokn") && err.contains("cell.toml"), "{err}");
     // Out-of-range values, each naming its key.
     type Tweak = fn(&mut easyhec::config::CellConfig);
-    let cases: [(Tweak, &str); 7] = [
+    let cases: [(Tweak, &str); 12] = [
         (
             |c| c.daemon.check_pose = Some(vec![0.0, 1.0]),
             "daemon.check_pose",
@@ -559,6 +568,30 @@ fn bad_daemon_config_is_one_line_naming_the_key() {
         (
             |c| c.daemon.idle_timeout_s = Some(f64::NAN),
             "daemon.idle_timeout_s",
+        ),
+        (
+            |c| c.ros2 = Some(ros2_table(|r| r.domain_id = Some(233))),
+            "ros2.domain_id",
+        ),
+        (
+            |c| c.ros2 = Some(ros2_table(|r| r.namespace = "cell".into())),
+            "ros2.namespace",
+        ),
+        (
+            |c| c.ros2 = Some(ros2_table(|r| r.child_frame_id = "cam: x".into())),
+            "ros2.child_frame_id",
+        ),
+        (
+            |c| {
+                c.ros2 = Some(ros2_table(|r| {
+                    r.optical_from_child = Some([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0])
+                }))
+            },
+            "ros2.optical_from_child",
+        ),
+        (
+            |c| c.ros2 = Some(ros2_table(|r| r.listen_s = f64::INFINITY)),
+            "ros2.listen_s",
         ),
     ];
     for (tweak, key) in cases {

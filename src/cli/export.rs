@@ -9,6 +9,8 @@ use easyhec::interop::export::check_frame_name;
 use easyhec::interop::{export, ExportFormat};
 use easyhec::run::ResultFile;
 
+use super::frames::FrameArgs;
+
 #[derive(Args)]
 pub struct ExportArgs {
     /// easyhec-result/1 file.
@@ -16,9 +18,8 @@ pub struct ExportArgs {
     /// The form to write.
     #[arg(long, value_enum)]
     pub format: ExportFormat,
-    /// Name of the camera optical frame in ROS/URDF forms.
-    #[arg(long, default_value = "camera_color_optical_frame")]
-    pub camera_frame: String,
+    #[command(flatten)]
+    pub frames: FrameArgs,
     /// Output file (default: standard output).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -30,7 +31,8 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
     let result = ResultFile::read(&a.result)?;
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
-    let text = export(&result, format, &a.camera_frame)?;
+    let edge = a.frames.edge(&result)?;
+    let text = export(&result, format, &edge)?;
     match a.out {
         Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
             .with_context(|| format!("writing {}", p.display()))?,

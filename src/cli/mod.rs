@@ -5,7 +5,9 @@ pub mod bench;
 pub mod calibrate;
 pub mod daemon;
 pub mod export;
+pub mod frames;
 pub mod import;
+pub mod publish;
 pub mod solve;
 #[cfg(feature = "sim")]
 pub mod synth;

@@ -12,6 +12,7 @@ const FEATURES: &[(&str, bool)] = &[
     ("v4l2", cfg!(feature = "v4l2")),
     ("aravis", cfg!(feature = "aravis")),
     ("onnx", cfg!(feature = "onnx")),
+    ("ros2", cfg!(feature = "ros2")),
 ];
 
 /// `0.1.0 (features: sim, wgpu)`.

@@ -94,6 +94,9 @@ impl CellConfig {
         check_segmenter(&c, &self.segmenter)?;
         check_calibration(&c, &self.calibration)?;
         check_safety(&c, &self.safety)?;
+        if let Some(r) = &self.ros2 {
+            r.validate(path)?;
+        }
         self.calibration.validate(path)
     }
 }

@@ -15,6 +15,7 @@ pub mod camera;
 pub mod checks;
 pub mod daemon;
 pub mod robot;
+pub mod ros2;
 pub mod safety;
 pub mod scene;
 pub mod segmenter;
@@ -62,6 +63,9 @@ pub struct CellConfig {
     /// `easyhec daemon` settings (ignored by the other commands).
     #[serde(default)]
     pub daemon: DaemonSettings,
+    /// Where easyhec joins a ROS 2 graph (`--features ros2`); absent: it does not.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<ros2::Ros2Settings>,
 }
 
 /// A duration from an optional config value in seconds (positive and finite).

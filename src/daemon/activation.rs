@@ -28,7 +28,9 @@ impl Daemon {
             .status(id)
             .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
         let result = activatable(&self.store, &record)?;
-        Ok(self.store.activate(id, result, &now())?)
+        let active = self.store.activate(id, result, &now())?;
+        self.announce_active(&active);
+        Ok(active)
     }
 }
 

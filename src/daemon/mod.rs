@@ -26,6 +26,8 @@ pub mod reconcile;
 pub mod store;
 #[cfg(unix)]
 pub mod systemd;
+#[cfg(feature = "ros2")]
+pub mod tf_broadcast;
 pub mod validate;
 
 use std::collections::BTreeMap;
@@ -45,7 +47,7 @@ use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use crate::time::rfc3339;
 
 use crate::config::DaemonSettings;
-use store::{CalibrationRecord, Recovery, State, Store, TruthError};
+use store::{ActiveFile, CalibrationRecord, Recovery, State, Store, TruthError};
 
 /// The current time as RFC 3339.
 fn now() -> String {
@@ -183,6 +185,9 @@ pub struct Daemon {
     pub http: Arc<http::HttpStats>,
     overlays: overlays::Cache,
     recovery: Recovery,
+    /// `[ros2]`: the active calibration on `/tf_static`.
+    #[cfg(feature = "ros2")]
+    tf: Option<tf_broadcast::TfBroadcast>,
 }
 
 /// Options of `POST /api/v1/calibrations`.
@@ -219,7 +224,20 @@ impl Daemon {
         }
         let (store, recovery) = Store::open(data_dir, &now())?;
         let (shutdown_tx, _) = watch::channel(false);
-        Ok(Arc::new(Daemon {
+        #[cfg(feature = "ros2")]
+        let tf = match &cell.config.ros2 {
+            Some(r) if r.publish_tf => Some(tf_broadcast::TfBroadcast::start(r.clone())?),
+            _ => None,
+        };
+        #[cfg(not(feature = "ros2"))]
+        if cell.config.ros2.is_some() {
+            return Err(Error::input(
+                &cell.config_path,
+                "ros2",
+                "needs ROS 2 support, which this build leaves out: rebuild with --features ros2",
+            ));
+        }
+        let daemon = Arc::new(Daemon {
             settings: cell.config.daemon.clone(),
             cell: Arc::new(cell),
             token,
@@ -232,7 +250,23 @@ impl Daemon {
             http: Arc::default(),
             overlays: overlays::Cache::default(),
             recovery,
-        }))
+            #[cfg(feature = "ros2")]
+            tf,
+        });
+        if let Some(active) = daemon.store.active() {
+            daemon.announce_active(&active);
+        }
+        Ok(daemon)
+    }
+
+    /// Hands what became active to the ROS 2 broadcaster, when `[ros2]` asks for one.
+    fn announce_active(&self, active: &ActiveFile) {
+        #[cfg(feature = "ros2")]
+        if let Some(tf) = &self.tf {
+            tf.announce(&active.id, &active.result);
+        }
+        #[cfg(not(feature = "ros2"))]
+        let _ = active;
     }
 
     /// The cell.
@@ -587,8 +621,9 @@ impl Daemon {
             eprintln!("easyhec daemon: {id}: result {field}: {m}; not activated");
             return;
         }
-        if let Err(e) = self.store.activate(id, result.clone(), &now()) {
-            eprintln!("easyhec daemon: {id}: cannot activate: {e}");
+        match self.store.activate(id, result.clone(), &now()) {
+            Ok(active) => self.announce_active(&active),
+            Err(e) => eprintln!("easyhec daemon: {id}: cannot activate: {e}"),
         }
     }
 

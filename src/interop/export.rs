@@ -1,48 +1,33 @@
-//! A result in the forms other tools read. Every string embedded in YAML, URDF or a command
-//! line is a ROS frame name, checked before anything is rendered: a name that could break
-//! out of its field (a newline, a quote, a colon) is refused, not escaped into something the
-//! reader would take for other keys.
+//! A result in the forms other tools read. Every string embedded in YAML, URDF, Python or a
+//! command line is a ROS frame name, checked before anything is rendered: a name that could
+//! break out of its field (a newline, a quote, a colon) is refused, not escaped into something
+//! the reader would take for other keys. The ROS forms carry one tf edge ([`TfEdge`]): from the
+//! base frame to the camera frame the user names.
 
 use std::fmt::Write as _;
-
-use nalgebra::{Isometry3, UnitQuaternion};
 
 use crate::error::{Error, Result};
 use crate::geometry::to_rows;
 use crate::run::ResultFile;
 
-/// Longest frame name accepted.
-pub const MAX_FRAME_NAME_LEN: usize = 256;
+use super::tf_edge::TfEdge;
 
-/// Checks a tf frame name: ASCII letters, digits, `_` and `/` (namespaces), not starting with a
-/// digit, at most [`MAX_FRAME_NAME_LEN`] long. These names need no quoting in YAML, XML or a
-/// shell, so the exports cannot be made to say anything else.
-pub fn check_frame_name(name: &str) -> std::result::Result<(), String> {
-    let ok_char = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '/';
-    let starts_ok = name.chars().next().is_some_and(|c| !c.is_ascii_digit());
-    if !name.is_empty()
-        && name.len() <= MAX_FRAME_NAME_LEN
-        && starts_ok
-        && name.chars().all(ok_char)
-    {
-        return Ok(());
-    }
-    Err(format!(
-        "{name:?}; allowed: 1 to {MAX_FRAME_NAME_LEN} ASCII letters, digits, '_' or '/', not starting with a digit"
-    ))
-}
+pub use crate::config::ros2::{check_frame_name, MAX_FRAME_NAME_LEN};
 
 /// Export targets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ExportFormat {
-    /// OpenCV FileStorage YAML with the 4x4 `camera_from_base` and `base_from_camera`, plus a
-    /// plain-text 4x4 when written to a `.txt` path.
+    /// OpenCV FileStorage YAML with the 4x4 `camera_from_base` and `base_from_camera` (the
+    /// optical frame, whatever child frame is named).
     Opencv,
-    /// ROS: `static_transform_publisher` arguments and a tf YAML with quaternion.
+    /// ROS 2: a Python launch file running tf2_ros's `static_transform_publisher`, with the
+    /// equivalent `ros2 run` command in its header.
     Ros,
-    /// easy_handeye calibration YAML (eye-on-base).
+    /// easy_handeye2's calibration file (`~/.ros2/easy_handeye2/calibrations/NAME.calib`).
     EasyHandeye,
-    /// A URDF `<joint>` snippet placing the camera optical frame on the base link.
+    /// The flat YAML of easy_handeye for ROS 1 (`eye_on_hand`, `transformation`).
+    EasyHandeyeRos1,
+    /// A URDF `<joint>` snippet placing the camera frame on the base link.
     Urdf,
 }
 
@@ -50,80 +35,174 @@ impl std::str::FromStr for ExportFormat {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
         <ExportFormat as clap::ValueEnum>::from_str(s, false).map_err(|_| {
-            format!("unknown export format '{s}': use opencv, ros, easy-handeye or urdf")
+            format!(
+                "unknown export format '{s}': use opencv, ros, easy-handeye, easy-handeye-ros1 or urdf"
+            )
         })
     }
 }
 
-fn quat_xyzw(q: &UnitQuaternion<f64>) -> [f64; 4] {
-    [q.i, q.j, q.k, q.w]
-}
+/// The name easy_handeye2 files the calibration under (its `parameters.name`); the docs tell
+/// the user to save the file as `easyhec.calib` to match.
+pub const EASY_HANDEYE2_NAME: &str = "easyhec";
 
-/// Renders `result` in `format`. `camera_frame` names the optical frame for ROS/URDF forms.
-/// Fails, naming the field, when the camera frame or the result's `base_link` is not a plain
-/// frame name ([`check_frame_name`]).
-pub fn export(result: &ResultFile, format: ExportFormat, camera_frame: &str) -> Result<String> {
-    check_frame_name(camera_frame).map_err(|m| Error::Usage(format!("--camera-frame is {m}")))?;
+/// Renders `result` in `format`, with `edge` (built from the same result) as the ROS forms'
+/// transform. Fails, naming the field, when the result's `base_link` is not a plain frame
+/// name ([`check_frame_name`]).
+pub fn export(result: &ResultFile, format: ExportFormat, edge: &TfEdge) -> Result<String> {
     check_frame_name(&result.base_link)
         .map_err(|m| Error::Usage(format!("the result's base_link is {m}")))?;
+    Ok(match format {
+        ExportFormat::Opencv => opencv_yaml(result),
+        ExportFormat::Ros => ros2_launch_file(edge),
+        ExportFormat::EasyHandeye => easy_handeye2_file(edge),
+        ExportFormat::EasyHandeyeRos1 => easy_handeye_ros1_yaml(edge),
+        ExportFormat::Urdf => urdf_joint(edge),
+    })
+}
+
+fn opencv_yaml(result: &ResultFile) -> String {
     let cfb = result.camera_from_base();
-    let bfc: Isometry3<f64> = cfb.inverse();
+    let mut s = String::from("%YAML:1.0\n---\n");
+    let mat = |s: &mut String, name: &str, rows: [[f64; 4]; 4]| {
+        let data: Vec<String> = rows.iter().flatten().map(|v| format!("{v:.12e}")).collect();
+        let _ = writeln!(
+            s,
+            "{name}: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n   data: [ {} ]",
+            data.join(", ")
+        );
+    };
     let base = &result.base_link;
-    let t = bfc.translation.vector;
-    let q = quat_xyzw(&bfc.rotation);
+    let _ = writeln!(
+        s,
+        "# camera_from_base maps base-frame ({base}) points to the OpenCV optical frame, metres"
+    );
+    mat(&mut s, "camera_from_base", to_rows(&cfb));
+    mat(&mut s, "base_from_camera", to_rows(&cfb.inverse()));
+    s
+}
+
+/// `static_transform_publisher`'s named arguments (ROS 2 Humble and later), in order.
+fn publisher_arguments(edge: &TfEdge) -> Vec<(&'static str, String)> {
+    let t = edge.translation();
+    let q = edge.quaternion_xyzw();
+    let names = ["--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw"];
+    let mut args: Vec<(&'static str, String)> = names
+        .iter()
+        .zip(t.iter().chain(q.iter()))
+        .map(|(n, v)| (*n, format!("{v:.17e}")))
+        .collect();
+    args.push(("--frame-id", edge.parent.clone()));
+    args.push(("--child-frame-id", edge.child.clone()));
+    args
+}
+
+fn ros2_launch_file(edge: &TfEdge) -> String {
+    let args = publisher_arguments(edge);
+    let command: Vec<String> = args.iter().map(|(n, v)| format!("{n} {v}")).collect();
+    let listed: Vec<String> = args
+        .iter()
+        .map(|(n, v)| format!("                \"{n}\", \"{v}\","))
+        .collect();
     let mut s = String::new();
-    match format {
-        ExportFormat::Opencv => {
-            let mat = |s: &mut String, name: &str, rows: [[f64; 4]; 4]| {
-                let data: Vec<String> =
-                    rows.iter().flatten().map(|v| format!("{v:.12e}")).collect();
-                let _ = writeln!(
-                    s,
-                    "{name}: !!opencv-matrix\n   rows: 4\n   cols: 4\n   dt: d\n   data: [ {} ]",
-                    data.join(", ")
-                );
-            };
-            s.push_str("%YAML:1.0\n---\n");
-            let _ = writeln!(s, "# camera_from_base maps base-frame ({base}) points to the OpenCV optical frame, metres");
-            mat(&mut s, "camera_from_base", to_rows(&cfb));
-            mat(&mut s, "base_from_camera", to_rows(&bfc));
-        }
-        ExportFormat::Ros => {
-            let _ = writeln!(s, "# static_transform_publisher x y z qx qy qz qw frame_id child_frame_id (parent = {base})");
-            let _ = writeln!(
-                s,
-                "# rosrun tf2_ros static_transform_publisher {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {base} {camera_frame}",
-                t.x, t.y, t.z, q[0], q[1], q[2], q[3]
-            );
-            let _ = writeln!(
-                s,
-                "header:\n  frame_id: {base}\nchild_frame_id: {camera_frame}\ntransform:"
-            );
-            let _ = writeln!(
-                s,
-                "  translation:\n    x: {:.12}\n    y: {:.12}\n    z: {:.12}",
-                t.x, t.y, t.z
-            );
-            let _ = writeln!(
-                s,
-                "  rotation:\n    x: {:.12}\n    y: {:.12}\n    z: {:.12}\n    w: {:.12}",
-                q[0], q[1], q[2], q[3]
-            );
-        }
-        ExportFormat::EasyHandeye => {
-            let _ = writeln!(s, "eye_on_hand: false\nrobot_base_frame: {base}\ntracking_base_frame: {camera_frame}\ntransformation:");
-            let _ = writeln!(s, "  x: {:.12}\n  y: {:.12}\n  z: {:.12}\n  qx: {:.12}\n  qy: {:.12}\n  qz: {:.12}\n  qw: {:.12}", t.x, t.y, t.z, q[0], q[1], q[2], q[3]);
-        }
-        ExportFormat::Urdf => {
-            let (r, p, y) = bfc.rotation.euler_angles();
-            let _ = writeln!(s, "<!-- camera pose from easyhec: base_from_camera ({base} -> {camera_frame}, OpenCV optical frame) -->");
-            let _ = writeln!(s, "<link name=\"{camera_frame}\"/>");
-            let _ = writeln!(
-                s,
-                "<joint name=\"{camera_frame}_joint\" type=\"fixed\">\n  <parent link=\"{base}\"/>\n  <child link=\"{camera_frame}\"/>\n  <origin xyz=\"{:.12} {:.12} {:.12}\" rpy=\"{:.12} {:.12} {:.12}\"/>\n</joint>",
-                t.x, t.y, t.z, r, p, y
-            );
-        }
+    let _ = writeln!(
+        s,
+        "# easyhec calibration as a ROS 2 launch file: {} -> {} (parent_from_child).",
+        edge.parent, edge.child
+    );
+    let _ = writeln!(
+        s,
+        "# Run it with `ros2 launch ./FILE.launch.py`, or publish the same edge with:\n#"
+    );
+    let _ = writeln!(
+        s,
+        "#   ros2 run tf2_ros static_transform_publisher {}",
+        command.join(" ")
+    );
+    let _ = writeln!(
+        s,
+        "\nfrom launch import LaunchDescription\nfrom launch_ros.actions import Node\n\n"
+    );
+    let _ = writeln!(s, "def generate_launch_description():");
+    let _ = writeln!(s, "    return LaunchDescription([");
+    let _ = writeln!(s, "        Node(");
+    let _ = writeln!(s, "            package=\"tf2_ros\",");
+    let _ = writeln!(s, "            executable=\"static_transform_publisher\",");
+    let _ = writeln!(s, "            name=\"easyhec_camera_tf\",");
+    let _ = writeln!(
+        s,
+        "            arguments=[\n{}\n            ],",
+        listed.join("\n")
+    );
+    let _ = writeln!(s, "        ),\n    ])");
+    s
+}
+
+fn yaml_translation_rotation(s: &mut String, indent: &str, edge: &TfEdge) {
+    let t = edge.translation();
+    let q = edge.quaternion_xyzw();
+    let _ = writeln!(s, "{indent}translation:");
+    for (k, v) in ["x", "y", "z"].iter().zip(t) {
+        let _ = writeln!(s, "{indent}  {k}: {v:.17e}");
     }
-    Ok(s)
+    let _ = writeln!(s, "{indent}rotation:");
+    for (k, v) in ["x", "y", "z", "w"].iter().zip(q) {
+        let _ = writeln!(s, "{indent}  {k}: {v:.17e}");
+    }
+}
+
+/// easy_handeye2 stores an `easy_handeye2_msgs/HandeyeCalibration` message as YAML and loads
+/// it field by field, so every key here is one of that message's fields. Its publisher sends
+/// `transform` from `robot_base_frame` (eye on base) to `tracking_base_frame`.
+fn easy_handeye2_file(edge: &TfEdge) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "parameters:");
+    let _ = writeln!(s, "  name: {EASY_HANDEYE2_NAME}");
+    let _ = writeln!(s, "  calibration_type: eye_on_base");
+    let _ = writeln!(s, "  robot_base_frame: {}", edge.parent);
+    let _ = writeln!(s, "  robot_effector_frame: ''");
+    let _ = writeln!(s, "  tracking_base_frame: {}", edge.child);
+    let _ = writeln!(s, "  tracking_marker_frame: ''");
+    let _ = writeln!(s, "  freehand_robot_movement: false");
+    let _ = writeln!(s, "  move_group_namespace: /");
+    let _ = writeln!(s, "  move_group: manipulator");
+    let _ = writeln!(s, "transform:");
+    yaml_translation_rotation(&mut s, "  ", edge);
+    s
+}
+
+fn easy_handeye_ros1_yaml(edge: &TfEdge) -> String {
+    let t = edge.translation();
+    let q = edge.quaternion_xyzw();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "eye_on_hand: false\nrobot_base_frame: {}\ntracking_base_frame: {}\ntransformation:",
+        edge.parent, edge.child
+    );
+    for (k, v) in ["x", "y", "z", "qx", "qy", "qz", "qw"]
+        .iter()
+        .zip(t.iter().chain(q.iter()))
+    {
+        let _ = writeln!(s, "  {k}: {v:.17e}");
+    }
+    s
+}
+
+fn urdf_joint(edge: &TfEdge) -> String {
+    let t = edge.translation();
+    let (r, p, y) = edge.parent_from_child.rotation.euler_angles();
+    let (parent, child) = (&edge.parent, &edge.child);
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "<!-- camera pose from easyhec: {parent} -> {child} (parent_from_child) -->"
+    );
+    let _ = writeln!(s, "<link name=\"{child}\"/>");
+    let _ = writeln!(
+        s,
+        "<joint name=\"{child}_joint\" type=\"fixed\">\n  <parent link=\"{parent}\"/>\n  <child link=\"{child}\"/>\n  <origin xyz=\"{:.17e} {:.17e} {:.17e}\" rpy=\"{:.17e} {:.17e} {:.17e}\"/>\n</joint>",
+        t[0], t[1], t[2], r, p, y
+    );
+    s
 }

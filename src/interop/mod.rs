@@ -1,8 +1,11 @@
 //! Other tools' formats: import from EasyHeC's offline folder ([`import`]) and export a result
-//! in the forms OpenCV, ROS, easy_handeye and URDF read ([`export`]).
+//! in the forms OpenCV, ROS 2, easy_handeye2 and URDF read ([`export`]), through the one tf edge
+//! a calibration adds ([`tf_edge`]).
 
 pub mod export;
 pub mod import;
+pub mod tf_edge;
+pub mod tf_tree;
 
 use std::path::Path;
 
@@ -10,6 +13,7 @@ use crate::error::{Error, Result};
 
 pub use export::{export, ExportFormat};
 pub use import::{import_easyhec, EasyHecImport};
+pub use tf_edge::TfEdge;
 
 /// Reads a whitespace-separated numeric text file (comments after `#`).
 pub fn read_numbers(path: &Path) -> Result<Vec<f64>> {

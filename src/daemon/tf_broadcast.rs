@@ -1,0 +1,123 @@
+//! `[ros2]` in the daemon: the active calibration on `/tf_static`, published at start and
+//! again whenever another calibration becomes active. One thread owns the ROS 2 node, so a
+//! slow graph (the listening window before each publication) never holds up the HTTP API;
+//! activations queue to it and only the newest is published.
+
+use std::sync::mpsc;
+use std::time::Duration;
+
+use crate::config::ros2::Ros2Settings;
+use crate::error::{Error, Result};
+use crate::interop::tf_edge::transform_from_parts;
+use crate::interop::TfEdge;
+use crate::ros2::tf::{StaticTfPublisher, TfListener};
+use crate::ros2::{domain_id_from_env, join, GraphPlace};
+use crate::run::ResultFile;
+
+/// The handle the daemon keeps: send it what became active.
+pub struct TfBroadcast {
+    tx: mpsc::Sender<(String, ResultFile)>,
+}
+
+impl TfBroadcast {
+    /// Joins the graph on its own thread; fails (before the daemon listens) when the node
+    /// cannot be made.
+    pub fn start(settings: Ros2Settings) -> Result<Self> {
+        let (tx, rx) = mpsc::channel::<(String, ResultFile)>();
+        let (ready_tx, ready_rx) = mpsc::channel::<Result<()>>();
+        std::thread::Builder::new()
+            .name("easyhec-ros2".into())
+            .spawn(move || serve(settings, rx, ready_tx))
+            .map_err(|e| Error::Ros2(format!("starting the ROS 2 thread: {e}")))?;
+        ready_rx
+            .recv()
+            .map_err(|_| Error::Ros2("the ROS 2 thread ended while starting".into()))??;
+        Ok(Self { tx })
+    }
+
+    /// Queues calibration `id`'s result for publication.
+    pub fn announce(&self, id: &str, result: &ResultFile) {
+        let _ = self.tx.send((id.to_string(), result.clone()));
+    }
+}
+
+fn serve(
+    settings: Ros2Settings,
+    rx: mpsc::Receiver<(String, ResultFile)>,
+    ready: mpsc::Sender<Result<()>>,
+) {
+    let opened = open(&settings);
+    let (_context, _node, listener, publisher) = match opened {
+        Ok(parts) => {
+            let _ = ready.send(Ok(()));
+            parts
+        }
+        Err(e) => {
+            let _ = ready.send(Err(e));
+            return;
+        }
+    };
+    while let Ok(mut next) = rx.recv() {
+        while let Ok(newer) = rx.try_recv() {
+            next = newer;
+        }
+        let (id, result) = next;
+        match publish(&settings, &listener, &publisher, &result) {
+            Ok(edge) => eprintln!(
+                "easyhec daemon: ros2: {id}: {} -> {} on /tf_static",
+                edge.parent, edge.child
+            ),
+            Err(e) => eprintln!("easyhec daemon: ros2: {id} not published: {e}"),
+        }
+    }
+}
+
+type Parts = (
+    ros2_client::Context,
+    ros2_client::Node,
+    TfListener,
+    StaticTfPublisher,
+);
+
+fn open(settings: &Ros2Settings) -> Result<Parts> {
+    let place = GraphPlace {
+        domain_id: match settings.domain_id {
+            Some(d) => d,
+            None => domain_id_from_env()?,
+        },
+        namespace: settings.namespace.clone(),
+        node_name: "easyhec_daemon".into(),
+    };
+    let (context, mut node) = join(&place)?;
+    let listener = TfListener::new(&mut node, &place.namespace)?;
+    let publisher = StaticTfPublisher::new(&mut node, &place.namespace)?;
+    Ok((context, node, listener, publisher))
+}
+
+/// The configured edge for `result`, checked against what the graph already holds (leaving
+/// out the daemon's own earlier edge), then latched.
+fn publish(
+    settings: &Ros2Settings,
+    listener: &TfListener,
+    publisher: &StaticTfPublisher,
+    result: &ResultFile,
+) -> Result<TfEdge> {
+    let optical_from_child = settings
+        .optical_from_child
+        .map(|v| transform_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]))
+        .transpose()
+        .map_err(|m| Error::Usage(format!("ros2.optical_from_child {m}")))?;
+    let edge = TfEdge::from_result(
+        result,
+        settings.frame_id.as_deref(),
+        &settings.child_frame_id,
+        optical_from_child.as_ref(),
+    )?;
+    let tree = listener.gather(
+        Duration::from_secs_f64(settings.listen_s),
+        Some(publisher.gid()),
+    )?;
+    tree.check_can_add(&edge)?;
+    publisher.send(std::slice::from_ref(&edge))?;
+    Ok(edge)
+}

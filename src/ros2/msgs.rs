@@ -1,0 +1,88 @@
+//! The ROS 2 messages easyhec speaks, as plain structs whose fields follow the `.msg`
+//! definitions in order: ROS 2 puts them on the wire as CDR, which serialises a struct's
+//! fields one after the other, so the order is the layout.
+
+use serde::{Deserialize, Serialize};
+
+/// `builtin_interfaces/Time`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds since the Unix epoch.
+    pub sec: i32,
+    /// Nanoseconds within the second.
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// The system clock now (what tf2's static broadcaster stamps its edges with).
+    pub fn now() -> Self {
+        let since = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap_or_default();
+        Self {
+            sec: i32::try_from(since.as_secs()).unwrap_or(i32::MAX),
+            nanosec: since.subsec_nanos(),
+        }
+    }
+}
+
+/// `std_msgs/Header`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// When the data was valid.
+    pub stamp: Time,
+    /// The frame the data is expressed in.
+    pub frame_id: String,
+}
+
+/// `geometry_msgs/Vector3`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+    /// z, metres.
+    pub z: f64,
+}
+
+/// `geometry_msgs/Quaternion`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// i part.
+    pub x: f64,
+    /// j part.
+    pub y: f64,
+    /// k part.
+    pub z: f64,
+    /// Real part.
+    pub w: f64,
+}
+
+/// `geometry_msgs/Transform`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Transform {
+    /// Child origin in the parent frame.
+    pub translation: Vector3,
+    /// Child axes in the parent frame.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/TransformStamped`: `transform` is `parent_from_child`, with the parent in
+/// `header.frame_id`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Stamp and parent frame.
+    pub header: Header,
+    /// Child frame.
+    pub child_frame_id: String,
+    /// Child-frame points to parent-frame points.
+    pub transform: Transform,
+}
+
+/// `tf2_msgs/TFMessage`, the type of `/tf` and `/tf_static`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TfMessage {
+    /// The edges.
+    pub transforms: Vec<TransformStamped>,
+}

@@ -1,0 +1,87 @@
+//! Shared by the ROS 2 tests: a private network namespace to run DDS peers in, and what the
+//! Cyclone DDS peer (tf_peer.py) received.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+
+pub fn peer() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/ros2/tf_peer.py")
+}
+
+/// Whether this machine can make a private network namespace and run the peer; under CI it
+/// must.
+pub fn can_run_peers() -> bool {
+    let unshare = Command::new("unshare")
+        .args(["--net", "true"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    let cyclone = Command::new("python3")
+        .args(["-c", "import cyclonedds.domain"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if unshare && cyclone {
+        return true;
+    }
+    let why =
+        format!("needs `unshare --net` (root) ({unshare}) and python3 with cyclonedds ({cyclone})");
+    if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+        panic!("under CI this test {why}: ./test installs cyclonedds");
+    }
+    eprintln!("SKIPPED: this test {why}");
+    false
+}
+
+/// Runs `body` (bash) in a fresh network namespace with multicast on loopback, in `dir`, with
+/// `$EASYHEC` and `$PEER` set. Returns the script's exit status and its stderr.
+pub fn in_private_network(dir: &Path, body: &str) -> (bool, String) {
+    let script = format!(
+        "set -u\nip link set lo up\nip link set lo multicast on\nip route add 224.0.0.0/4 dev lo\n\
+         wait_for() {{ for _ in $(seq 300); do grep -q \"$2\" \"$1\" 2>/dev/null && return 0; sleep 0.1; done; return 1; }}\n{body}"
+    );
+    let out = Command::new("timeout")
+        .args(["120", "unshare", "--net", "bash", "-c", &script])
+        .current_dir(dir)
+        .env("EASYHEC", PathBuf::from(env!("CARGO_BIN_EXE_easyhec")))
+        .env("PEER", peer())
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+/// The one edge the peer received for `child`: (parent, parent_from_child).
+pub fn received_edge(dir: &Path, child: &str) -> (String, Isometry3<f64>) {
+    let text = std::fs::read_to_string(dir.join("got.json")).unwrap();
+    let message: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
+    let edges = message["transforms"].as_array().unwrap();
+    assert_eq!(edges.len(), 1, "{text}");
+    let e = &edges[0];
+    assert_eq!(e["child_frame_id"], child);
+    let (t, r) = (&e["transform"]["translation"], &e["transform"]["rotation"]);
+    let n = |v: &serde_json::Value| v.as_f64().unwrap();
+    let pose = Isometry3::from_parts(
+        Translation3::new(n(&t["x"]), n(&t["y"]), n(&t["z"])),
+        UnitQuaternion::new_unchecked(Quaternion::new(
+            n(&r["w"]),
+            n(&r["x"]),
+            n(&r["y"]),
+            n(&r["z"]),
+        )),
+    );
+    assert!(e["header"]["stamp"]["sec"].as_i64().unwrap() > 1_600_000_000);
+    (e["header"]["frame_id"].as_str().unwrap().to_string(), pose)
+}
+
+/// Largest difference between two transforms' matrix entries.
+pub fn max_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    (a.to_homogeneous() - b.to_homogeneous()).abs().max()
+}

@@ -1,0 +1,101 @@
+//! The daemon with `[ros2]`: the active calibration reaches an independent ROS 2 peer (Cyclone
+//! DDS, tests/ros2/tf_peer.py) on `/tf_static` when a calibration is activated, and again from
+//! a restarted daemon, each time to a listener that joined after the edge was sent.
+
+#![cfg(feature = "ros2")]
+
+#[path = "ros2/peers.rs"]
+mod peers;
+
+mod daemon_common;
+
+use std::path::Path;
+
+use easyhec::config::ros2::Ros2Settings;
+use easyhec::geometry::from_rows;
+use nalgebra::Isometry3;
+use peers::{can_run_peers, in_private_network, max_difference, received_edge};
+
+/// Starts a calibration over HTTP, waits for it to end, and prints the active calibration.
+const CALIBRATE: &str = r#"
+import json, sys, time, urllib.request
+base, token = "http://127.0.0.1:8787", sys.argv[1]
+def call(method, path):
+    req = urllib.request.Request(base + path, method=method, headers={"Authorization": "Bearer " + token})
+    with urllib.request.urlopen(req, timeout=30) as r:
+        return json.load(r)
+job = call("POST", "/api/v1/calibrations")
+for _ in range(1800):
+    state = call("GET", "/api/v1/calibrations/" + job["id"])["state"]
+    if state not in ("queued", "running"):
+        break
+    time.sleep(0.1)
+print(json.dumps(call("GET", "/api/v1/calibration")))
+"#;
+
+/// The active calibration's base frame and `base_from_camera`, as the API returned them.
+fn active_edge(active: &Path) -> (String, Isometry3<f64>) {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(active).unwrap()).unwrap();
+    let rows: [[f64; 4]; 4] =
+        serde_json::from_value(v["result"]["camera_from_base"].clone()).unwrap();
+    let base = v["result"]["base_link"].as_str().unwrap().to_string();
+    (base, from_rows(&rows).unwrap().inverse())
+}
+
+#[test]
+fn the_active_calibration_is_published_on_activation_and_after_a_restart() {
+    if !can_run_peers() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    daemon_common::write_config(dir.path(), |c| {
+        c.ros2 = Some(Ros2Settings {
+            domain_id: Some(19),
+            namespace: "/".into(),
+            publish_tf: true,
+            frame_id: None,
+            child_frame_id: "cam_optical".into(),
+            optical_from_child: None,
+            listen_s: 1.0,
+        })
+    });
+    std::fs::write(dir.path().join("calibrate.py"), CALIBRATE).unwrap();
+    let token = daemon_common::TOKEN;
+    let body = format!(
+        r#"
+start() {{ "$EASYHEC" daemon --config cell.toml --data data --listen 127.0.0.1:8787 2> "$1" & }}
+start daemon1.log
+d=$!
+wait_for daemon1.log "listening on" || {{ cat daemon1.log; exit 3; }}
+python3 calibrate.py {token} > active.json || exit 4
+wait_for daemon1.log "on /tf_static" || {{ cat daemon1.log; exit 5; }}
+timeout 60 python3 "$PEER" listen 19 30 cam_optical > got.json || exit 6
+kill -TERM $d; wait $d
+start daemon2.log
+d=$!
+wait_for daemon2.log "on /tf_static" || {{ cat daemon2.log; exit 7; }}
+sleep 1
+mv got.json got1.json
+timeout 60 python3 "$PEER" listen 19 30 cam_optical > got.json || exit 8
+kill -TERM $d; wait $d
+echo "daemon exited $?"
+cat daemon1.log daemon2.log
+"#
+    );
+    let (ok, log) = in_private_network(dir.path(), &body);
+    assert!(ok, "{log}");
+    assert!(log.contains("daemon exited 0"), "{log}");
+    let (base, want) = active_edge(&dir.path().join("active.json"));
+    let (parent, after_restart) = received_edge(dir.path(), "cam_optical");
+    std::fs::rename(dir.path().join("got1.json"), dir.path().join("got.json")).unwrap();
+    let (parent1, on_activation) = received_edge(dir.path(), "cam_optical");
+    assert_eq!((&parent, &parent1), (&base, &base));
+    for (what, got) in [
+        ("on activation", on_activation),
+        ("after a restart", after_restart),
+    ] {
+        let diff = max_difference(&got, &want);
+        assert!(diff < 1e-9, "{what}: {diff}");
+    }
+}
