@@ -68,6 +68,37 @@ fn yaml_edge(v: &serde_yaml_ng::Value) -> Isometry3<f64> {
     )
 }
 
+/// Parses `text` with PyYAML (YAML 1.1, the parser easy_handeye and easy_handeye2 load their
+/// files with) and checks that every number under `key` came back a Python float.
+fn assert_pyyaml_floats(text: &str, key: &str) {
+    let script = "import sys, yaml\n\
+        d = yaml.safe_load(sys.stdin)[sys.argv[1]]\n\
+        def leaves(v):\n\
+        \x20   if isinstance(v, dict):\n\
+        \x20       for x in v.values(): yield from leaves(x)\n\
+        \x20   else: yield v\n\
+        bad = [v for v in leaves(d) if not isinstance(v, float)]\n\
+        assert not bad, bad\n";
+    let mut child = Command::new("python3")
+        .args(["-c", script, key])
+        .stdin(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 runs");
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(text.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "PyYAML reads non-floats under {key}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// The launch file's `arguments=[...]`, read by Python's own parser (so the file is valid
 /// Python), and the `ros2 run` command in its header, split into words.
 fn launch_arguments(text: &str) -> (Vec<String>, Vec<String>) {
@@ -149,10 +180,12 @@ fn every_form_parses_back_to_the_results_transform() {
     assert_eq!(named(&listed, "--child-frame-id"), "cam_optical");
     assert_same(&publisher_edge(&listed), &base_from_optical, "ros");
 
-    let y = yaml(&export(
+    let text = export(
         &path,
         &[&["--format", "easy-handeye-ros1"][..], &frames].concat(),
-    ));
+    );
+    assert_pyyaml_floats(&text, "transformation");
+    let y = yaml(&text);
     let t = &y["transformation"];
     let flat = pose_from(
         ["x", "y", "z"].map(|k| f(&t[k])),

@@ -136,3 +136,33 @@ exit $status
     let diff = max_difference(&(base_from_link * link_from_optical), &base_from_optical);
     assert!(diff < 1e-9, "{diff}");
 }
+
+/// A frame that moves on `/tf` (an arm's tool, say) already has a parent too: refused, naming
+/// `/tf`, and nothing is published.
+#[test]
+fn a_frame_with_a_parent_on_tf_is_refused() {
+    if !can_run_peers() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    write_result(dir.path());
+    let (ok, log) = in_private_network(
+        dir.path(),
+        r#"
+python3 "$PEER" broadcast 23 link_base tool0 0.1 0.2 0.3 0.0 0.0 0.0 1.0 > arm.log 2>&1 &
+arm=$!
+wait_for arm.log broadcasting || { cat arm.log; exit 3; }
+"$EASYHEC" publish result.json --child-frame-id tool0 --domain-id 23 --listen-s 2 2> refused.log
+echo "refused exit $?"
+kill $arm
+cat refused.log
+"#,
+    );
+    assert!(ok, "{log}");
+    assert!(log.contains("refused exit 1"), "{log}");
+    assert!(
+        log.contains("\"tool0\" already has the parent \"link_base\" on /tf,"),
+        "{log}"
+    );
+    assert!(!log.contains("on /tf_static (domain"), "{log}");
+}

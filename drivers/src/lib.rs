@@ -18,6 +18,8 @@ pub mod dynamixel;
 mod error;
 pub mod intrinsics;
 pub mod piper;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod ur;
 pub mod v4l2;
 pub mod xarm;

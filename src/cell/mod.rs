@@ -6,6 +6,7 @@
 //! Relative paths in a config are relative to the config file.
 
 mod hardware;
+pub mod ros2;
 #[cfg(feature = "sim")]
 pub mod sim;
 
@@ -94,8 +95,9 @@ impl Cell {
         // So does a bad segmentation model.
         let segmenter = crate::segment::build(&config.segmenter, path)?;
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
-        let arm = build_arm(&config.arm, &robot, path)?;
-        let camera = build_camera(&config.camera, calibration, &robot, &arm, path)?;
+        let arm = build_arm(&config, &robot, path)?;
+        let feed = ros2::joint_feed(&config, &robot, path)?;
+        let camera = build_camera(&config.camera, calibration, &robot, &arm, feed, path)?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -140,7 +142,8 @@ fn robot_source(config: &CellConfig, path: &Path) -> RobotSource {
 }
 
 /// The arm of the `[arm]` table.
-fn build_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
+fn build_arm(config: &CellConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
+    let arm = &config.arm;
     let device = match arm {
         ArmConfig::Sim { .. } => return sim_arm(arm, robot, path),
         ArmConfig::Xarm { .. } => hardware::xarm_arm(arm, robot, path)?,
@@ -155,6 +158,7 @@ fn build_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltAr
             hardware::servo_arm(easyhec_drivers::dynamixel::Family::Feetech, t, robot, path)?
         }
         ArmConfig::Piper { .. } => hardware::piper_arm(arm, robot, path)?,
+        ArmConfig::Ros2 { .. } => ros2::ros2_arm(arm, config.ros2.as_ref(), robot, path)?,
     };
     Ok(BuiltArm {
         device,
@@ -169,10 +173,11 @@ fn build_camera(
     calibration: Option<CameraCalibration>,
     robot: &Arc<RobotModel>,
     arm: &BuiltArm,
+    feed: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
     let device = match camera {
-        CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, path),
+        CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, feed, path),
         CameraConfig::V4l2 { .. } => hardware::v4l2_camera(camera, calibration, path)?,
         CameraConfig::Aravis { .. } => hardware::aravis_camera(camera, calibration, path)?,
     };
@@ -197,9 +202,10 @@ fn sim_camera(
     camera: &CameraConfig,
     robot: &Arc<RobotModel>,
     arm: &BuiltArm,
+    feed: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
-    let parts = sim::camera(camera, robot, arm.sim.as_ref(), path)?;
+    let parts = sim::camera(camera, robot, arm.sim.as_ref(), feed.as_ref(), path)?;
     Ok(BuiltCamera {
         device: parts.camera.clone(),
         sim: Some(parts),
@@ -217,6 +223,7 @@ fn sim_camera(
     _: &CameraConfig,
     _: &Arc<RobotModel>,
     _: &BuiltArm,
+    _: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
     Err(Error::input(path, "camera.kind", NO_SIM))

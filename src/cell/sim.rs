@@ -163,6 +163,7 @@ pub(super) fn camera(
     camera: &CameraConfig,
     robot: &Arc<RobotModel>,
     sim_arm: Option<&SimArm>,
+    feed: Option<&super::ros2::JointFeed>,
     path: &Path,
 ) -> Result<SimCameraParts> {
     let CameraConfig::Sim {
@@ -174,7 +175,13 @@ pub(super) fn camera(
     else {
         unreachable!("called for kind = \"sim\" only")
     };
-    let source = joint_source(joints_from.as_ref(), sim_arm, robot.actuated.len(), path)?;
+    let source = joint_source(
+        joints_from.as_ref(),
+        sim_arm,
+        feed,
+        robot.actuated.len(),
+        path,
+    )?;
     let pose = truth.camera_from_base();
     let model = camera
         .camera()
@@ -192,10 +199,12 @@ pub(super) fn camera(
 fn joint_source(
     joints_from: Option<&JointsFrom>,
     sim_arm: Option<&SimArm>,
+    feed: Option<&super::ros2::JointFeed>,
     axes: usize,
     path: &Path,
 ) -> Result<Arc<dyn JointSource>> {
     Ok(match (joints_from, sim_arm) {
+        (Some(JointsFrom::Ros2 { .. }), _) => ros2_source(feed, path)?,
         (Some(JointsFrom::XarmReport { addr, timeout_s }), _) => Arc::new(XArmReportJoints {
             addr: addr.clone(),
             axes,
@@ -214,6 +223,23 @@ fn joint_source(
             ))
         }
     })
+}
+
+/// The `/joint_states` source of a camera filming a ROS 2 arm.
+#[cfg(feature = "ros2")]
+fn ros2_source(feed: Option<&super::ros2::JointFeed>, path: &Path) -> Result<Arc<dyn JointSource>> {
+    let feed = feed.expect("built for joints_from = ros2");
+    super::ros2::feed::source(feed)
+        .map_err(|e| Error::input(path, "camera.joints_from", e.to_string()))
+}
+
+#[cfg(not(feature = "ros2"))]
+fn ros2_source(_: Option<&super::ros2::JointFeed>, path: &Path) -> Result<Arc<dyn JointSource>> {
+    Err(Error::input(
+        path,
+        "camera.joints_from.kind",
+        "\"ros2\" needs ROS 2 support, which this build leaves out: rebuild with --features ros2",
+    ))
 }
 
 /// Gathers the simulator's handles, and gives a `sim-truth` segmenter the simulated camera

@@ -6,13 +6,17 @@ use easyhec::interop::tf_edge::{parse_transform, DEFAULT_CHILD_FRAME};
 use easyhec::interop::TfEdge;
 use easyhec::run::ResultFile;
 
+/// How errors name the two frames.
+pub const FLAGS: [&str; 2] = ["--frame-id", "--child-frame-id"];
+
 #[derive(Args, Clone, Debug)]
 pub struct FrameArgs {
     /// Parent frame of the edge (default: the result's base_link).
     #[arg(long)]
     pub frame_id: Option<String>,
     /// Child frame: the optical frame itself, or, with --optical-from-child, the camera's
-    /// root link. Never a frame a camera driver already publishes with a parent.
+    /// root link. Never a frame a camera driver already publishes with a parent. (The opencv
+    /// form always holds the optical frame and ignores the frame flags.)
     #[arg(long, alias = "camera-frame", default_value = DEFAULT_CHILD_FRAME)]
     pub child_frame_id: String,
     /// The camera driver's fixed optical_from_child, "x y z qx qy qz qw" (metres, unit
@@ -35,6 +39,7 @@ impl FrameArgs {
             self.frame_id.as_deref(),
             &self.child_frame_id,
             optical_from_child.as_ref(),
+            FLAGS,
         )
     }
 }

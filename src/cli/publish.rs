@@ -40,6 +40,8 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
     use easyhec::ros2::tf::{StaticTfPublisher, TfListener};
     use easyhec::ros2::{domain_id_from_env, join, GraphPlace};
 
+    use super::frames::FLAGS;
+
     if !(0.0..=MAX_LISTEN_S).contains(&a.listen_s) {
         return Err(Error::Usage(format!(
             "--listen-s is {}; allowed: 0 to {MAX_LISTEN_S}",
@@ -64,8 +66,18 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
         namespace: a.namespace.clone(),
         node_name: "easyhec_publish".into(),
     };
+    easyhec::config::ros2::check_namespace(&place.namespace)
+        .map_err(|m| Error::Usage(format!("--namespace is {m}")))?;
+    if place.domain_id > easyhec::config::ros2::MAX_DOMAIN_ID {
+        return Err(Error::Usage(format!(
+            "--domain-id is {}; allowed: 0 to {}",
+            place.domain_id,
+            easyhec::config::ros2::MAX_DOMAIN_ID
+        ))
+        .into());
+    }
     let (_context, mut node) = join(&place)?;
-    let listener = TfListener::new(&mut node, &place.namespace)?;
+    let mut listener = TfListener::new(&mut node, &place.namespace)?;
     let tree = listener.gather(std::time::Duration::from_secs_f64(a.listen_s), None)?;
     let edge = match &a.optical_frame_id {
         None => a.frames.edge(&result)?,
@@ -83,6 +95,7 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
                 a.frames.frame_id.as_deref(),
                 child,
                 Some(&child_from_optical.inverse()),
+                FLAGS,
             )?
         }
     };

@@ -101,6 +101,34 @@ pub enum ArmConfig {
         #[serde(default)]
         motion_timeout_margin_s: Option<f64>,
     },
+    /// An arm under ros2_control: positions from `/joint_states`, moves through the
+    /// joint_trajectory_controller's topic. Needs the `ros2` cargo feature; the domain and
+    /// namespace come from the `[ros2]` table (absent: `ROS_DOMAIN_ID`, `/`).
+    Ros2 {
+        /// `sensor_msgs/JointState` topic (default `/joint_states`).
+        #[serde(default)]
+        joint_states_topic: Option<String>,
+        /// `trajectory_msgs/JointTrajectory` topic (default
+        /// `/joint_trajectory_controller/joint_trajectory`).
+        #[serde(default)]
+        command_topic: Option<String>,
+        /// The controller's joint names, in the URDF's actuated order (default: the URDF's).
+        #[serde(default)]
+        joint_names: Option<Vec<String>>,
+        /// `/joint_states` older than this stops the run, seconds (default 0.5).
+        #[serde(default)]
+        stale_after_s: Option<f64>,
+        /// Arrival: every joint within this of the target, rad (default 0.002).
+        #[serde(default)]
+        arrival_tolerance_rad: Option<f64>,
+        /// Longest wait for the first complete `/joint_states`, seconds (default 10).
+        #[serde(default)]
+        connect_timeout_s: Option<f64>,
+        /// Slack beyond a move's trajectory time before it counts as stalled, seconds
+        /// (default 10).
+        #[serde(default)]
+        motion_timeout_margin_s: Option<f64>,
+    },
 }
 
 /// `[arm] kind = "dynamixel" | "feetech"`: a serial servo bus and its joint table.

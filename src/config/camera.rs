@@ -153,6 +153,16 @@ pub enum JointsFrom {
         #[serde(default)]
         timeout_s: Option<f64>,
     },
+    /// A ROS 2 `sensor_msgs/JointState` topic (the `ros2` feature), in the `[ros2]` table's
+    /// domain and namespace, with the `[arm]`'s joint names.
+    Ros2 {
+        /// The topic (default `/joint_states`).
+        #[serde(default)]
+        topic: Option<String>,
+        /// Limit for the first complete message, seconds (default 10).
+        #[serde(default)]
+        timeout_s: Option<f64>,
+    },
 }
 
 impl CameraConfig {

@@ -135,6 +135,55 @@ fn check_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
             c.within("arm.speedup", *s, 0.0, bounds::SPEEDUP, true)?;
         }
     }
+    if let ArmConfig::Ros2 { .. } = arm {
+        check_ros2_arm(c, arm)?;
+    }
+    Ok(())
+}
+
+/// `[arm] kind = "ros2"`: topic names, joint names once each, tolerances and times in range.
+fn check_ros2_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
+    let ArmConfig::Ros2 {
+        joint_states_topic,
+        command_topic,
+        joint_names,
+        stale_after_s,
+        arrival_tolerance_rad,
+        ..
+    } = arm
+    else {
+        return Ok(());
+    };
+    for (key, topic) in [
+        ("arm.joint_states_topic", joint_states_topic),
+        ("arm.command_topic", command_topic),
+    ] {
+        if let Some(t) = topic {
+            crate::config::ros2::check_topic(t)
+                .map_err(|m| Error::input(c.path, key, format!("is {m}")))?;
+        }
+    }
+    if let Some(names) = joint_names {
+        let mut seen = std::collections::BTreeSet::new();
+        for (i, n) in names.iter().enumerate() {
+            let ok = !n.is_empty() && n.len() <= 256 && !n.chars().any(char::is_control);
+            if !ok || !seen.insert(n) {
+                return Err(Error::input(
+                    c.path,
+                    format!("arm.joint_names[{i}]"),
+                    format!(
+                        "is {n:?}; allowed: a non-empty name (at most 256 characters) listed once"
+                    ),
+                ));
+            }
+        }
+    }
+    if let Some(s) = stale_after_s {
+        c.within("arm.stale_after_s", *s, 0.05, 60.0, false)?;
+    }
+    if let Some(t) = arrival_tolerance_rad {
+        c.within("arm.arrival_tolerance_rad", *t, 1e-5, 0.1, false)?;
+    }
     Ok(())
 }
 

@@ -18,20 +18,26 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 /// Longest wait, seconds, for other nodes' tf before publishing.
 pub const MAX_LISTEN_S: f64 = 60.0;
 
-/// Checks a tf frame name: ASCII letters, digits, `_` and `/` (namespaces), not starting with a
-/// digit, at most [`MAX_FRAME_NAME_LEN`] long.
+/// Checks a tf frame name: ASCII letters, digits, `_` and inner single `/` (prefixes), not
+/// starting with a digit, at most [`MAX_FRAME_NAME_LEN`] long. tf2 in ROS 2 refuses a leading
+/// `/`, and a name that differs from another only by slashes would dodge the parent check.
 pub fn check_frame_name(name: &str) -> std::result::Result<(), String> {
     let ok_char = |c: char| c.is_ascii_alphanumeric() || c == '_' || c == '/';
-    let starts_ok = name.chars().next().is_some_and(|c| !c.is_ascii_digit());
+    let starts_ok = name
+        .chars()
+        .next()
+        .is_some_and(|c| !c.is_ascii_digit() && c != '/');
     if !name.is_empty()
         && name.len() <= MAX_FRAME_NAME_LEN
         && starts_ok
+        && !name.ends_with('/')
+        && !name.contains("//")
         && name.chars().all(ok_char)
     {
         return Ok(());
     }
     Err(format!(
-        "{name:?}; allowed: 1 to {MAX_FRAME_NAME_LEN} ASCII letters, digits, '_' or '/', not starting with a digit"
+        "{name:?}; allowed: 1 to {MAX_FRAME_NAME_LEN} ASCII letters, digits, '_' or single inner '/', not starting with a digit"
     ))
 }
 
@@ -43,6 +49,7 @@ pub fn check_namespace(ns: &str) -> std::result::Result<(), String> {
             .next()
             .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
             && n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+            && !n.contains("__")
     };
     let ok =
         ns == "/" || (ns.len() <= 256 && ns.starts_with('/') && ns[1..].split('/').all(name_ok));
@@ -50,8 +57,41 @@ pub fn check_namespace(ns: &str) -> std::result::Result<(), String> {
         return Ok(());
     }
     Err(format!(
-        "{ns:?}; allowed: \"/\" or \"/a/b\" with names of ASCII letters, digits and '_', not starting with a digit"
+        "{ns:?}; allowed: \"/\" or \"/a/b\" with names of ASCII letters, digits and '_' (no \"__\"), not starting with a digit"
     ))
+}
+
+/// Checks a topic name: a namespace-like path (`/joint_states`, `arm/joint_states`), absolute
+/// or relative to the node's namespace.
+pub fn check_topic(topic: &str) -> std::result::Result<(), String> {
+    let absolute = if topic.starts_with('/') {
+        topic.to_string()
+    } else {
+        format!("/{topic}")
+    };
+    if absolute != "/" && check_namespace(&absolute).is_ok() {
+        return Ok(());
+    }
+    Err(format!(
+        "{topic:?}; allowed: a ROS topic name such as \"/joint_states\" (names of ASCII letters, digits and '_' separated by '/', not starting with a digit)"
+    ))
+}
+
+/// The domain id from `ROS_DOMAIN_ID`, as ROS 2 tools read it (unset or empty: 0).
+pub fn domain_id_from_env() -> Result<u16> {
+    match std::env::var("ROS_DOMAIN_ID") {
+        Ok(v) if !v.trim().is_empty() => v
+            .trim()
+            .parse::<u16>()
+            .ok()
+            .filter(|d| *d <= MAX_DOMAIN_ID)
+            .ok_or_else(|| {
+                Error::Usage(format!(
+                    "ROS_DOMAIN_ID is {v:?}; allowed: 0 to {MAX_DOMAIN_ID}"
+                ))
+            }),
+        _ => Ok(0),
+    }
 }
 
 /// `[ros2]`.
@@ -103,6 +143,19 @@ fn default_listen_s() -> f64 {
 pub const DEFAULT_CHILD_FRAME: &str = "easyhec_camera_optical_frame";
 
 impl Ros2Settings {
+    /// The domain: `domain_id`, else `ROS_DOMAIN_ID`, else 0.
+    pub fn domain(settings: Option<&Self>) -> Result<u16> {
+        match settings.and_then(|s| s.domain_id) {
+            Some(d) => Ok(d),
+            None => domain_id_from_env(),
+        }
+    }
+
+    /// The namespace: `namespace`, else `/`.
+    pub fn namespace_of(settings: Option<&Self>) -> String {
+        settings.map_or_else(root_namespace, |s| s.namespace.clone())
+    }
+
     /// Checks every key, naming it.
     pub fn validate(&self, path: &Path) -> Result<()> {
         let bad = |k: &str, m: String| Err(Error::input(path, format!("ros2.{k}"), m));
@@ -155,12 +208,36 @@ mod tests {
     use super::*;
 
     #[test]
+    fn frame_names_are_checked() {
+        for ok in ["camera_link", "robot1/camera_link", "_x"] {
+            assert!(check_frame_name(ok).is_ok(), "{ok}");
+        }
+        for bad in [
+            "",
+            "/camera_link",
+            "camera_link/",
+            "a//b",
+            "9cam",
+            "cam:x",
+            "a b",
+        ] {
+            assert!(check_frame_name(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn namespaces_are_checked() {
         for ok in ["/", "/cell_1", "/lab/cell_1"] {
             assert!(check_namespace(ok).is_ok(), "{ok}");
         }
-        for bad in ["", "cell", "/cell/", "/1cell", "/a b", "//"] {
+        for bad in ["", "cell", "/cell/", "/1cell", "/a b", "//", "/a__b"] {
             assert!(check_namespace(bad).is_err(), "{bad}");
+        }
+        for ok in ["/joint_states", "arm/joint_states", "/a/b_2"] {
+            assert!(check_topic(ok).is_ok(), "{ok}");
+        }
+        for bad in ["", "/", "/joint states", "/a//b", "/2x", "a/"] {
+            assert!(check_topic(bad).is_err(), "{bad}");
         }
     }
 }

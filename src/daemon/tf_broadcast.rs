@@ -17,6 +17,8 @@ use crate::run::ResultFile;
 /// The handle the daemon keeps: send it what became active.
 pub struct TfBroadcast {
     tx: mpsc::Sender<(String, ResultFile)>,
+    /// Set once a send found the thread gone, so that is logged once.
+    lost: std::sync::atomic::AtomicBool,
 }
 
 impl TfBroadcast {
@@ -32,12 +34,18 @@ impl TfBroadcast {
         ready_rx
             .recv()
             .map_err(|_| Error::Ros2("the ROS 2 thread ended while starting".into()))??;
-        Ok(Self { tx })
+        Ok(Self {
+            tx,
+            lost: Default::default(),
+        })
     }
 
     /// Queues calibration `id`'s result for publication.
     pub fn announce(&self, id: &str, result: &ResultFile) {
-        let _ = self.tx.send((id.to_string(), result.clone()));
+        let sent = self.tx.send((id.to_string(), result.clone()));
+        if sent.is_err() && !self.lost.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            eprintln!("easyhec daemon: ros2: the ROS 2 thread has ended; {id} and later calibrations are not published");
+        }
     }
 }
 
@@ -47,7 +55,7 @@ fn serve(
     ready: mpsc::Sender<Result<()>>,
 ) {
     let opened = open(&settings);
-    let (_context, _node, listener, publisher) = match opened {
+    let (_context, _node, mut listener, publisher) = match opened {
         Ok(parts) => {
             let _ = ready.send(Ok(()));
             parts
@@ -62,12 +70,14 @@ fn serve(
             next = newer;
         }
         let (id, result) = next;
-        match publish(&settings, &listener, &publisher, &result) {
+        match publish(&settings, &mut listener, &publisher, &result) {
             Ok(edge) => eprintln!(
                 "easyhec daemon: ros2: {id}: {} -> {} on /tf_static",
                 edge.parent, edge.child
             ),
-            Err(e) => eprintln!("easyhec daemon: ros2: {id} not published: {e}"),
+            Err(e) => eprintln!(
+                "easyhec daemon: ros2: {id} not published (/tf_static keeps what this daemon published before, if anything): {e}"
+            ),
         }
     }
 }
@@ -98,7 +108,7 @@ fn open(settings: &Ros2Settings) -> Result<Parts> {
 /// out the daemon's own earlier edge), then latched.
 fn publish(
     settings: &Ros2Settings,
-    listener: &TfListener,
+    listener: &mut TfListener,
     publisher: &StaticTfPublisher,
     result: &ResultFile,
 ) -> Result<TfEdge> {
@@ -112,6 +122,7 @@ fn publish(
         settings.frame_id.as_deref(),
         &settings.child_frame_id,
         optical_from_child.as_ref(),
+        ["ros2.frame_id", "ros2.child_frame_id"],
     )?;
     let tree = listener.gather(
         Duration::from_secs_f64(settings.listen_s),

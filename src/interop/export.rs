@@ -61,6 +61,28 @@ pub fn export(result: &ResultFile, format: ExportFormat, edge: &TfEdge) -> Resul
     })
 }
 
+/// `v` in the fewest digits that read back to the same f64, spelled so that every reader
+/// takes it for a float: with a `.` in the mantissa and a signed exponent (`1.0`, `2.5e-7`,
+/// `1.0e+300`). YAML 1.1 readers (PyYAML, used by easy_handeye) read `1e-7` or `1.5e0` as
+/// strings, and an integer `1` would reach a float field as an int.
+pub fn number(v: f64) -> String {
+    let s = format!("{v:?}");
+    let Some((mantissa, exponent)) = s.split_once('e') else {
+        return s;
+    };
+    let mantissa = if mantissa.contains('.') {
+        mantissa.to_string()
+    } else {
+        format!("{mantissa}.0")
+    };
+    let exponent = if exponent.starts_with('-') {
+        exponent.to_string()
+    } else {
+        format!("+{exponent}")
+    };
+    format!("{mantissa}e{exponent}")
+}
+
 fn opencv_yaml(result: &ResultFile) -> String {
     let cfb = result.camera_from_base();
     let mut s = String::from("%YAML:1.0\n---\n");
@@ -90,7 +112,7 @@ fn publisher_arguments(edge: &TfEdge) -> Vec<(&'static str, String)> {
     let mut args: Vec<(&'static str, String)> = names
         .iter()
         .zip(t.iter().chain(q.iter()))
-        .map(|(n, v)| (*n, format!("{v:.17e}")))
+        .map(|(n, v)| (*n, number(*v)))
         .collect();
     args.push(("--frame-id", edge.parent.clone()));
     args.push(("--child-frame-id", edge.child.clone()));
@@ -143,11 +165,11 @@ fn yaml_translation_rotation(s: &mut String, indent: &str, edge: &TfEdge) {
     let q = edge.quaternion_xyzw();
     let _ = writeln!(s, "{indent}translation:");
     for (k, v) in ["x", "y", "z"].iter().zip(t) {
-        let _ = writeln!(s, "{indent}  {k}: {v:.17e}");
+        let _ = writeln!(s, "{indent}  {k}: {}", number(v));
     }
     let _ = writeln!(s, "{indent}rotation:");
     for (k, v) in ["x", "y", "z", "w"].iter().zip(q) {
-        let _ = writeln!(s, "{indent}  {k}: {v:.17e}");
+        let _ = writeln!(s, "{indent}  {k}: {}", number(v));
     }
 }
 
@@ -184,7 +206,7 @@ fn easy_handeye_ros1_yaml(edge: &TfEdge) -> String {
         .iter()
         .zip(t.iter().chain(q.iter()))
     {
-        let _ = writeln!(s, "  {k}: {v:.17e}");
+        let _ = writeln!(s, "  {k}: {}", number(*v));
     }
     s
 }
@@ -201,8 +223,37 @@ fn urdf_joint(edge: &TfEdge) -> String {
     let _ = writeln!(s, "<link name=\"{child}\"/>");
     let _ = writeln!(
         s,
-        "<joint name=\"{child}_joint\" type=\"fixed\">\n  <parent link=\"{parent}\"/>\n  <child link=\"{child}\"/>\n  <origin xyz=\"{:.17e} {:.17e} {:.17e}\" rpy=\"{:.17e} {:.17e} {:.17e}\"/>\n</joint>",
-        t[0], t[1], t[2], r, p, y
+        "<joint name=\"{child}_joint\" type=\"fixed\">\n  <parent link=\"{parent}\"/>\n  <child link=\"{child}\"/>\n  <origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>\n</joint>",
+        number(t[0]), number(t[1]), number(t[2]), number(r), number(p), number(y)
     );
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::number;
+
+    #[test]
+    fn numbers_read_back_exactly_and_always_look_like_floats() {
+        for v in [
+            0.0,
+            -0.0,
+            1.0,
+            0.5,
+            -2.25e-7,
+            1.0e300,
+            0.1 + 0.2,
+            std::f64::consts::PI,
+            123456789.0,
+        ] {
+            let s = number(v);
+            assert_eq!(s.parse::<f64>().unwrap().to_bits(), v.to_bits(), "{s}");
+            assert!(s.contains('.'), "{s}");
+            if let Some((_, e)) = s.split_once('e') {
+                assert!(e.starts_with('+') || e.starts_with('-'), "{s}");
+            }
+        }
+        assert_eq!(number(1e-7), "1.0e-7");
+        assert_eq!(number(1.0), "1.0");
+    }
 }

@@ -37,19 +37,22 @@ pub struct TfEdge {
 impl TfEdge {
     /// The edge from a result's base frame (or `parent`, when given) to `child`. Without
     /// `optical_from_child` the child is the optical frame itself. Frame names are checked
-    /// here; an error names the flag (`--frame-id`, `--child-frame-id`).
+    /// here; an error names the flag or key the user set them with (`labels`: parent, child,
+    /// e.g. `["--frame-id", "--child-frame-id"]`).
     pub fn from_result(
         result: &ResultFile,
         parent: Option<&str>,
         child: &str,
         optical_from_child: Option<&Isometry3<f64>>,
+        labels: [&str; 2],
     ) -> Result<Self> {
+        let [parent_label, child_label] = labels;
         let parent = parent.unwrap_or(&result.base_link);
-        check_frame_name(parent).map_err(|m| Error::Usage(format!("--frame-id is {m}")))?;
-        check_frame_name(child).map_err(|m| Error::Usage(format!("--child-frame-id is {m}")))?;
+        check_frame_name(parent).map_err(|m| Error::Usage(format!("{parent_label} is {m}")))?;
+        check_frame_name(child).map_err(|m| Error::Usage(format!("{child_label} is {m}")))?;
         if parent == child {
             return Err(Error::Usage(format!(
-                "--child-frame-id is {child:?}, the same as the parent frame; allowed: a different frame"
+                "{child_label} is {child:?}, the same as the parent frame; allowed: a different frame"
             )));
         }
         let base_from_optical = result.camera_from_base().inverse();
@@ -129,13 +132,21 @@ mod tests {
     use super::*;
     use crate::geometry::{exp_se3, Twist};
 
+    const FLAGS: [&str; 2] = ["--frame-id", "--child-frame-id"];
+
     #[test]
     fn the_edge_attaches_the_camera_root_link_through_the_optical_frame() {
         let camera_from_base = exp_se3(&Twist::new(0.3, -0.2, 1.1, 0.5, -1.2, 2.0));
         let result = ResultFile::new(&camera_from_base, "link_base");
         let optical_from_child = exp_se3(&Twist::new(0.01, 0.02, -0.03, 1.2, -1.1, 0.4));
-        let edge =
-            TfEdge::from_result(&result, None, "camera_link", Some(&optical_from_child)).unwrap();
+        let edge = TfEdge::from_result(
+            &result,
+            None,
+            "camera_link",
+            Some(&optical_from_child),
+            FLAGS,
+        )
+        .unwrap();
         assert_eq!(edge.parent, "link_base");
         // A point fixed in the camera root link reaches the base through the optical frame.
         let p_child = nalgebra::Point3::new(0.2, -0.1, 0.5);
@@ -163,8 +174,13 @@ mod tests {
     #[test]
     fn a_child_equal_to_the_parent_or_badly_named_is_refused() {
         let result = ResultFile::new(&Isometry3::identity(), "link_base");
-        assert!(TfEdge::from_result(&result, None, "link_base", None).is_err());
-        assert!(TfEdge::from_result(&result, Some("a b"), "cam", None).is_err());
-        assert!(TfEdge::from_result(&result, None, "cam:x", None).is_err());
+        assert!(TfEdge::from_result(&result, None, "link_base", None, FLAGS).is_err());
+        let e = TfEdge::from_result(&result, Some("a b"), "cam", None, FLAGS).unwrap_err();
+        assert!(e.to_string().starts_with("--frame-id is"), "{e}");
+        let e = TfEdge::from_result(&result, None, "cam:x", None, ["p", "ros2.child_frame_id"]);
+        assert!(e
+            .unwrap_err()
+            .to_string()
+            .starts_with("ros2.child_frame_id is"));
     }
 }

@@ -74,8 +74,10 @@ impl TfTree {
                 topic = source.topic(),
             )));
         }
+        // Walk up from the parent; a loop in what others published ends the walk too.
         let mut frame = edge.parent.as_str();
-        for _ in 0..=MAX_CHAIN {
+        let mut visited = std::collections::BTreeSet::new();
+        while visited.insert(frame) {
             if frame == edge.child {
                 return Err(Error::Usage(format!(
                     "parent frame {:?} lies below child frame {:?} in the tf tree; allowed: a parent that is not a descendant of the child",

@@ -75,7 +75,7 @@ pub fn edge_of(m: &TransformStamped) -> Option<TfEdge> {
     let finite = [t.x, t.y, t.z, r.x, r.y, r.z, r.w]
         .iter()
         .all(|v| v.is_finite());
-    if !finite || (q.norm() - 1.0).abs() > 1e-3 {
+    if !finite || (q.norm() - 1.0).abs() > 1e-2 {
         return None;
     }
     Some(TfEdge {
@@ -131,6 +131,9 @@ impl StaticTfPublisher {
 pub struct TfListener {
     dynamic: Subscription<TfMessage>,
     fixed: Subscription<TfMessage>,
+    /// Everything heard so far: a latched edge arrives once, when the readers match its
+    /// writer, so a later window must still know it.
+    seen: TfTree,
 }
 
 impl TfListener {
@@ -154,19 +157,23 @@ impl TfListener {
         let fixed = node
             .create_subscription(&fixed_topic, Some(fixed_qos))
             .map_err(ros_error("creating the /tf_static reader"))?;
-        Ok(Self { dynamic, fixed })
+        Ok(Self {
+            dynamic,
+            fixed,
+            seen: TfTree::default(),
+        })
     }
 
-    /// Gathers edges for `window` (discovery of the other nodes takes part of it), leaving out
-    /// those written by `own` (easyhec's own broadcaster).
-    pub fn gather(&self, window: Duration, own: Option<Gid>) -> Result<TfTree> {
-        let mut tree = TfTree::default();
+    /// Listens for `window` more (discovery of the other nodes takes part of it) and returns
+    /// every edge heard since the listener was made, leaving out those written by `own`
+    /// (easyhec's own broadcaster).
+    pub fn gather(&mut self, window: Duration, own: Option<Gid>) -> Result<TfTree> {
         let deadline = Instant::now() + window;
         loop {
-            drain(&self.fixed, TfSource::Static, own, &mut tree)?;
-            drain(&self.dynamic, TfSource::Dynamic, own, &mut tree)?;
+            drain(&self.fixed, TfSource::Static, own, &mut self.seen)?;
+            drain(&self.dynamic, TfSource::Dynamic, own, &mut self.seen)?;
             if Instant::now() >= deadline {
-                return Ok(tree);
+                return Ok(self.seen.clone());
             }
             std::thread::sleep(POLL);
         }

@@ -8,66 +8,24 @@ which ships its own library): the same wire types a ROS 2 node uses, with no ROS
   tf_peer.py latch DOMAIN PARENT CHILD X Y Z QX QY QZ QW [PARENT CHILD X ... QW]...
       Latches those edges on rt/tf_static, as a camera driver's static broadcaster does, and
       prints "latched" once written; runs until killed.
+  tf_peer.py broadcast DOMAIN PARENT CHILD X Y Z QX QY QZ QW ...
+      Sends those edges on rt/tf at 20 Hz, as a moving frame's broadcaster does (reliable,
+      volatile, depth 100), printing "broadcasting" once; runs until killed.
 """
 
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint32
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
-
-
-@dataclass
-class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@dataclass
-class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-    x: float64
-    y: float64
-    z: float64
-    w: float64
-
-
-@dataclass
-class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
-    translation: Vector3
-    rotation: Quaternion
-
-
-@dataclass
-class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
-    header: Header
-    child_frame_id: str
-    transform: Transform
-
-
-@dataclass
-class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
-    transforms: sequence[TransformStamped]
+from ros2_types import Header, Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3
 
 
 STATIC_QOS = Qos(
@@ -96,9 +54,7 @@ def listen(domain, seconds, child):
     return 1
 
 
-def latch(domain, words):
-    participant, topic = tf_static(domain)
-    writer = DataWriter(participant, topic, qos=STATIC_QOS)
+def edges_of(words):
     edges = []
     for i in range(0, len(words), 9):
         parent, child, *numbers = words[i : i + 9]
@@ -110,10 +66,28 @@ def latch(domain, words):
                 Transform(Vector3(x, y, z), Quaternion(qx, qy, qz, qw)),
             )
         )
+    return edges
+
+
+def latch(domain, words):
+    participant, topic = tf_static(domain)
+    writer = DataWriter(participant, topic, qos=STATIC_QOS)
+    edges = edges_of(words)
     writer.write(TFMessage(edges))
     print("latched", flush=True)
     while True:
         time.sleep(1)
+
+
+def broadcast(domain, words):
+    participant = DomainParticipant(domain)
+    qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(100))
+    writer = DataWriter(participant, Topic(participant, "rt/tf", TFMessage, qos=qos), qos=qos)
+    edges = edges_of(words)
+    print("broadcasting", flush=True)
+    while True:
+        writer.write(TFMessage(edges))
+        time.sleep(0.05)
 
 
 def main():
@@ -122,6 +96,8 @@ def main():
         return listen(domain, float(sys.argv[3]), sys.argv[4] if len(sys.argv) > 4 else None)
     if mode == "latch":
         return latch(domain, sys.argv[3:])
+    if mode == "broadcast":
+        return broadcast(domain, sys.argv[3:])
     print(__doc__, file=sys.stderr)
     return 2
 

@@ -86,3 +86,63 @@ pub struct TfMessage {
     /// The edges.
     pub transforms: Vec<TransformStamped>,
 }
+
+/// `builtin_interfaces/Duration`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Duration {
+    /// Whole seconds.
+    pub sec: i32,
+    /// Nanoseconds within the second.
+    pub nanosec: u32,
+}
+
+impl From<std::time::Duration> for Duration {
+    fn from(d: std::time::Duration) -> Self {
+        Self {
+            sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
+            nanosec: d.subsec_nanos(),
+        }
+    }
+}
+
+/// `sensor_msgs/JointState`: any subset of a robot's joints, by name.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointState {
+    /// Stamp and frame (unused).
+    pub header: Header,
+    /// Joint names.
+    pub name: Vec<String>,
+    /// Positions, rad or m, one per name (or empty).
+    pub position: Vec<f64>,
+    /// Velocities (may be empty).
+    pub velocity: Vec<f64>,
+    /// Efforts (may be empty).
+    pub effort: Vec<f64>,
+}
+
+/// `trajectory_msgs/JointTrajectoryPoint`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointTrajectoryPoint {
+    /// Positions, one per joint name.
+    pub positions: Vec<f64>,
+    /// Velocities (empty: the controller interpolates positions linearly).
+    pub velocities: Vec<f64>,
+    /// Accelerations (empty).
+    pub accelerations: Vec<f64>,
+    /// Efforts (empty).
+    pub effort: Vec<f64>,
+    /// When the point is to be reached, from the trajectory's start.
+    pub time_from_start: Duration,
+}
+
+/// `trajectory_msgs/JointTrajectory`: what ros2_control's joint_trajectory_controller takes
+/// on its `~/joint_trajectory` topic. An empty `points` list stops the arm where it is.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointTrajectory {
+    /// Stamp zero: start now.
+    pub header: Header,
+    /// The joints the points name, in order.
+    pub joint_names: Vec<String>,
+    /// The points.
+    pub points: Vec<JointTrajectoryPoint>,
+}

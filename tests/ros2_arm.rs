@@ -1,0 +1,179 @@
+//! `[arm] kind = "ros2"` against a fake joint_trajectory_controller on Cyclone DDS
+//! (tests/ros2/fake_controller.py): a whole `easyhec calibrate` on the simulated xArm6 cell
+//! whose camera films the controller's `/joint_states`, and a controller that falls silent.
+//! Everything runs in a private network namespace (tests/ros2/peers.rs).
+
+#![cfg(feature = "ros2")]
+
+mod common;
+#[path = "ros2/peers.rs"]
+mod peers;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use easyhec::config::ros2::Ros2Settings;
+use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig, JointsFrom};
+use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::robot::RobotModel;
+use easyhec::run::{GroundTruth, ResultFile};
+use easyhec::safety::SafetyChecker;
+use peers::{can_run_peers, in_private_network};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The shipped simulated xArm6 cell with its arm on ROS 2 (domain `domain`) and its camera
+/// filming `/joint_states`; returns the config, its path and the arm's start.
+fn ros2_cell(dir: &Path, domain: u16) -> (CellConfig, PathBuf, Vec<f64>) {
+    let mut cfg = read_config(&root().join("config/sim-xarm6.toml")).unwrap();
+    cfg.robot.urdf = root().join("robots/xarm6/robot.urdf");
+    let ArmConfig::Sim { start, .. } = &cfg.arm else {
+        panic!("the shipped cell's arm is simulated")
+    };
+    let start = start.clone();
+    // Two seconds of silence before staleness: a loaded 2-core CI machine can stall the
+    // Python controller for a fraction of a second.
+    cfg.arm = toml::from_str("kind = \"ros2\"\nstale_after_s = 2.0").unwrap();
+    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+        panic!("the shipped cell's camera is simulated")
+    };
+    *joints_from = Some(JointsFrom::Ros2 {
+        topic: None,
+        timeout_s: None,
+    });
+    let mut ros2: Ros2Settings = toml::from_str("publish_tf = false").unwrap();
+    ros2.domain_id = Some(domain);
+    cfg.ros2 = Some(ros2);
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
+    (cfg, path, start)
+}
+
+fn controller_line(names: &[&str], start: &[f64], extra: &str, domain: u16) -> String {
+    let start: Vec<String> = start.iter().map(|v| format!("{v:?}")).collect();
+    format!(
+        "python3 \"$(dirname \"$PEER\")/fake_controller.py\" {domain} {} {} commands.jsonl {extra} > controller.log 2>&1 &\n\
+         controller=$!\nwait_for controller.log \"controller up\" || {{ cat controller.log; exit 3; }}\n",
+        names.join(","),
+        start.join(",")
+    )
+}
+
+/// Every point the controller received: within the limits, at or under the speed cap, and
+/// its straight path from where the joints were passes the checker.
+fn assert_commands_safe(cfg: &CellConfig, path: &Path, commands: &str) -> usize {
+    let robot = Arc::new(RobotModel::from_urdf(&cfg.robot.urdf).unwrap());
+    let controller: Vec<(f64, f64, f64)> = robot
+        .actuated
+        .iter()
+        .map(|&i| {
+            let j = &robot.joints[i];
+            (j.lower, j.upper, j.velocity)
+        })
+        .collect();
+    let checker = SafetyChecker::new(robot.clone(), &cfg.safety, &controller, path).unwrap();
+    let mut moves = 0;
+    for (i, line) in commands.lines().enumerate() {
+        let c: serde_json::Value = serde_json::from_str(line).unwrap();
+        if c["stop"] == true {
+            continue;
+        }
+        assert_eq!(c["points"], 1, "command {i}: one point per move");
+        let floats = |v: &serde_json::Value| -> Vec<f64> {
+            v.as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect()
+        };
+        let (from, to) = (floats(&c["from"]), floats(&c["to"]));
+        let widest = from
+            .iter()
+            .zip(&to)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let speed = widest / c["time_s"].as_f64().unwrap();
+        let cap = checker.speed_cap_rad_s();
+        assert!(
+            speed <= cap * (1.0 + 1e-6),
+            "command {i}: {speed} rad/s over {cap}"
+        );
+        for (k, (v, (lo, hi))) in to.iter().zip(checker.limits()).enumerate() {
+            assert!(*v >= *lo && *v <= *hi, "command {i} joint {k} at {v}");
+        }
+        common::assert_commanded_path_safe(&checker, i, &from, &to, speed.max(1e-9));
+        moves += 1;
+    }
+    moves
+}
+
+#[test]
+fn calibration_through_a_ros2_trajectory_controller_reaches_the_truth_safely() {
+    if !can_run_peers() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, path, start) = ros2_cell(dir.path(), 21);
+    let robot = RobotModel::from_urdf(&cfg.robot.urdf).unwrap();
+    let names = robot.joint_names();
+    let body = format!(
+        "{}\"$EASYHEC\" calibrate --config cell.toml --out run > calibrate.log 2>&1\n\
+         echo \"calibrate exited $?\"\nkill $controller\ncat calibrate.log\n",
+        controller_line(&names, &start, "", 21)
+    );
+    let (ok, log) = in_private_network(dir.path(), &body);
+    assert!(ok && log.contains("calibrate exited 0"), "{log}");
+    let result = ResultFile::read(&dir.path().join("run/result.json")).unwrap();
+    let truth: GroundTruth = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("run/ground_truth.json")).unwrap(),
+    )
+    .unwrap();
+    let truth = from_rows(&truth.camera_from_base).unwrap();
+    let (rot, trans) = (
+        rotation_error_deg(&result.camera_from_base(), &truth),
+        translation_error_mm(&result.camera_from_base(), &truth),
+    );
+    assert!(
+        rot < 0.1 && trans < 1.0,
+        "{rot:.4} deg, {trans:.3} mm\n{log}"
+    );
+    let commands = std::fs::read_to_string(dir.path().join("commands.jsonl")).unwrap();
+    let moves = assert_commands_safe(&cfg, &path, &commands);
+    let views = result.views_used.len();
+    assert!(
+        views >= 2 && moves >= views - 1,
+        "{moves} moves for {views} views\n{commands}"
+    );
+    eprintln!("ros2 arm: {rot:.4} deg, {trans:.3} mm, {moves} moves");
+}
+
+#[test]
+fn a_controller_that_falls_silent_stops_the_run_with_one_clear_error() {
+    if !can_run_peers() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (cfg, _, start) = ros2_cell(dir.path(), 22);
+    let robot = RobotModel::from_urdf(&cfg.robot.urdf).unwrap();
+    let body = format!(
+        "{}\"$EASYHEC\" calibrate --config cell.toml --out run > calibrate.log 2>&1\n\
+         echo \"calibrate exited $?\"\nkill $controller\ncat calibrate.log\n",
+        controller_line(&robot.joint_names(), &start, "--silent-after 4", 22)
+    );
+    let (ok, log) = in_private_network(dir.path(), &body);
+    assert!(ok, "{log}");
+    // The loop ends on the fault and keeps what it had, as for any arm fault; the stop reason
+    // names the topic and how long it has been silent.
+    let result = ResultFile::read(&dir.path().join("run/result.json")).unwrap();
+    assert!(
+        result.stop_reason.contains("/joint_states went stale")
+            && result.stop_reason.contains("limit 2.00 s"),
+        "{}\n{log}",
+        result.stop_reason
+    );
+    // Nothing was commanded after the silence began (4 s in): the last move started before.
+    let commands = std::fs::read_to_string(dir.path().join("commands.jsonl")).unwrap();
+    assert!(commands.lines().count() <= 2, "{commands}");
+}
