@@ -34,6 +34,10 @@ enum Command {
     Export(cli::export::ExportArgs),
     /// Publish a result on ROS 2's /tf_static until stopped (build with --features ros2).
     Publish(cli::publish::PublishArgs),
+    /// Publish a simulated cell's camera as ROS 2 Image and CameraInfo topics (build with
+    /// --features ros2).
+    #[cfg(feature = "sim")]
+    SimCamera(cli::sim_camera::SimCameraArgs),
     /// Benchmarks (figures in docs/benchmarks.md).
     #[command(subcommand)]
     Bench(cli::bench::BenchCommand),
@@ -75,6 +79,8 @@ fn main() -> ExitCode {
         Command::Import(i) => i.run(),
         Command::Export(a) => cli::export::run(a),
         Command::Publish(a) => cli::publish::run(a),
+        #[cfg(feature = "sim")]
+        Command::SimCamera(a) => cli::sim_camera::run(a),
         Command::Bench(b) => b.run(),
         Command::Daemon(a) => cli::daemon::run(a),
         Command::Completions { shell } => {

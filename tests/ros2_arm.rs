@@ -10,14 +10,12 @@ mod common;
 mod peers;
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use easyhec::config::ros2::Ros2Settings;
 use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig, JointsFrom};
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::robot::RobotModel;
 use easyhec::run::{GroundTruth, ResultFile};
-use easyhec::safety::SafetyChecker;
 use peers::{can_run_peers, in_private_network};
 
 fn root() -> PathBuf {
@@ -61,54 +59,6 @@ fn controller_line(names: &[&str], start: &[f64], extra: &str, domain: u16) -> S
     )
 }
 
-/// Every point the controller received: within the limits, at or under the speed cap, and
-/// its straight path from where the joints were passes the checker.
-fn assert_commands_safe(cfg: &CellConfig, path: &Path, commands: &str) -> usize {
-    let robot = Arc::new(RobotModel::from_urdf(&cfg.robot.urdf).unwrap());
-    let controller: Vec<(f64, f64, f64)> = robot
-        .actuated
-        .iter()
-        .map(|&i| {
-            let j = &robot.joints[i];
-            (j.lower, j.upper, j.velocity)
-        })
-        .collect();
-    let checker = SafetyChecker::new(robot.clone(), &cfg.safety, &controller, path).unwrap();
-    let mut moves = 0;
-    for (i, line) in commands.lines().enumerate() {
-        let c: serde_json::Value = serde_json::from_str(line).unwrap();
-        if c["stop"] == true {
-            continue;
-        }
-        assert_eq!(c["points"], 1, "command {i}: one point per move");
-        let floats = |v: &serde_json::Value| -> Vec<f64> {
-            v.as_array()
-                .unwrap()
-                .iter()
-                .map(|x| x.as_f64().unwrap())
-                .collect()
-        };
-        let (from, to) = (floats(&c["from"]), floats(&c["to"]));
-        let widest = from
-            .iter()
-            .zip(&to)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        let speed = widest / c["time_s"].as_f64().unwrap();
-        let cap = checker.speed_cap_rad_s();
-        assert!(
-            speed <= cap * (1.0 + 1e-6),
-            "command {i}: {speed} rad/s over {cap}"
-        );
-        for (k, (v, (lo, hi))) in to.iter().zip(checker.limits()).enumerate() {
-            assert!(*v >= *lo && *v <= *hi, "command {i} joint {k} at {v}");
-        }
-        common::assert_commanded_path_safe(&checker, i, &from, &to, speed.max(1e-9));
-        moves += 1;
-    }
-    moves
-}
-
 #[test]
 fn calibration_through_a_ros2_trajectory_controller_reaches_the_truth_safely() {
     if !can_run_peers() {
@@ -140,7 +90,7 @@ fn calibration_through_a_ros2_trajectory_controller_reaches_the_truth_safely() {
         "{rot:.4} deg, {trans:.3} mm\n{log}"
     );
     let commands = std::fs::read_to_string(dir.path().join("commands.jsonl")).unwrap();
-    let moves = assert_commands_safe(&cfg, &path, &commands);
+    let moves = common::assert_logged_commands_safe(&cfg, &path, &commands);
     let views = result.views_used.len();
     assert!(
         views >= 2 && moves >= views - 1,

@@ -30,6 +30,17 @@ fn base() -> String {
         + "\n[ros2]\ndomain_id = 5\n"
 }
 
+/// `base` with its camera replaced by a ROS 2 camera table holding `keys`.
+fn ros2_camera(base: &str, keys: &str) -> String {
+    let start = base.find("[camera]").unwrap();
+    let end = base.find("[segmenter]").unwrap();
+    format!(
+        "{}[camera]\nkind = \"ros2\"\n{keys}\n{}",
+        &base[..start],
+        &base[end..]
+    )
+}
+
 fn error_for(dir: &Path, name: &str, text: &str) -> String {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
@@ -78,6 +89,8 @@ fn bad_ros2_keys_get_one_line_errors_naming_the_key() {
             base.replace(arm, "kind = \"ros2\"\nport = 1\n"),
             "line",
         ),
+        (ros2_camera(&base, "image_topic = \"/camera/image raw\"\n"), "camera.image_topic"),
+        (ros2_camera(&base, "camera_info_topic = \"info/\"\n"), "camera.camera_info_topic"),
     ];
     if cfg!(feature = "ros2") {
         cases.push((
@@ -106,4 +119,16 @@ fn without_the_feature_a_ros2_cell_says_how_to_rebuild() {
         "{e}"
     );
     assert!(!e.contains('\n'), "{e}");
+    // A ROS 2 camera beside a simulated arm.
+    let sim_arm = std::fs::read_to_string(root().join("config/sim-xarm6.toml"))
+        .unwrap()
+        .replace(
+            "../robots/xarm6/robot.urdf",
+            &root().join("robots/xarm6/robot.urdf").display().to_string(),
+        );
+    let e = error_for(dir.path(), "camera.toml", &ros2_camera(&sim_arm, ""));
+    assert!(
+        e.contains("camera.kind") && e.contains("rebuild with --features ros2"),
+        "{e}"
+    );
 }

@@ -97,7 +97,7 @@ impl Cell {
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
         let arm = build_arm(&config, &robot, path)?;
         let feed = ros2::joint_feed(&config, &robot, path)?;
-        let camera = build_camera(&config.camera, calibration, &robot, &arm, feed, path)?;
+        let camera = build_camera(&config, calibration, &robot, &arm, feed, path)?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -169,17 +169,19 @@ fn build_arm(config: &CellConfig, robot: &RobotModel, path: &Path) -> Result<Bui
 
 /// The camera of the `[camera]` table.
 fn build_camera(
-    camera: &CameraConfig,
+    config: &CellConfig,
     calibration: Option<CameraCalibration>,
     robot: &Arc<RobotModel>,
     arm: &BuiltArm,
     feed: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
+    let (camera, ros2_settings) = (&config.camera, config.ros2.as_ref());
     let device = match camera {
         CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, feed, path),
         CameraConfig::V4l2 { .. } => hardware::v4l2_camera(camera, calibration, path)?,
         CameraConfig::Aravis { .. } => hardware::aravis_camera(camera, calibration, path)?,
+        CameraConfig::Ros2 { .. } => ros2::ros2_camera(camera, ros2_settings, path)?,
     };
     Ok(BuiltCamera {
         device,

@@ -224,3 +224,58 @@ pub(super) mod feed {
         }))
     }
 }
+
+/// Default image topic: a RealSense or most UVC drivers' colour stream.
+pub const IMAGE_TOPIC: &str = "/camera/color/image_raw";
+
+/// Default CameraInfo topic, beside [`IMAGE_TOPIC`].
+pub const CAMERA_INFO_TOPIC: &str = "/camera/color/camera_info";
+
+/// The camera of a `[camera] kind = "ros2"` table: opened, with its CameraInfo read.
+#[cfg(feature = "ros2")]
+pub(super) fn ros2_camera(
+    camera: &crate::config::CameraConfig,
+    ros2: Option<&Ros2Settings>,
+    path: &Path,
+) -> Result<Arc<dyn easyhec_drivers::Camera>> {
+    use easyhec_drivers::ros2::camera::{Ros2Camera, Ros2CameraOptions};
+    let crate::config::CameraConfig::Ros2 {
+        image_topic,
+        camera_info_topic,
+        connect_timeout_s,
+        frame_timeout_s,
+    } = camera
+    else {
+        unreachable!("called for kind = \"ros2\" only")
+    };
+    let options = Ros2CameraOptions {
+        place: easyhec_drivers::ros2::GraphPlace {
+            domain_id: Ros2Settings::domain(ros2)?,
+            namespace: Ros2Settings::namespace_of(ros2),
+            node_name: "easyhec_camera".into(),
+        },
+        image_topic: image_topic.clone().unwrap_or_else(|| IMAGE_TOPIC.into()),
+        camera_info_topic: camera_info_topic
+            .clone()
+            .unwrap_or_else(|| CAMERA_INFO_TOPIC.into()),
+        connect_timeout: seconds(path, "camera.connect_timeout_s", *connect_timeout_s, 10.0)?,
+        frame_timeout: seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?,
+    };
+    let camera =
+        Ros2Camera::open(options).map_err(|e| Error::input(path, "camera", e.to_string()))?;
+    Ok(Arc::new(camera))
+}
+
+/// Without the `ros2` feature a ROS 2 camera cannot be opened: say how to get one.
+#[cfg(not(feature = "ros2"))]
+pub(super) fn ros2_camera(
+    _: &crate::config::CameraConfig,
+    _: Option<&Ros2Settings>,
+    path: &Path,
+) -> Result<Arc<dyn easyhec_drivers::Camera>> {
+    Err(Error::input(
+        path,
+        "camera.kind",
+        "\"ros2\" needs ROS 2 support, which this build leaves out: rebuild with --features ros2",
+    ))
+}

@@ -8,6 +8,8 @@ pub mod export;
 pub mod frames;
 pub mod import;
 pub mod publish;
+#[cfg(feature = "sim")]
+pub mod sim_camera;
 pub mod solve;
 #[cfg(feature = "sim")]
 pub mod synth;

@@ -120,6 +120,22 @@ pub enum CameraConfig {
         #[serde(default)]
         frame_timeout_s: Option<f64>,
     },
+    /// A ROS 2 camera driver's topics (the `ros2` feature): `sensor_msgs/Image` frames and
+    /// the intrinsics of its `sensor_msgs/CameraInfo`, in the `[ros2]` table's domain.
+    Ros2 {
+        /// `sensor_msgs/Image` topic (default `/camera/color/image_raw`).
+        #[serde(default)]
+        image_topic: Option<String>,
+        /// `sensor_msgs/CameraInfo` topic (default `/camera/color/camera_info`).
+        #[serde(default)]
+        camera_info_topic: Option<String>,
+        /// Longest wait for the first CameraInfo, seconds (default 10).
+        #[serde(default)]
+        connect_timeout_s: Option<f64>,
+        /// Limit for one fresh frame, seconds (default 2).
+        #[serde(default)]
+        frame_timeout_s: Option<f64>,
+    },
 }
 
 /// A hardware camera's calibration, read and checked when the cell is built, before the arm
@@ -188,7 +204,9 @@ impl CameraConfig {
                 cy: *cy,
                 distortion: *distortion,
             },
-            CameraConfig::V4l2 { .. } | CameraConfig::Aravis { .. } => return None,
+            CameraConfig::V4l2 { .. } | CameraConfig::Aravis { .. } | CameraConfig::Ros2 { .. } => {
+                return None
+            }
         })
     }
 
@@ -206,6 +224,22 @@ impl CameraConfig {
         };
         match self {
             CameraConfig::Sim { .. } => Ok(None),
+            CameraConfig::Ros2 {
+                image_topic,
+                camera_info_topic,
+                ..
+            } => {
+                for (key, topic) in [
+                    ("camera.image_topic", image_topic),
+                    ("camera.camera_info_topic", camera_info_topic),
+                ] {
+                    if let Some(t) = topic {
+                        crate::config::ros2::check_topic(t)
+                            .map_err(|m| Error::input(config_path, key, format!("is {m}")))?;
+                    }
+                }
+                Ok(None)
+            }
             CameraConfig::V4l2 {
                 width,
                 height,

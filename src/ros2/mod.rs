@@ -3,8 +3,10 @@
 //!
 //! - [`msgs`]: the message structs, laid out as their `.msg` files (in the drivers crate,
 //!   which the ROS 2 arm shares them with);
-//! - [`tf`]: the static broadcaster and the tf listener.
+//! - [`tf`]: the static broadcaster and the tf listener;
+//! - [`camera_out`]: frames published as a ROS 2 camera driver does (`easyhec sim-camera`).
 
+pub mod camera_out;
 pub mod tf;
 
 pub use easyhec_drivers::ros2::{msgs, GraphPlace};

@@ -72,3 +72,57 @@ pub fn assert_commanded_path_safe(
             .unwrap_or_else(|v| panic!("command {i} at {s:.4} of its path: {v}"));
     }
 }
+
+/// Every point a fake ROS 2 trajectory controller logged (tests/ros2/fake_controller.py): within the limits, at or under the speed cap, and
+/// its straight path from where the joints were passes the checker.
+pub fn assert_logged_commands_safe(
+    cfg: &easyhec::config::CellConfig,
+    path: &std::path::Path,
+    commands: &str,
+) -> usize {
+    let robot =
+        std::sync::Arc::new(easyhec::robot::RobotModel::from_urdf(&cfg.robot.urdf).unwrap());
+    let controller: Vec<(f64, f64, f64)> = robot
+        .actuated
+        .iter()
+        .map(|&i| {
+            let j = &robot.joints[i];
+            (j.lower, j.upper, j.velocity)
+        })
+        .collect();
+    let checker =
+        easyhec::safety::SafetyChecker::new(robot.clone(), &cfg.safety, &controller, path).unwrap();
+    let mut moves = 0;
+    for (i, line) in commands.lines().enumerate() {
+        let c: serde_json::Value = serde_json::from_str(line).unwrap();
+        if c["stop"] == true {
+            continue;
+        }
+        assert_eq!(c["points"], 1, "command {i}: one point per move");
+        let floats = |v: &serde_json::Value| -> Vec<f64> {
+            v.as_array()
+                .unwrap()
+                .iter()
+                .map(|x| x.as_f64().unwrap())
+                .collect()
+        };
+        let (from, to) = (floats(&c["from"]), floats(&c["to"]));
+        let widest = from
+            .iter()
+            .zip(&to)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let speed = widest / c["time_s"].as_f64().unwrap();
+        let cap = checker.speed_cap_rad_s();
+        assert!(
+            speed <= cap * (1.0 + 1e-6),
+            "command {i}: {speed} rad/s over {cap}"
+        );
+        for (k, (v, (lo, hi))) in to.iter().zip(checker.limits()).enumerate() {
+            assert!(*v >= *lo && *v <= *hi, "command {i} joint {k} at {v}");
+        }
+        assert_commanded_path_safe(&checker, i, &from, &to, speed.max(1e-9));
+        moves += 1;
+    }
+    moves
+}

@@ -3,6 +3,7 @@
 //! joint_trajectory_controller.
 
 pub mod arm;
+pub mod camera;
 pub mod joint_states;
 pub mod msgs;
 

@@ -146,3 +146,64 @@ pub struct JointTrajectory {
     /// The points.
     pub points: Vec<JointTrajectoryPoint>,
 }
+
+/// `sensor_msgs/Image`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Image {
+    /// Exposure stamp and the camera's optical frame.
+    pub header: Header,
+    /// Rows.
+    pub height: u32,
+    /// Columns.
+    pub width: u32,
+    /// Pixel layout: `rgb8`, `bgr8`, `mono8`, `yuv422` (UYVY), `yuv422_yuy2` (YUYV), ….
+    pub encoding: String,
+    /// 1 when multi-byte values are big-endian.
+    pub is_bigendian: u8,
+    /// Bytes per row.
+    pub step: u32,
+    /// `step × height` bytes.
+    pub data: Vec<u8>,
+}
+
+/// `sensor_msgs/RegionOfInterest`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RegionOfInterest {
+    /// Left edge.
+    pub x_offset: u32,
+    /// Top edge.
+    pub y_offset: u32,
+    /// Rows (0: the full image).
+    pub height: u32,
+    /// Columns (0: the full image).
+    pub width: u32,
+    /// Whether the region needs rectifying.
+    pub do_rectify: bool,
+}
+
+/// `sensor_msgs/CameraInfo`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraInfo {
+    /// Stamp and optical frame.
+    pub header: Header,
+    /// Calibrated rows.
+    pub height: u32,
+    /// Calibrated columns.
+    pub width: u32,
+    /// `plumb_bob`, `rational_polynomial`, `equidistant`, or empty.
+    pub distortion_model: String,
+    /// The model's coefficients.
+    pub d: Vec<f64>,
+    /// Camera matrix, row-major.
+    pub k: [f64; 9],
+    /// Rectification rotation, row-major.
+    pub r: [f64; 9],
+    /// Projection matrix, row-major.
+    pub p: [f64; 12],
+    /// Horizontal binning (0 or 1: none).
+    pub binning_x: u32,
+    /// Vertical binning.
+    pub binning_y: u32,
+    /// Region of interest.
+    pub roi: RegionOfInterest,
+}
