@@ -68,6 +68,26 @@ fn yaml_edge(v: &serde_yaml_ng::Value) -> Isometry3<f64> {
     )
 }
 
+/// Runs a Python `script` with `args`, `stdin` on its standard input.
+fn python(script: &str, args: &[&str], stdin: &str) -> std::process::Output {
+    let mut child = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 runs");
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(stdin.as_bytes())
+        .unwrap();
+    child.wait_with_output().unwrap()
+}
+
 /// Parses `text` with PyYAML (YAML 1.1, the parser easy_handeye and easy_handeye2 load their
 /// files with) and checks that every number under `key` came back a Python float.
 fn assert_pyyaml_floats(text: &str, key: &str) {
@@ -79,19 +99,7 @@ fn assert_pyyaml_floats(text: &str, key: &str) {
         \x20   else: yield v\n\
         bad = [v for v in leaves(d) if not isinstance(v, float)]\n\
         assert not bad, bad\n";
-    let mut child = Command::new("python3")
-        .args(["-c", script, key])
-        .stdin(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("python3 runs");
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(text.as_bytes())
-        .unwrap();
-    let out = child.wait_with_output().unwrap();
+    let out = python(script, &[key], text);
     assert!(
         out.status.success(),
         "PyYAML reads non-floats under {key}: {}",
@@ -107,19 +115,7 @@ fn launch_arguments(text: &str) -> (Vec<String>, Vec<String>) {
         kw = [k for k in ast.walk(tree) if isinstance(k, ast.keyword) and k.arg == 'arguments']\n\
         assert len(kw) == 1\n\
         print(json.dumps(ast.literal_eval(kw[0].value)))\n";
-    let mut child = Command::new("python3")
-        .args(["-c", script])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("python3 runs");
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(text.as_bytes())
-        .unwrap();
-    let out = child.wait_with_output().unwrap();
+    let out = python(script, &[], text);
     assert!(out.status.success(), "the launch file is not valid Python");
     let listed: Vec<String> = serde_json::from_slice(&out.stdout).unwrap();
     let command = text
@@ -216,7 +212,7 @@ fn every_form_parses_back_to_the_results_transform() {
 fn the_easy_handeye2_file_holds_that_messages_fields() {
     let dir = tempfile::tempdir().unwrap();
     let (path, base_from_optical) = result_file(dir.path());
-    let y = yaml(&export(
+    let text = export(
         &path,
         &[
             "--format",
@@ -224,7 +220,9 @@ fn the_easy_handeye2_file_holds_that_messages_fields() {
             "--child-frame-id",
             "cam_optical",
         ],
-    ));
+    );
+    assert_pyyaml_floats(&text, "transform");
+    let y = yaml(&text);
     let keys = |v: &serde_yaml_ng::Value| -> Vec<String> {
         v.as_mapping()
             .unwrap()

@@ -13,43 +13,15 @@ mod common;
 #[path = "ros2/peers.rs"]
 mod peers;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use easyhec::config::ros2::Ros2Settings;
-use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig, JointsFrom};
+use easyhec::config::{CameraConfig, CellConfig};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::robot::RobotModel;
 use easyhec::run::ResultFile;
-use peers::{can_run_peers, in_private_network};
+use peers::{can_run_peers, in_private_network, ros2_sim_cell};
 
 const DOMAIN: u16 = 24;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// The shipped simulated xArm6 cell on ROS 2: returns the config with the simulated camera
-/// filming `/joint_states` (for `easyhec sim-camera`), and the arm's start.
-fn simulated_camera_cell() -> (CellConfig, Vec<f64>) {
-    let mut cfg = read_config(&root().join("config/sim-xarm6.toml")).unwrap();
-    cfg.robot.urdf = root().join("robots/xarm6/robot.urdf");
-    let ArmConfig::Sim { start, .. } = &cfg.arm else {
-        panic!("the shipped cell's arm is simulated")
-    };
-    let start = start.clone();
-    cfg.arm = toml::from_str("kind = \"ros2\"\nstale_after_s = 2.0").unwrap();
-    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
-        panic!("the shipped cell's camera is simulated")
-    };
-    *joints_from = Some(JointsFrom::Ros2 {
-        topic: None,
-        timeout_s: None,
-    });
-    let mut ros2: Ros2Settings = toml::from_str("publish_tf = false").unwrap();
-    ros2.domain_id = Some(DOMAIN);
-    cfg.ros2 = Some(ros2);
-    (cfg, start)
-}
 
 fn write(dir: &Path, name: &str, cfg: &CellConfig) {
     std::fs::write(dir.join(name), toml::to_string(cfg).unwrap()).unwrap();
@@ -61,7 +33,7 @@ fn calibration_from_ros2_topics_alone_reaches_the_truth_safely() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (sim, start) = simulated_camera_cell();
+    let (sim, start) = ros2_sim_cell(DOMAIN);
     write(dir.path(), "sim.toml", &sim);
     let CameraConfig::Sim { truth, .. } = &sim.camera else {
         unreachable!()

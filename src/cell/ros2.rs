@@ -40,6 +40,11 @@ pub(super) fn ros2_arm(
         unreachable!("called for kind = \"ros2\" only")
     };
     let names = controller_joint_names(joint_names.as_deref(), robot, path)?;
+    let continuous = robot
+        .actuated
+        .iter()
+        .map(|&i| robot.joints[i].kind == crate::robot::JointKind::Continuous)
+        .collect();
     let joints = robot
         .actuated
         .iter()
@@ -67,6 +72,7 @@ pub(super) fn ros2_arm(
             .clone()
             .unwrap_or_else(|| COMMAND_TOPIC.into()),
         joints,
+        continuous,
         stale_after: seconds(path, "arm.stale_after_s", *stale_after_s, 0.5)?,
         arrival_tolerance_rad: arrival_tolerance_rad.unwrap_or(0.002),
         connect_timeout: seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 10.0)?,

@@ -182,7 +182,9 @@ fn check_ros2_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
         c.within("arm.stale_after_s", *s, 0.05, 60.0, false)?;
     }
     if let Some(t) = arrival_tolerance_rad {
-        c.within("arm.arrival_tolerance_rad", *t, 1e-5, 0.1, false)?;
+        // No looser than the safe arm's start check (0.01 rad): a view must not be captured
+        // while the arm still creeps toward the target.
+        c.within("arm.arrival_tolerance_rad", *t, 1e-5, 0.01, false)?;
     }
     Ok(())
 }

@@ -68,7 +68,11 @@ pub struct CellConfig {
     pub ros2: Option<ros2::Ros2Settings>,
 }
 
-/// A duration from an optional config value in seconds (positive and finite).
+/// Longest duration a config may set, seconds (a day): every timeout and margin is far
+/// shorter, and a bound keeps a typo from overflowing a deadline.
+pub const MAX_SECONDS: f64 = 86_400.0;
+
+/// A duration from an optional config value in seconds (positive, at most [`MAX_SECONDS`]).
 pub(crate) fn seconds(
     path: &Path,
     key: &str,
@@ -76,13 +80,13 @@ pub(crate) fn seconds(
     default_s: f64,
 ) -> Result<Duration> {
     let v = value.unwrap_or(default_s);
-    if v.is_finite() && v > 0.0 {
+    if v.is_finite() && v > 0.0 && v <= MAX_SECONDS {
         Ok(Duration::from_secs_f64(v))
     } else {
         Err(Error::input(
             path,
             key,
-            format!("{v} s: use a positive number of seconds"),
+            format!("{v} s: use a positive number of seconds, at most {MAX_SECONDS}"),
         ))
     }
 }

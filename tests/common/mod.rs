@@ -95,10 +95,18 @@ pub fn assert_logged_commands_safe(
     let mut moves = 0;
     for (i, line) in commands.lines().enumerate() {
         let c: serde_json::Value = serde_json::from_str(line).unwrap();
-        if c["stop"] == true {
-            continue;
-        }
+        assert!(c["rejected"].is_null(), "command {i} refused: {c}");
         assert_eq!(c["points"], 1, "command {i}: one point per move");
+        // Positions only, starting now: the controller then interpolates linearly.
+        assert_eq!(
+            c["extras"], false,
+            "command {i}: velocities or efforts sent"
+        );
+        assert_eq!(
+            c["stamp"],
+            serde_json::json!([0, 0]),
+            "command {i}: a future start"
+        );
         let floats = |v: &serde_json::Value| -> Vec<f64> {
             v.as_array()
                 .unwrap()

@@ -2,12 +2,14 @@
 publishes rt/joint_states at 100 Hz and follows trajectory_msgs/JointTrajectory commands on
 rt/joint_trajectory_controller/joint_trajectory, moving linearly from where the joints are to
 the (single) point over its time_from_start, as the real controller does with positions only.
-An empty trajectory holds the joints where they are.
+An empty trajectory is refused and logged, as current controllers refuse it.
 
   fake_controller.py DOMAIN NAMES START LOG [--silent-after SECONDS]
 
-NAMES and START are comma-separated. Every command is appended to LOG as one JSON line (the
-joints it started from, the point, the time). With --silent-after, joint states stop after that
+NAMES and START are comma-separated. Every command is appended to LOG as one JSON line: the
+seconds since start, the joints it started from, the last point's positions and time, the
+point count, whether any point carried velocities, accelerations or efforts, and the header
+stamp. With --silent-after, joint states stop after that
 many seconds (a controller that died).
 """
 
@@ -48,14 +50,21 @@ def main():
             now = time.time()
             for m in commands.take(N=10):
                 if not m.points:
-                    segment = None
-                    log.write(json.dumps({"stop": True, "from": q}) + "\n")
+                    log.write(json.dumps({"t": now - began, "rejected": "empty trajectory"}) + "\n")
                     log.flush()
                     continue
                 order = [m.joint_names.index(n) for n in names]
                 target = [m.points[-1].positions[i] for i in order]
                 t = m.points[-1].time_from_start.sec + m.points[-1].time_from_start.nanosec * 1e-9
-                log.write(json.dumps({"from": q, "to": target, "time_s": t, "points": len(m.points)}) + "\n")
+                extras = any(p.velocities or p.accelerations or p.effort for p in m.points)
+                stamp = [m.header.stamp.sec, m.header.stamp.nanosec]
+                log.write(
+                    json.dumps(
+                        {"t": now - began, "from": q, "to": target, "time_s": t,
+                         "points": len(m.points), "extras": extras, "stamp": stamp}
+                    )
+                    + "\n"
+                )
                 log.flush()
                 segment = (list(q), target, now, max(t, 1e-3))
             if segment is not None:

@@ -85,3 +85,31 @@ pub fn received_edge(dir: &Path, child: &str) -> (String, Isometry3<f64>) {
 pub fn max_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
     (a.to_homogeneous() - b.to_homogeneous()).abs().max()
 }
+
+/// The shipped simulated xArm6 cell on ROS 2 (domain `domain`): its arm is a ROS 2 arm (two
+/// seconds of silence before staleness, since a loaded 2-core CI machine can stall the Python
+/// controller for a fraction of a second) and its simulated camera films `/joint_states`.
+/// Returns the config and the arm's start, for the fake controller.
+pub fn ros2_sim_cell(domain: u16) -> (easyhec::config::CellConfig, Vec<f64>) {
+    use easyhec::config::{read_config, ArmConfig, CameraConfig, JointsFrom};
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = read_config(&root.join("config/sim-xarm6.toml")).unwrap();
+    cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
+    let ArmConfig::Sim { start, .. } = &cfg.arm else {
+        panic!("the shipped cell's arm is simulated")
+    };
+    let start = start.clone();
+    cfg.arm = toml::from_str("kind = \"ros2\"\nstale_after_s = 2.0").unwrap();
+    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+        panic!("the shipped cell's camera is simulated")
+    };
+    *joints_from = Some(JointsFrom::Ros2 {
+        topic: None,
+        timeout_s: None,
+    });
+    let mut ros2: easyhec::config::ros2::Ros2Settings =
+        toml::from_str("publish_tf = false").unwrap();
+    ros2.domain_id = Some(domain);
+    cfg.ros2 = Some(ros2);
+    (cfg, start)
+}

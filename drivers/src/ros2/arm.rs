@@ -3,6 +3,12 @@
 //! joint_trajectory_controller's topic. With positions only, that controller interpolates
 //! linearly from where the arm is, so every joint starts and ends together: the straight
 //! joint-space path the safety checker validated. Arrival is judged on `/joint_states`.
+//!
+//! The topic interface has no acknowledgement: a command the controller refuses (inactive,
+//! unknown joint names) shows only as a move that never arrives, reported as stalled. A stop is
+//! one point where the joints are now (heard within 0.1 s), 0.1 s ahead; an empty trajectory
+//! would be refused by current controllers, and older positions would pull a moving arm back. A continuous joint moves at most π per command, since the controller
+//! takes it the short way round.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -23,6 +29,18 @@ const ARRIVAL_POLL: Duration = Duration::from_millis(10);
 /// Shortest trajectory time sent, so a tiny move is not asked to happen instantly.
 const MIN_MOVE_TIME: Duration = Duration::from_millis(200);
 
+/// How long a stop takes: one point where the joints are, this far ahead.
+const STOP_TIME: Duration = Duration::from_millis(100);
+
+/// How old the joints a stop holds at may be. Older positions lag a moving arm, and holding
+/// at them would move it back faster than any cap; with none this fresh, the stop is refused
+/// (the arm must then be stopped at its controller).
+const STOP_JOINTS_MAX_AGE: Duration = Duration::from_millis(100);
+
+/// Widest single move of a continuous joint: the controller takes such joints the short way
+/// round, so a longer move would not follow the straight line the checker validated.
+const MAX_CONTINUOUS_MOVE_RAD: f64 = std::f64::consts::PI;
+
 /// What the ROS 2 arm needs; the cell config's `[arm]` table fills it.
 #[derive(Clone, Debug)]
 pub struct Ros2ArmOptions {
@@ -34,6 +52,8 @@ pub struct Ros2ArmOptions {
     pub command_topic: String,
     /// The actuated joints, named as the controller names them, with their limits.
     pub joints: Vec<JointLimit>,
+    /// Per joint: true for a continuous (unlimited, wrapping) joint.
+    pub continuous: Vec<bool>,
     /// `/joint_states` older than this stops the run.
     pub stale_after: Duration,
     /// The arm has arrived when every joint is within this of the target, rad.
@@ -125,6 +145,23 @@ impl Ros2Arm {
     }
 }
 
+impl Ros2Arm {
+    /// Refuses a move of more than [`MAX_CONTINUOUS_MOVE_RAD`] on a continuous joint.
+    fn check_continuous(&self, from: &[f64], target: &[f64]) -> Result<()> {
+        let joints = self.options.joints.iter().zip(&self.options.continuous);
+        for ((j, continuous), (a, b)) in joints.zip(from.iter().zip(target)) {
+            if *continuous && (b - a).abs() > MAX_CONTINUOUS_MOVE_RAD {
+                return Err(DriverError::Refused(format!(
+                    "continuous joint {:?} would turn {:.3} rad in one move; allowed: at most π (the controller would take the short way round)",
+                    j.name,
+                    b - a
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
 fn command_publisher(node: &mut Node, o: &Ros2ArmOptions) -> Result<Publisher<JointTrajectory>> {
     let qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)
@@ -148,7 +185,9 @@ fn move_time(from: &[f64], to: &[f64], speed_rad_s: f64) -> Duration {
         .zip(to)
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
-    Duration::from_secs_f64(widest / speed_rad_s).max(MIN_MOVE_TIME)
+    Duration::try_from_secs_f64(widest / speed_rad_s)
+        .unwrap_or(Duration::MAX)
+        .max(MIN_MOVE_TIME)
 }
 
 #[async_trait]
@@ -174,7 +213,13 @@ impl Arm for Ros2Arm {
                 "speed {speed_rad_s} rad/s; allowed: a positive speed"
             )));
         }
+        if self.moving.load(Ordering::SeqCst) {
+            return Err(DriverError::Refused(
+                "a move is still in progress: wait for it or stop the arm first".into(),
+            ));
+        }
         let from = self.read_joints().await?;
+        self.check_continuous(&from, target)?;
         let time = move_time(&from, target, speed_rad_s);
         self.send(vec![JointTrajectoryPoint {
             positions: target.to_vec(),
@@ -186,7 +231,7 @@ impl Arm for Ros2Arm {
         self.moving.store(true, Ordering::SeqCst);
         let (reader, moving, target) = (self.reader.clone(), self.moving.clone(), target.to_vec());
         let (stale, tol) = (self.options.stale_after, self.options.arrival_tolerance_rad);
-        let limit = time + self.options.arrival_margin;
+        let limit = time.saturating_add(self.options.arrival_margin);
         let topic = self.options.command_topic.clone();
         Ok(Motion::new(async move {
             let start = Instant::now();
@@ -213,8 +258,21 @@ impl Arm for Ros2Arm {
     }
 
     async fn stop(&self) -> Result<()> {
+        let here = self.reader.positions(STOP_JOINTS_MAX_AGE).map_err(|e| {
+            DriverError::Connection(format!(
+                "cannot stop through {}: no position fresh enough to hold at ({e}); stop the arm at its controller",
+                self.options.command_topic
+            ))
+        })?;
+        self.send(vec![JointTrajectoryPoint {
+            positions: here,
+            velocities: Vec::new(),
+            accelerations: Vec::new(),
+            effort: Vec::new(),
+            time_from_start: STOP_TIME.into(),
+        }])?;
         self.moving.store(false, Ordering::SeqCst);
-        self.send(Vec::new())
+        Ok(())
     }
 
     async fn status(&self) -> Result<ArmStatus> {

@@ -72,8 +72,15 @@ impl Ros2Camera {
             .name("easyhec-ros2-camera".into())
             .spawn(move || follow(image, info, l, s))
             .map_err(|e| DriverError::Connection(format!("starting the camera thread: {e}")))?;
-        let info = wait_for_info(&latest, &options)?;
-        let intrinsics = intrinsics_of(&info, &options.camera_info_topic)?;
+        let opened = wait_for_info(&latest, &options)
+            .and_then(|info| intrinsics_of(&info, &options.camera_info_topic));
+        let intrinsics = match opened {
+            Ok(k) => k,
+            Err(e) => {
+                stop.store(true, Ordering::Relaxed);
+                return Err(e);
+            }
+        };
         Ok(Self {
             options,
             intrinsics,
@@ -314,7 +321,58 @@ impl Camera for Ros2Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ros2::msgs::{Header, Time};
+    use crate::ros2::msgs::{Header, RegionOfInterest, Time};
+
+    fn info(k: [f64; 9], model: &str, d: Vec<f64>) -> CameraInfo {
+        CameraInfo {
+            header: Header {
+                stamp: Time { sec: 0, nanosec: 0 },
+                frame_id: String::new(),
+            },
+            height: 480,
+            width: 640,
+            distortion_model: model.into(),
+            d,
+            k,
+            r: [0.0; 9],
+            p: [0.0; 12],
+            binning_x: 0,
+            binning_y: 0,
+            roi: RegionOfInterest {
+                x_offset: 0,
+                y_offset: 0,
+                height: 0,
+                width: 0,
+                do_rectify: false,
+            },
+        }
+    }
+
+    #[test]
+    fn camera_info_gives_the_intrinsics_or_a_reason() {
+        let k = [600.0, 0.0, 320.0, 0.0, 601.0, 240.0, 0.0, 0.0, 1.0];
+        let got = intrinsics_of(
+            &info(k, "plumb_bob", vec![0.1, -0.2, 0.001, 0.002, 0.03]),
+            "t",
+        )
+        .unwrap();
+        assert_eq!(
+            (got.fx, got.fy, got.cx, got.cy),
+            (600.0, 601.0, 320.0, 240.0)
+        );
+        assert_eq!(got.distortion, Some([0.1, -0.2, 0.001, 0.002, 0.03]));
+        let rational = vec![0.1, -0.2, 0.001, 0.002, 0.03, 0.0, 0.0, 0.0];
+        assert!(intrinsics_of(&info(k, "rational_polynomial", rational), "t").is_ok());
+        assert_eq!(
+            intrinsics_of(&info(k, "", vec![]), "t").unwrap().distortion,
+            None
+        );
+        let transposed = [600.0, 0.0, 0.0, 0.0, 601.0, 0.0, 320.0, 240.0, 1.0];
+        assert!(intrinsics_of(&info(transposed, "plumb_bob", vec![]), "t").is_err());
+        let fisheye = vec![0.1, 0.2, 0.3, 0.4];
+        let e = intrinsics_of(&info(k, "equidistant", fisheye), "t").unwrap_err();
+        assert!(e.to_string().contains("equidistant"), "{e}");
+    }
 
     fn image(encoding: &str, width: u32, step: u32, data: Vec<u8>) -> Image {
         Image {

@@ -136,7 +136,7 @@ pub struct JointTrajectoryPoint {
 }
 
 /// `trajectory_msgs/JointTrajectory`: what ros2_control's joint_trajectory_controller takes
-/// on its `~/joint_trajectory` topic. An empty `points` list stops the arm where it is.
+/// on its `~/joint_trajectory` topic (current versions refuse an empty `points` list).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointTrajectory {
     /// Stamp zero: start now.
