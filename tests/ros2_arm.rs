@@ -12,10 +12,10 @@ mod peers;
 use std::path::{Path, PathBuf};
 
 use easyhec::config::CellConfig;
-use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::geometry::from_rows;
 use easyhec::robot::RobotModel;
 use easyhec::run::{GroundTruth, ResultFile};
-use peers::{can_run_peers, in_private_network, ros2_sim_cell};
+use peers::{assert_near_truth, can_run_peers, in_private_network, ros2_sim_cell};
 
 /// [`ros2_sim_cell`] written to `DIR/cell.toml`: the config, its path and the arm's start.
 fn ros2_cell(dir: &Path, domain: u16) -> (CellConfig, PathBuf, Vec<f64>) {
@@ -57,14 +57,7 @@ fn calibration_through_a_ros2_trajectory_controller_reaches_the_truth_safely() {
     )
     .unwrap();
     let truth = from_rows(&truth.camera_from_base).unwrap();
-    let (rot, trans) = (
-        rotation_error_deg(&result.camera_from_base(), &truth),
-        translation_error_mm(&result.camera_from_base(), &truth),
-    );
-    assert!(
-        rot < 0.1 && trans < 1.0,
-        "{rot:.4} deg, {trans:.3} mm\n{log}"
-    );
+    let (rot, trans) = assert_near_truth(&result, &truth, &log);
     let commands = std::fs::read_to_string(dir.path().join("commands.jsonl")).unwrap();
     let moves = common::assert_logged_commands_safe(&cfg, &path, &commands);
     let views = result.views_used.len();

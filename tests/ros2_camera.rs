@@ -16,10 +16,9 @@ mod peers;
 use std::path::Path;
 
 use easyhec::config::{CameraConfig, CellConfig};
-use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::robot::RobotModel;
 use easyhec::run::ResultFile;
-use peers::{can_run_peers, in_private_network, ros2_sim_cell};
+use peers::{assert_near_truth, can_run_peers, in_private_network, ros2_sim_cell};
 
 const DOMAIN: u16 = 24;
 
@@ -68,14 +67,7 @@ cat calibrate.log camera.log relay.log
     let (ok, log) = in_private_network(dir.path(), &body);
     assert!(ok && log.contains("calibrate exited 0"), "{log}");
     let result = ResultFile::read(&dir.path().join("run/result.json")).unwrap();
-    let (rot, trans) = (
-        rotation_error_deg(&result.camera_from_base(), &truth),
-        translation_error_mm(&result.camera_from_base(), &truth),
-    );
-    assert!(
-        rot < 0.1 && trans < 1.0,
-        "{rot:.4} deg, {trans:.3} mm\n{log}"
-    );
+    let (rot, trans) = assert_near_truth(&result, &truth, &log);
     let commands = std::fs::read_to_string(dir.path().join("commands.jsonl")).unwrap();
     let moves = common::assert_logged_commands_safe(&sim, &dir.path().join("sim.toml"), &commands);
     assert!(

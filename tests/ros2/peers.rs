@@ -113,3 +113,22 @@ pub fn ros2_sim_cell(domain: u16) -> (easyhec::config::CellConfig, Vec<f64>) {
     cfg.ros2 = Some(ros2);
     (cfg, start)
 }
+
+/// Asserts the calibration is within 0.1° / 1 mm of `truth` (the bound) and returns the
+/// errors, degrees and millimetres; `log` is shown on failure.
+pub fn assert_near_truth(
+    result: &easyhec::run::ResultFile,
+    truth: &Isometry3<f64>,
+    log: &str,
+) -> (f64, f64) {
+    use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+    let (rot, trans) = (
+        rotation_error_deg(&result.camera_from_base(), truth),
+        translation_error_mm(&result.camera_from_base(), truth),
+    );
+    assert!(
+        rot < 0.1 && trans < 1.0,
+        "{rot:.4} deg, {trans:.3} mm\n{log}"
+    );
+    (rot, trans)
+}
