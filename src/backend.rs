@@ -40,7 +40,7 @@ fn linux_gpu_device_present() -> bool {
 pub fn open_renderer(choice: RendererChoice, quiet: bool) -> Result<Arc<dyn Backend>, String> {
     let log = |m: String| {
         if !quiet {
-            eprintln!("{m}");
+            tracing::info!("{m}");
         }
     };
     match choice {

@@ -14,6 +14,8 @@ use clap::{CommandFactory, Parser, Subcommand};
     about = "Markerless eye-to-hand camera calibration by silhouette alignment"
 )]
 struct Cli {
+    #[command(flatten)]
+    log: cli::logging::LogArgs,
     #[command(subcommand)]
     command: Command,
 }
@@ -71,6 +73,7 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
+    cli.log.init();
     let outcome = match cli.command {
         Command::Calibrate(a) => cli::calibrate::run(a),
         Command::Solve(a) => cli::solve::run(a),
@@ -96,6 +99,8 @@ fn main() -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            // The one place a command's error is reported: as the process's last line, in
+            // the same one-line form whatever the log settings (scripts and tests read it).
             let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
             eprintln!("error: {}", chain.join(": "));
             ExitCode::FAILURE

@@ -1409,3 +1409,52 @@ fn service_unit_verifies() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The access log: exactly one line per request, with method, path and final status (a 404
+/// and a 401 too), and never the query string (a `?token=` stays out of the log).
+#[test]
+fn every_request_gets_one_access_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let (mut child, base, log) = spawn_daemon_logged(&config, &data);
+    let requests = [
+        ("GET", "/healthz", 200),
+        ("GET", "/api/v1/calibrations", 200),
+        ("GET", "/api/v1/no-such-route", 404),
+        ("POST", "/api/v1/checks", 401),
+        ("GET", "/?token=do-not-log-me", 200),
+    ];
+    for (method, path, code) in requests {
+        let (got, body) = call_as(method, &format!("{base}{path}"), None, None);
+        assert_eq!(got, code, "{method} {path}: {body}");
+    }
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let access = loop {
+        let lines = log.lock().unwrap().clone();
+        let access: Vec<String> = lines
+            .into_iter()
+            .filter(|l| l.contains(": access "))
+            .collect();
+        if access.len() >= requests.len() || Instant::now() > deadline {
+            break access;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(access.len(), requests.len(), "{access:?}");
+    for (method, path, code) in requests {
+        let path = path.split('?').next().unwrap();
+        let want = format!("method={method} path={path}: access status={code} ");
+        let n = access.iter().filter(|l| l.starts_with(&want)).count();
+        assert_eq!(n, 1, "{want:?} in {access:?}");
+    }
+    assert!(
+        !log.lock()
+            .unwrap()
+            .iter()
+            .any(|l| l.contains("do-not-log-me")),
+        "the query string was logged"
+    );
+}

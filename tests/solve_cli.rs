@@ -354,3 +354,63 @@ fn completions_and_version() {
         "{version}"
     );
 }
+
+/// `easyhec solve` with the given log environment and flags: (success, stderr lines).
+fn solve_logged(run: &Path, rust_log: Option<&str>, extra: &[&str]) -> (bool, Vec<String>) {
+    let mut cmd = Command::new(common::easyhec_bin());
+    cmd.arg("solve").arg(run).args(extra).env_remove("RUST_LOG");
+    cmd.env_remove("EASYHEC_LOG_FORMAT");
+    if let Some(spec) = rust_log {
+        cmd.env("RUST_LOG", spec);
+    }
+    let out = cmd.output().expect("easyhec runs");
+    let lines = String::from_utf8_lossy(&out.stderr)
+        .lines()
+        .map(str::to_string)
+        .collect();
+    (out.status.success(), lines)
+}
+
+#[test]
+fn diagnostics_are_levelled_by_rust_log_and_the_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &[]);
+    let is_debug = |l: &String| l.starts_with("debug: ");
+    // Default: info lines only, as short as a plain program's output.
+    let (ok, default) = solve_logged(&run, None, &[]);
+    assert!(ok, "{default:?}");
+    assert!(!default.is_empty() && default.len() <= 12, "{default:?}");
+    assert!(!default.iter().any(is_debug), "{default:?}");
+    // RUST_LOG=debug: the solver's per-level lines, marked as debug.
+    let (ok, debug) = solve_logged(&run, Some("debug"), &[]);
+    assert!(ok, "{debug:?}");
+    let levels = debug
+        .iter()
+        .filter(|l| l.starts_with("debug: level "))
+        .count();
+    assert!(levels >= 3, "no per-level solver lines: {debug:?}");
+    assert!(debug.len() > default.len(), "{debug:?}");
+    // -v does the same without RUST_LOG; -q leaves warnings and errors only; a flag beats
+    // RUST_LOG.
+    let (_, verbose) = solve_logged(&run, None, &["-v"]);
+    assert!(verbose.iter().any(is_debug), "{verbose:?}");
+    let (ok, quiet) = solve_logged(&run, Some("debug"), &["--quiet"]);
+    assert!(ok && quiet.is_empty(), "{quiet:?}");
+    // JSON: every line is an object with a level and a target.
+    let (ok, json) = solve_logged(&run, Some("easyhec=debug"), &["--log-format", "json"]);
+    assert!(ok && !json.is_empty(), "{json:?}");
+    for line in &json {
+        let v: serde_json::Value =
+            serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"));
+        assert!(v["level"].is_string() && v["target"].is_string(), "{line}");
+    }
+    assert!(json.iter().any(|l| l.contains("\"DEBUG\"")), "{json:?}");
+    // A RUST_LOG that does not parse is one warning, and the default applies.
+    let (ok, bad) = solve_logged(&run, Some("easyhec=loud"), &[]);
+    assert!(ok, "{bad:?}");
+    assert!(
+        bad[0].starts_with("warning: RUST_LOG=") && bad.len() == default.len() + 1,
+        "{bad:?}"
+    );
+}

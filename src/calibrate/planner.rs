@@ -86,8 +86,8 @@ pub fn rank_poses(
     let t_start = std::time::Instant::now();
     let safe = round_plan.statically_safe(samples);
     let n_safe = safe.len();
-    if std::env::var_os("EASYHEC_DEBUG").is_some() {
-        eprintln!(
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        tracing::debug!(
             "rank_poses: static checks {:.2} s",
             t_start.elapsed().as_secs_f64()
         );
@@ -115,7 +115,7 @@ pub fn rank_poses(
         }
     }
     let ranked: Vec<Ranked> = ranked.into_iter().map(|r| r.0).collect();
-    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+    if tracing::enabled!(tracing::Level::DEBUG) {
         round_plan.debug_scoring(&ranked, t_checked);
     }
     let stats = PlanStats {
@@ -381,9 +381,9 @@ impl<'a> RoundPlan<'a> {
             .collect()
     }
 
-    /// `EASYHEC_DEBUG`: the scoring time and the coarse robot's size.
+    /// At debug level (`RUST_LOG=easyhec=debug` or `-v`): the scoring time and the coarse robot's size.
     fn debug_scoring(&self, ranked: &[Ranked], t_checked: std::time::Instant) {
-        eprintln!(
+        tracing::debug!(
             "rank_poses: scoring {:.2} s, {} scored, {} triangles per coarse robot",
             t_checked.elapsed().as_secs_f64(),
             ranked.len(),

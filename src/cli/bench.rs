@@ -47,7 +47,7 @@ pub enum BenchCommand {}
 impl BenchCommand {
     /// Runs the benchmark and prints its summary.
     pub fn run(self) -> anyhow::Result<()> {
-        let mut log = |line: &str| eprintln!("{line}");
+        let mut log = |line: &str| tracing::info!("{line}");
         let report: Report = match self {
             BenchCommand::Accuracy(b) => b.run(&mut log)?,
             BenchCommand::Coverage(b) => b.run(&mut log)?,

@@ -103,7 +103,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
     }
     let iou = outcome.report.mean_iou();
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
-    eprintln!(
+    tracing::info!(
         "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
         r.views_used.len(),
         t("total"),
@@ -115,7 +115,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         outcome.run_dir.join("result.json").display()
     );
     if let Some(u) = &r.uncertainty {
-        eprintln!(
+        tracing::info!(
             "1-sigma: rotation [{:.4}, {:.4}, {:.4}] deg, translation [{:.3}, {:.3}, {:.3}] mm",
             u.rotation_deg[0],
             u.rotation_deg[1],
@@ -125,7 +125,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
             u.translation_mm[2]
         );
         if let Some(bound) = u.camera_centre_95_mm {
-            eprintln!("camera centre within {bound:.2} mm of the estimate (95%)");
+            tracing::info!("camera centre within {bound:.2} mm of the estimate (95%)");
         }
     }
     report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;

@@ -38,14 +38,14 @@ pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
     runtime.block_on(async move {
         let daemon = Daemon::open(cell, &data, token)?;
         for id in daemon.recovered() {
-            eprintln!("easyhec daemon: {id} was running when the daemon stopped: marked interrupted (its views are on disk)");
+            tracing::warn!("easyhec daemon: {id} was running when the daemon stopped: marked interrupted (its views are on disk)");
         }
         let listener = tokio::net::TcpListener::bind(&listen)
             .await
             .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
         let addr = listener.local_addr().context("reading the bound address")?;
         // Tests and supervisors read this line for the port.
-        eprintln!(
+        tracing::info!(
             "easyhec daemon listening on http://{addr} (data {})",
             data.display()
         );
@@ -57,7 +57,7 @@ pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
             easyhec::daemon::systemd::notify("STOPPING=1");
         };
         serve(daemon, listener, stop).await?;
-        eprintln!("easyhec daemon: stopped");
+        tracing::info!("easyhec daemon: stopped");
         anyhow::Ok(())
     })
 }

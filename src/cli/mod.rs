@@ -7,6 +7,7 @@ pub mod daemon;
 pub mod export;
 pub mod frames;
 pub mod import;
+pub mod logging;
 pub mod publish;
 #[cfg(feature = "sim")]
 pub mod sim_camera;

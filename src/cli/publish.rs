@@ -102,7 +102,7 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
     tree.check_can_add(&edge)?;
     let publisher = StaticTfPublisher::new(&mut node, &place.namespace)?;
     publisher.send(std::slice::from_ref(&edge))?;
-    eprintln!(
+    tracing::info!(
         "easyhec publish: {} -> {} on /tf_static (domain {}, {} other frames seen); stop with Ctrl-C",
         edge.parent,
         edge.child,

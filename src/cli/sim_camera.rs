@@ -70,9 +70,12 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
         &a.camera_info_topic,
         &a.frame_id,
     )?;
-    eprintln!(
+    tracing::info!(
         "easyhec sim-camera: publishing {} and {} at {} Hz (domain {}); stop with Ctrl-C",
-        a.image_topic, a.camera_info_topic, a.rate_hz, place.domain_id
+        a.image_topic,
+        a.camera_info_topic,
+        a.rate_hz,
+        place.domain_id
     );
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -106,9 +106,9 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         allow_poor_fit: a.allow_poor_fit,
         joint_noise_rad: a.joint_noise_rad,
     };
-    let outcome = solve_run(&request, &mut |line| eprintln!("{line}"))?;
+    let outcome = solve_run(&request, &mut |line| tracing::info!("{line}"))?;
     if !outcome.poor_views.is_empty() {
-        eprintln!(
+        tracing::warn!(
             "warning: views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF",
             outcome.poor_views
         );

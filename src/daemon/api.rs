@@ -111,7 +111,7 @@ pub fn router(daemon: Shared) -> Router {
         .route("/api/v1/checks", post(run_check).get(checks))
         .route("/metrics", get(metrics))
         .route_layer(middleware::from_fn_with_state(daemon.clone(), auth));
-    Router::new()
+    let router = Router::new()
         .route("/", get(|| async { Html(INDEX_HTML) }))
         .route(
             "/app.js",
@@ -136,7 +136,35 @@ pub fn router(daemon: Shared) -> Router {
         })
         .with_state(daemon)
         .layer(DefaultBodyLimit::max(BODY_LIMIT))
-        .layer(middleware::from_fn(json_errors))
+        .layer(middleware::from_fn(json_errors));
+    with_access_log(router)
+}
+
+/// The access log: one `info` record per request, target `easyhec::access`, in a span that
+/// carries the method and path (never the query or headers: a `?token=` stays out of logs),
+/// with the final status (after [`json_errors`]) and the time to the response head. Events
+/// logged while a handler runs carry the same span.
+fn with_access_log(router: Router) -> Router {
+    router.layer(
+    tower_http::trace::TraceLayer::new_for_http()
+        .make_span_with(|req: &Request| {
+            tracing::info_span!("http", method = %req.method(), path = %req.uri().path())
+        })
+        .on_request(())
+        .on_response(
+            |resp: &Response, latency: std::time::Duration, _: &tracing::Span| {
+                tracing::info!(
+                    target: "easyhec::access",
+                    status = resp.status().as_u16(),
+                    ms = (latency.as_secs_f64() * 1e4).round() / 10.0,
+                    "access"
+                );
+            },
+        )
+        .on_body_chunk(())
+        .on_eos(())
+        .on_failure(()),
+    )
 }
 
 /// Every error as `{"error": …}` on one line, the framework's too (405, 413, a path that

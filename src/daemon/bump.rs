@@ -78,7 +78,6 @@ pub async fn check(
         Ok(v) => v,
         Err(e) => {
             m.check_errors.fetch_add(1, Ordering::Relaxed);
-            eprintln!("easyhec daemon: bump check failed: {e}");
             return Err(Refusal::Internal(format!("bump check failed: {e}")));
         }
     };
@@ -107,7 +106,7 @@ pub async fn check(
         return Ok(record);
     }
     m.bumps.fetch_add(1, Ordering::Relaxed);
-    eprintln!(
+    tracing::warn!(
         "easyhec daemon: bump detected: calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {:.2} px)",
         a.iou, s.bump_min_iou, a.boundary_px, max_boundary_px
     );
@@ -115,11 +114,11 @@ pub async fn check(
     if s.recalibrate_on_bump {
         match daemon.start(StartOptions::default(), "bump", Some((id.clone(), pose))) {
             Ok(new_id) => {
-                eprintln!("easyhec daemon: recalibrating as {new_id}, warm-started from {id}");
+                tracing::info!("easyhec daemon: recalibrating as {new_id}, warm-started from {id}");
                 record.recalibration = Some(new_id);
                 daemon.store().update_last_check(&record)?;
             }
-            Err(e) => eprintln!("easyhec daemon: cannot start the recalibration: {e:?}"),
+            Err(e) => tracing::error!("easyhec daemon: cannot start the recalibration: {e:?}"),
         }
     }
     Ok(record)
@@ -278,7 +277,7 @@ pub async fn schedule(daemon: Arc<Daemon>, interval: Duration) {
         match check(&daemon, "schedule").await {
             Ok(c) if !c.stale => {}
             Ok(_) | Err(Refusal::Busy(_)) => {}
-            Err(e) => eprintln!("easyhec daemon: scheduled check: {e:?}"),
+            Err(e) => tracing::warn!("easyhec daemon: scheduled check: {e:?}"),
         }
     }
 }

@@ -76,7 +76,7 @@ impl Limits {
         let wanted = settings.max_connections();
         let allowed = open_files.map_or(wanted, |n| n.saturating_sub(RESERVED_FILES).max(1));
         if allowed < wanted {
-            eprintln!(
+            tracing::warn!(
                 "easyhec daemon: daemon.max_connections: {wanted} lowered to {allowed}: the open-file limit is {} (raise it with `ulimit -n`)",
                 open_files.unwrap_or(0)
             );
@@ -169,7 +169,7 @@ pub async fn run(
         .await
         .is_err()
     {
-        eprintln!(
+        tracing::warn!(
             "easyhec daemon: connections still open {} s after shutdown began: closing them",
             DRAIN.as_secs()
         );
@@ -198,7 +198,7 @@ impl AcceptErrors {
             .last_log
             .is_none_or(|t| t.elapsed() >= Duration::from_secs(1))
         {
-            eprintln!("easyhec daemon: accepting a connection failed: {e}");
+            tracing::warn!("easyhec daemon: accepting a connection failed: {e}");
             self.last_log = Some(Instant::now());
         }
         tokio::time::sleep(Duration::from_millis(50)).await;

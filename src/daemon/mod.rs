@@ -424,7 +424,7 @@ impl Daemon {
             r.clone()
         };
         if let Err(e) = self.store.save(&record) {
-            eprintln!(
+            tracing::error!(
                 "easyhec daemon: {}: cannot update the index: {e}",
                 record.id
             );
@@ -519,7 +519,7 @@ impl Daemon {
                         );
                     }
                 });
-                eprintln!(
+                tracing::info!(
                     "easyhec daemon: {id} {}: {}",
                     state.name(),
                     o.result.stop_reason
@@ -539,7 +539,7 @@ impl Daemon {
                 } else {
                     State::Failed
                 };
-                eprintln!("easyhec daemon: {id} {}: {e}", state.name());
+                tracing::warn!("easyhec daemon: {id} {}: {e}", state.name());
                 self.finish(job, state, |r| r.error = Some(e.to_string()));
             }
         }
@@ -609,7 +609,7 @@ impl Daemon {
         job.cancel.store(true, Ordering::SeqCst);
         // Stop first; the loop notices the flag and ends the run as cancelled.
         if let Err(e) = self.cell.arm.stop().await {
-            eprintln!("easyhec daemon: {id}: stop after cancel failed: {e}");
+            tracing::error!("easyhec daemon: {id}: stop after cancel failed: {e}");
         }
         Ok(job.record())
     }
@@ -618,12 +618,12 @@ impl Daemon {
     /// a solver bug must not reach the robot controllers).
     fn activate_new(&self, id: &str, result: &crate::run::ResultFile) {
         if let Err((field, m)) = reconcile::check_result_pose(result) {
-            eprintln!("easyhec daemon: {id}: result {field}: {m}; not activated");
+            tracing::warn!("easyhec daemon: {id}: result {field}: {m}; not activated");
             return;
         }
         match self.store.activate(id, result.clone(), &now()) {
             Ok(active) => self.announce_active(&active),
-            Err(e) => eprintln!("easyhec daemon: {id}: cannot activate: {e}"),
+            Err(e) => tracing::error!("easyhec daemon: {id}: cannot activate: {e}"),
         }
     }
 
@@ -642,7 +642,7 @@ impl Daemon {
         }
         if any || matches!(self.busy(), Some(Busy::Check)) {
             if let Err(e) = self.cell.arm.stop().await {
-                eprintln!("easyhec daemon: stopping the arm at shutdown failed: {e}");
+                tracing::error!("easyhec daemon: stopping the arm at shutdown failed: {e}");
             }
         }
         for job in running {
@@ -655,7 +655,9 @@ impl Daemon {
                 )
                 .await;
                 if joined.is_err() {
-                    eprintln!("easyhec daemon: a calibration did not end within 60 s of shutdown");
+                    tracing::warn!(
+                        "easyhec daemon: a calibration did not end within 60 s of shutdown"
+                    );
                 }
             }
         }
@@ -730,7 +732,7 @@ pub async fn serve(
     let d = daemon.clone();
     let stopping = async move {
         shutdown.await;
-        eprintln!("easyhec daemon: shutting down (stopping any motion first)");
+        tracing::info!("easyhec daemon: shutting down (stopping any motion first)");
         d.shutdown().await;
     };
     http::run(listener, router, limits, daemon.http.clone(), stopping).await;

@@ -217,7 +217,7 @@ impl Folder<'_> {
             }
             if id_number(&name).is_none() {
                 if name.starts_with("cal-") {
-                    eprintln!(
+                    tracing::warn!(
                         "easyhec daemon: {}: {}; the folder is left alone and no record is made for it",
                         self.dir.join("runs").join(&name).display(),
                         id_problem(&name)
@@ -226,7 +226,7 @@ impl Folder<'_> {
                 continue;
             }
             let r = rebuilt_record(self.dir, &name, now);
-            eprintln!(
+            tracing::warn!(
                 "easyhec daemon: {}: no record in index.json: rebuilt from the run directory ({} views, state interrupted)",
                 self.dir.join(&r.run_dir).display(),
                 r.views
@@ -252,7 +252,7 @@ impl Folder<'_> {
             },
         };
         self.quarantine_file(&path, &problem)?;
-        eprintln!(
+        tracing::info!(
             "easyhec daemon: no calibration is active: activate one with POST /api/v1/calibrations/{{id}}/activate"
         );
         Ok(None)
@@ -326,7 +326,7 @@ fn record_label(i: usize, item: &Value) -> String {
 
 /// One log line for a quarantined file or record: the file, the field, why, and where it went.
 fn log_quarantined(path: &Path, p: &Problem, dest: &Path) {
-    eprintln!(
+    tracing::warn!(
         "easyhec daemon: {}: {}: {}; quarantined, not served (moved to {})",
         path.display(),
         p.field,

@@ -44,7 +44,7 @@ impl TfBroadcast {
     pub fn announce(&self, id: &str, result: &ResultFile) {
         let sent = self.tx.send((id.to_string(), result.clone()));
         if sent.is_err() && !self.lost.swap(true, std::sync::atomic::Ordering::SeqCst) {
-            eprintln!("easyhec daemon: ros2: the ROS 2 thread has ended; {id} and later calibrations are not published");
+            tracing::warn!("easyhec daemon: ros2: the ROS 2 thread has ended; {id} and later calibrations are not published");
         }
     }
 }
@@ -71,11 +71,11 @@ fn serve(
         }
         let (id, result) = next;
         match publish(&settings, &mut listener, &publisher, &result) {
-            Ok(edge) => eprintln!(
+            Ok(edge) => tracing::info!(
                 "easyhec daemon: ros2: {id}: {} -> {} on /tf_static",
                 edge.parent, edge.child
             ),
-            Err(e) => eprintln!(
+            Err(e) => tracing::warn!(
                 "easyhec daemon: ros2: {id} not published (/tf_static keeps what this daemon published before, if anything): {e}"
             ),
         }

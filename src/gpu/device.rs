@@ -161,7 +161,7 @@ impl WgpuRenderer {
     /// Reports a GPU failure once per renderer; the caller falls back to the CPU.
     fn failed(&self, what: &str) -> Option<Vec<u8>> {
         if !self.warned.swap(true, std::sync::atomic::Ordering::Relaxed) {
-            eprintln!(
+            tracing::warn!(
                 "renderer: wgpu on {} failed ({what}); rendering on the CPU instead",
                 self.adapter
             );

@@ -19,7 +19,7 @@ pub(super) fn solve_lm(
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Result<(Isometry3<f64>, usize, Vec<Isometry3<f64>>)> {
-    let debug = std::env::var_os("EASYHEC_DEBUG").is_some();
+    let debug = tracing::enabled!(tracing::Level::DEBUG);
     let mut pose = *initial;
     let mut iterations = 0;
     let mut trajectory = vec![pose];
@@ -100,7 +100,7 @@ pub(super) fn solve_lm(
             }
         }
         if debug {
-            eprintln!(
+            tracing::debug!(
                 "level {factor}: {level_iterations} iterations, {:.3} s, cost {:.1} over {:.0} px of outline",
                 started.elapsed().as_secs_f64(),
                 total_cost(&current),

@@ -249,13 +249,13 @@ pub(super) fn refine(
             (loss, *xi)
         })
         .collect();
-    if std::env::var_os("EASYHEC_DEBUG").is_some() {
+    if tracing::enabled!(tracing::Level::DEBUG) {
         let tris: usize = bands.iter().map(|b| b.robot.topology.triangles.len()).sum();
         let px: usize = bands
             .iter()
             .map(|b| b.image_band.iter().filter(|&&p| p != 0).count())
             .sum();
-        eprintln!(
+        tracing::debug!(
             "refine: {} samples, band {tris} triangles, {px} pixels over {} views",
             offsets.len(),
             views.len()
@@ -268,8 +268,8 @@ pub(super) fn refine(
         .fold(Twist::zeros(), |acc, s| acc + s.1)
         / keep as f64;
     let pose = exp_se3(&mean_xi) * centre;
-    if std::env::var_os("EASYHEC_DEBUG").is_some() {
-        eprintln!("refine: {:.3} s", started.elapsed().as_secs_f64());
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        tracing::debug!("refine: {:.3} s", started.elapsed().as_secs_f64());
     }
     let mut refined = finish(
         renderer,

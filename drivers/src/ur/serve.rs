@@ -271,6 +271,7 @@ pub(super) fn serve() -> u8 {
     let mut out = match protocol_stdout() {
         Ok(out) => std::io::BufWriter::new(out),
         Err(e) => {
+            // The child process has no subscriber: its stderr is what the parent forwards.
             eprintln!("easyhec ur_rtde worker: cannot set up stdout: {e}");
             return 2;
         }

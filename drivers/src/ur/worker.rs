@@ -138,7 +138,7 @@ fn start(path: &PathBuf, slot: &Mutex<Option<Child>>) -> std::result::Result<Pro
                 for line in BufReader::new(stderr).lines() {
                     let Ok(line) = line else { break };
                     if forward.load(Ordering::Relaxed) {
-                        eprintln!("ur_rtde: {line}");
+                        tracing::warn!("ur_rtde: {line}");
                     }
                     let mut t = lock(&tail);
                     if t.len() == STDERR_LINES {
