@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use daemon_common::{
     call, call_as, full_resolution, get_bytes, quarantined, raise_open_files, read_events,
     real_time_arm, record, result_json, start, wait_final, wait_for, write_config, write_index,
-    write_result, POSE,
+    write_result, POSE, TOKEN,
 };
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -1417,7 +1417,8 @@ fn every_request_gets_one_access_line() {
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), |_| {});
     let data = dir.path().join("data");
-    let (mut child, base, log) = spawn_daemon_logged(&config, &data);
+    let (child, base, log) = spawn_daemon_logged(&config, &data);
+    let _child = KillOnDrop(child);
     let requests = [
         ("GET", "/healthz", 200),
         ("GET", "/api/v1/calibrations", 200),
@@ -1441,8 +1442,6 @@ fn every_request_gets_one_access_line() {
         }
         std::thread::sleep(Duration::from_millis(50));
     };
-    child.kill().unwrap();
-    child.wait().unwrap();
     assert_eq!(access.len(), requests.len(), "{access:?}");
     for (method, path, code) in requests {
         let path = path.split('?').next().unwrap();
@@ -1457,4 +1456,100 @@ fn every_request_gets_one_access_line() {
             .any(|l| l.contains("do-not-log-me")),
         "the query string was logged"
     );
+}
+
+/// Every documented operation, as (method, path with its parameters filled in, whether the
+/// token is required, whether it is accepted).
+fn documented_operations(doc: &Value) -> Vec<(String, String, bool, bool)> {
+    let mut ops = Vec::new();
+    for (path, item) in doc["paths"].as_object().expect("paths") {
+        for (method, op) in item.as_object().unwrap() {
+            let security = op["security"].as_array().cloned().unwrap_or_default();
+            let bearer = security.iter().any(|s| s.get("bearer").is_some());
+            let optional = security.is_empty() || security.iter().any(|s| s == &json!({}));
+            let url = path.replace("{id}", "cal-0999").replace("{n}", "0");
+            ops.push((method.to_uppercase(), url, bearer && !optional, bearer));
+        }
+    }
+    ops
+}
+
+/// The generated OpenAPI document and the router agree: the daemon serves the document the
+/// library generates; every documented operation is routed (never the fallback 404 or a 405);
+/// every other method on a documented path is 405; the token is required exactly where the
+/// document says, with `protect_reads` off and on; and no route is registered outside the
+/// annotated handlers.
+#[test]
+fn the_openapi_document_and_the_router_agree() {
+    let dir = tempfile::tempdir().unwrap();
+    let generated: Value = serde_json::from_str(easyhec::daemon::openapi::document()).unwrap();
+    let ops = documented_operations(&generated);
+    assert!(ops.len() >= 15, "{ops:?}");
+    for protect_reads in [false, true] {
+        let sub = dir.path().join(format!("protect-{protect_reads}"));
+        std::fs::create_dir_all(&sub).unwrap();
+        let config = write_config(&sub, |c| c.daemon.protect_reads = protect_reads);
+        let d = start(&config, &sub.join("data"));
+        let base = &d.base;
+        let (code, served) = call_as("GET", &format!("{base}/openapi.json"), None, None);
+        assert_eq!((code, &served), (200, &generated), "served != generated");
+        for (method, path, required, accepted) in &ops {
+            let (code, body) = call_as(method, &format!("{base}{path}"), None, None);
+            let routed = !body["error"]
+                .as_str()
+                .unwrap_or("")
+                .contains("no such route")
+                && code != 405;
+            assert!(
+                routed,
+                "{method} {path} is documented but not routed: {code} {body}"
+            );
+            let needs_token = *required || (protect_reads && *accepted);
+            assert_eq!(
+                code == 401,
+                needs_token,
+                "{method} {path} (protect_reads {protect_reads}): {code} {body}"
+            );
+        }
+        let paths: std::collections::BTreeSet<&String> = ops.iter().map(|o| &o.1).collect();
+        for path in paths {
+            for method in ["GET", "POST", "PUT", "DELETE", "PATCH"] {
+                if ops.iter().any(|o| &o.1 == path && o.0 == method) {
+                    continue;
+                }
+                let (code, body) = call_as(method, &format!("{base}{path}"), Some(TOKEN), None);
+                assert_eq!(
+                    code, 405,
+                    "{method} {path} is served but not documented: {body}"
+                );
+            }
+        }
+    }
+    // Routes come only from annotated handlers (`routes!`): a plain axum registration in the
+    // daemon would serve a route the document does not list.
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/daemon");
+    for entry in std::fs::read_dir(&src).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "rs") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            for bad in [".route(", ".route_service(", ".nest(", ".nest_service("] {
+                assert!(
+                    !text.contains(bad),
+                    "{}: {bad} outside routes!",
+                    path.display()
+                );
+            }
+        }
+    }
+}
+
+/// A spawned daemon, killed when the test ends or fails (a leaked one would hold the test's
+/// output pipes open).
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }

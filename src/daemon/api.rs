@@ -2,6 +2,10 @@
 //! `Authorization: Bearer TOKEN`; read-only routes (`GET`) are open unless `[daemon]
 //! protect_reads = true`; `/`, `/app.js`, `/openapi.json` and `/healthz` are always open. Errors are JSON
 //! `{"error": "…"}`; a start while the arm is leased is 409 with `"running": ID`.
+//!
+//! Each handler carries its `#[utoipa::path]` (method, path, bodies, security), and [`routes`]
+//! registers it from that annotation, so `/openapi.json` ([`super::openapi`]) lists exactly
+//! the routes served.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -12,12 +16,17 @@ use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
 use axum::response::{Html, IntoResponse, Response};
-use axum::routing::{get, post};
 use axum::{Json, Router};
-use serde_json::json;
 use tokio::sync::broadcast;
 
-use super::store::{CalibrationRecord, State as RunState};
+use utoipa::OpenApi;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::openapi::{
+    self, ActiveCalibration, Cancelling, Checks, ErrorBody, Health, History, Png, Started,
+};
+use super::store::{ActiveFile, CalibrationRecord, CheckRecord, State as RunState};
 use super::validate::{id_number, id_problem, inside};
 use super::{bump, overlays, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
 use crate::geometry::from_rows;
@@ -27,8 +36,6 @@ use crate::run::{RunFile, ViewEntry};
 const INDEX_HTML: &str = include_str!("web/index.html");
 /// The page's script.
 const APP_JS: &str = include_str!("web/app.js");
-/// The OpenAPI 3 description of this API.
-const OPENAPI_JSON: &str = include_str!("openapi.json");
 
 type Shared = Arc<Daemon>;
 
@@ -69,75 +76,110 @@ impl IntoResponse for Refusal {
                 };
                 (
                     StatusCode::CONFLICT,
-                    json!({
-                        "error": format!("{what}: the daemon runs one thing at a time on the arm; wait for it or cancel it"),
-                        "running": b.name(),
-                    }),
+                    ErrorBody {
+                        error: format!("{what}: the daemon runs one thing at a time on the arm; wait for it or cancel it"),
+                        running: Some(b.name().to_string()),
+                    },
                 )
             }
             Refusal::ShuttingDown => (
                 StatusCode::SERVICE_UNAVAILABLE,
-                json!({"error": "the daemon is shutting down"}),
+                ErrorBody::new("the daemon is shutting down".into()),
             ),
-            Refusal::NotFound(m) => (StatusCode::NOT_FOUND, json!({ "error": one_line(&m) })),
-            Refusal::Conflict(m) => (StatusCode::CONFLICT, json!({ "error": one_line(&m) })),
+            Refusal::NotFound(m) => (StatusCode::NOT_FOUND, ErrorBody::new(one_line(&m))),
+            Refusal::Conflict(m) => (StatusCode::CONFLICT, ErrorBody::new(one_line(&m))),
             Refusal::UnsupportedMedia(m) => (
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                json!({ "error": one_line(&m) }),
+                ErrorBody::new(one_line(&m)),
             ),
-            Refusal::BadRequest(m) => (StatusCode::BAD_REQUEST, json!({ "error": one_line(&m) })),
+            Refusal::BadRequest(m) => (StatusCode::BAD_REQUEST, ErrorBody::new(one_line(&m))),
             Refusal::Internal(m) => (
                 StatusCode::INTERNAL_SERVER_ERROR,
-                json!({ "error": one_line(&m) }),
+                ErrorBody::new(one_line(&m)),
             ),
         };
         (status, Json(body)).into_response()
     }
 }
 
-/// The whole router.
+/// The routes that need the token (every one that acts; those that read when `[daemon]
+/// protect_reads = true`), each registered from its `#[utoipa::path]`.
+fn guarded_routes() -> OpenApiRouter<Shared> {
+    OpenApiRouter::new()
+        .routes(routes!(start, history))
+        .routes(routes!(status))
+        .routes(routes!(events))
+        .routes(routes!(overlay))
+        .routes(routes!(cancel))
+        .routes(routes!(activate))
+        .routes(routes!(active))
+        .routes(routes!(run_check, checks))
+        .routes(routes!(metrics))
+}
+
+/// The routes that are always open.
+fn open_routes() -> OpenApiRouter<Shared> {
+    OpenApiRouter::new()
+        .routes(routes!(index))
+        .routes(routes!(app_js))
+        .routes(routes!(openapi_json))
+        .routes(routes!(healthz))
+}
+
+/// Every route with its description: what [`router`] serves and `/openapi.json` describes.
+pub fn routes() -> OpenApiRouter<Shared> {
+    OpenApiRouter::with_openapi(openapi::ApiRoot::openapi())
+        .merge(open_routes())
+        .merge(guarded_routes())
+}
+
+/// The whole router: [`routes`], the token check on the guarded ones, JSON errors, the body
+/// limit and the access log.
 pub fn router(daemon: Shared) -> Router {
-    let api = Router::new()
-        .route("/api/v1/calibrations", post(start).get(history))
-        .route("/api/v1/calibrations/{id}", get(status))
-        .route("/api/v1/calibrations/{id}/events", get(events))
-        .route(
-            "/api/v1/calibrations/{id}/views/{n}/overlay.png",
-            get(overlay),
-        )
-        .route("/api/v1/calibrations/{id}/cancel", post(cancel))
-        .route("/api/v1/calibrations/{id}/activate", post(activate))
-        .route("/api/v1/calibration", get(active))
-        .route("/api/v1/checks", post(run_check).get(checks))
-        .route("/metrics", get(metrics))
-        .route_layer(middleware::from_fn_with_state(daemon.clone(), auth));
-    let router = Router::new()
-        .route("/", get(|| async { Html(INDEX_HTML) }))
-        .route(
-            "/app.js",
-            get(|| async {
-                (
-                    [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
-                    APP_JS,
-                )
-            }),
-        )
-        .route(
-            "/openapi.json",
-            get(|| async { ([(header::CONTENT_TYPE, "application/json")], OPENAPI_JSON) }),
-        )
-        .route("/healthz", get(healthz))
-        .merge(api)
+    let (guarded, _) = guarded_routes().split_for_parts();
+    let guarded = guarded.route_layer(middleware::from_fn_with_state(daemon.clone(), auth));
+    let (open, _) = open_routes().split_for_parts();
+    let router = open
+        .merge(guarded)
         .fallback(|| async {
             (
                 StatusCode::NOT_FOUND,
-                Json(json!({"error": "no such route: see /openapi.json"})),
+                Json(ErrorBody::new("no such route: see /openapi.json".into())),
             )
         })
         .with_state(daemon)
         .layer(DefaultBodyLimit::max(BODY_LIMIT))
         .layer(middleware::from_fn(json_errors));
     with_access_log(router)
+}
+
+/// The web page (embedded; no build step).
+#[utoipa::path(get, path = "/", tag = "service",
+    responses((status = 200, description = "The web page", content_type = "text/html", body = String)))]
+async fn index() -> Html<&'static str> {
+    Html(INDEX_HTML)
+}
+
+/// The page's script.
+#[utoipa::path(get, path = "/app.js", tag = "service",
+    responses((status = 200, description = "The page's script", content_type = "text/javascript", body = String)))]
+async fn app_js() -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+        APP_JS,
+    )
+        .into_response()
+}
+
+/// This document, generated from the handlers and their types.
+#[utoipa::path(get, path = "/openapi.json", tag = "service",
+    responses((status = 200, description = "The OpenAPI 3.1 description of this API", content_type = "application/json", body = Object)))]
+async fn openapi_json() -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        openapi::document(),
+    )
+        .into_response()
 }
 
 /// The access log: one `info` record per request, target `easyhec::access`, in a span that
@@ -178,7 +220,7 @@ async fn json_errors(req: Request, next: Next) -> Response {
         .and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
     if let Some(n) = declared.filter(|n| *n > BODY_LIMIT as u64) {
         let m = format!("request body: Content-Length {n} is over the {BODY_LIMIT}-byte limit");
-        return (StatusCode::PAYLOAD_TOO_LARGE, Json(json!({ "error": m }))).into_response();
+        return (StatusCode::PAYLOAD_TOO_LARGE, Json(ErrorBody::new(m))).into_response();
     }
     let (method, path) = (req.method().clone(), req.uri().path().to_string());
     let resp = next.run(req).await;
@@ -202,7 +244,7 @@ async fn json_errors(req: Request, next: Next) -> Response {
         header::CONTENT_TYPE,
         HeaderValue::from_static("application/json"),
     );
-    let body = json!({ "error": one_line(&m) }).to_string();
+    let body = serde_json::to_string(&ErrorBody::new(one_line(&m))).unwrap_or_default();
     Response::from_parts(parts, Body::from(body))
 }
 
@@ -251,9 +293,9 @@ async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
         _ => {
             let mut r = (
                 StatusCode::UNAUTHORIZED,
-                Json(json!({
-                    "error": "missing or wrong token: send `Authorization: Bearer TOKEN` with the daemon's token ([daemon] token or EASYHEC_TOKEN)"
-                })),
+                Json(ErrorBody::new(
+                    "missing or wrong token: send `Authorization: Bearer TOKEN` with the daemon's token ([daemon] token or EASYHEC_TOKEN)".into(),
+                )),
             )
                 .into_response();
             r.headers_mut().insert(
@@ -265,13 +307,30 @@ async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
     }
 }
 
-async fn healthz(State(d): State<Shared>) -> Json<serde_json::Value> {
-    Json(json!({
-        "status": "ok",
-        "busy": d.busy().map(|b| b.name().to_string()),
-    }))
+/// Liveness, and what holds the arm.
+#[utoipa::path(get, path = "/healthz", tag = "service",
+    responses((status = 200, description = "The daemon answers", body = Health)))]
+async fn healthz(State(d): State<Shared>) -> Json<Health> {
+    Json(Health {
+        status: "ok".into(),
+        busy: d.busy().map(|b| b.name().to_string()),
+    })
 }
 
+/// Starts a calibration (or, with `dry_run`, plans one without moving).
+#[utoipa::path(post, path = "/api/v1/calibrations", tag = "calibrations",
+    request_body(content = Option<StartOptions>, content_type = "application/json",
+        description = "Optional; an empty body means the config's defaults"),
+    responses(
+        (status = 202, description = "Started; follow it at the Location", body = Started,
+            headers(("Location" = String, description = "/api/v1/calibrations/{id}"))),
+        (status = 400, description = "A field is wrong (the error names it)", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 409, description = "The arm is leased; `running` names the holder", body = ErrorBody),
+        (status = 413, description = "Body over 64 KiB", body = ErrorBody),
+        (status = 415, description = "Body is not JSON", body = ErrorBody),
+        (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
+    security(("bearer" = [])))]
 async fn start(
     State(d): State<Shared>,
     headers: HeaderMap,
@@ -282,7 +341,7 @@ async fn start(
     Ok((
         StatusCode::ACCEPTED,
         [(header::LOCATION, format!("/api/v1/calibrations/{id}"))],
-        Json(json!({ "id": id })),
+        Json(Started { id }),
     )
         .into_response())
 }
@@ -321,7 +380,13 @@ fn bad_body(at: &str, e: &serde_json::Error) -> Refusal {
     ))
 }
 
-async fn history(State(d): State<Shared>) -> Json<serde_json::Value> {
+/// Every calibration on record, newest first, and the active one's id.
+#[utoipa::path(get, path = "/api/v1/calibrations", tag = "calibrations",
+    responses(
+        (status = 200, description = "The history", body = History),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn history(State(d): State<Shared>) -> Json<History> {
     let mut records = d.store().records();
     // Live records are fresher than the index for the running one.
     for r in &mut records {
@@ -331,9 +396,20 @@ async fn history(State(d): State<Shared>) -> Json<serde_json::Value> {
     }
     records.reverse();
     let active = d.store().active().map(|a| a.id);
-    Json(json!({ "calibrations": records, "active": active }))
+    Json(History {
+        calibrations: records,
+        active,
+    })
 }
 
+/// One calibration's status.
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`")),
+    responses(
+        (status = 200, description = "Its status", body = CalibrationRecord),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody)),
+    security((), ("bearer" = [])))]
 async fn status(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     d.status(&id)
@@ -348,6 +424,15 @@ fn sse_event(e: &Event) -> SseEvent {
         .unwrap_or_else(|_| SseEvent::default().comment("unserialisable event"))
 }
 
+/// Server-sent events: the status now (`state`), then one event per change (`view`, `round`,
+/// `planned`, `moving`, `state`) until the calibration ends.
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}/events", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`")),
+    responses(
+        (status = 200, description = "An event stream; each event's data is one Event", content_type = "text/event-stream", body = Event),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody)),
+    security((), ("bearer" = [])))]
 async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     // Subscribe before reading the snapshot so no event falls between them.
@@ -402,6 +487,18 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
         .into_response())
 }
 
+/// View `n` with the robot drawn at the calibration's current estimate (green: agreement,
+/// red: robot the render misses, blue: render the mask lacks).
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}/views/{n}/overlay.png", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`"),
+        ("n" = usize, Path, description = "A view index (0, 1, …)")),
+    responses(
+        (status = 200, description = "The overlay", content_type = "image/png", body = Png),
+        (status = 400, description = "`n` is not a view index", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "No such calibration or view", body = ErrorBody),
+        (status = 409, description = "No estimate yet", body = ErrorBody)),
+    security((), ("bearer" = [])))]
 async fn overlay(
     State(d): State<Shared>,
     Path((id, n)): Path<(String, String)>,
@@ -499,22 +596,51 @@ async fn render_overlay(
     Ok(png)
 }
 
+/// Cancels a running calibration: the arm is stopped first.
+#[utoipa::path(post, path = "/api/v1/calibrations/{id}/cancel", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`")),
+    responses(
+        (status = 202, description = "Cancelling", body = Cancelling),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody),
+        (status = 409, description = "It has already ended", body = ErrorBody)),
+    security(("bearer" = [])))]
 async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let r = d.cancel(&id).await?;
     Ok((
         StatusCode::ACCEPTED,
-        Json(json!({ "id": r.id, "state": r.state, "cancelling": true })),
+        Json(Cancelling {
+            id: r.id,
+            state: r.state,
+            cancelling: true,
+        }),
     )
         .into_response())
 }
 
+/// Makes a succeeded (or re-solved interrupted) calibration the active one.
+#[utoipa::path(post, path = "/api/v1/calibrations/{id}/activate", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`")),
+    responses(
+        (status = 200, description = "Now active", body = ActiveFile),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody),
+        (status = 409, description = "It cannot be activated (the error says why)", body = ErrorBody)),
+    security(("bearer" = [])))]
 async fn activate(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let a = d.activate(&id)?;
     Ok(Json(a).into_response())
 }
 
+/// The active calibration, whether it is stale, and its last bump check.
+#[utoipa::path(get, path = "/api/v1/calibration", tag = "calibrations",
+    responses(
+        (status = 200, description = "The active calibration", body = ActiveCalibration),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "None is active yet", body = ErrorBody)),
+    security((), ("bearer" = [])))]
 async fn active(State(d): State<Shared>) -> Result<Response, Refusal> {
     let a = d.store().active().ok_or_else(|| {
         Refusal::NotFound(
@@ -527,27 +653,43 @@ async fn active(State(d): State<Shared>) -> Result<Response, Refusal> {
         .into_iter()
         .rev()
         .find(|c| c.calibration_id == a.id);
-    Ok(Json(json!({
-        "id": a.id,
-        "activated_at": a.activated_at,
-        "stale": a.stale,
-        "stale_since": a.stale_since,
-        "last_check": last_check,
-        "result": a.result,
-    }))
+    Ok(Json(ActiveCalibration {
+        id: a.id,
+        activated_at: a.activated_at,
+        stale: a.stale,
+        stale_since: a.stale_since,
+        last_check,
+        result: a.result,
+    })
     .into_response())
 }
 
+/// Runs a bump check now: moves to the check pose, captures, compares with the active
+/// calibration's silhouette.
+#[utoipa::path(post, path = "/api/v1/checks", tag = "checks",
+    responses(
+        (status = 200, description = "The check's outcome", body = CheckRecord),
+        (status = 401, description = "Missing or wrong token", body = ErrorBody),
+        (status = 409, description = "No active calibration, or the arm is leased", body = ErrorBody),
+        (status = 500, description = "Capture, motion or segmentation failed", body = ErrorBody),
+        (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
+    security(("bearer" = [])))]
 async fn run_check(State(d): State<Shared>) -> Result<Response, Refusal> {
     let c = bump::check(&d, "api").await?;
     Ok(Json(c).into_response())
 }
 
-async fn checks(State(d): State<Shared>) -> Json<serde_json::Value> {
+/// The last 50 bump checks, newest first.
+#[utoipa::path(get, path = "/api/v1/checks", tag = "checks",
+    responses(
+        (status = 200, description = "The checks", body = Checks),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn checks(State(d): State<Shared>) -> Json<Checks> {
     let mut c = d.store().checks();
     c.reverse();
     c.truncate(50);
-    Json(json!({ "checks": c }))
+    Json(Checks { checks: c })
 }
 
 /// Appends one metric in the Prometheus text format.
@@ -569,6 +711,12 @@ fn count(a: &AtomicU64) -> f64 {
     a.load(Ordering::Relaxed) as f64
 }
 
+/// Counters and gauges in the Prometheus text format.
+#[utoipa::path(get, path = "/metrics", tag = "service",
+    responses(
+        (status = 200, description = "Prometheus text format 0.0.4", content_type = "text/plain", body = String),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody)),
+    security((), ("bearer" = [])))]
 async fn metrics(State(d): State<Shared>) -> Response {
     let mut s = String::new();
     calibration_metrics(&d, &mut s);

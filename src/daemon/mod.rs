@@ -21,6 +21,7 @@ pub mod activation;
 pub mod api;
 pub mod bump;
 pub mod http;
+pub mod openapi;
 pub mod overlays;
 pub mod reconcile;
 pub mod store;
@@ -105,7 +106,7 @@ impl From<Error> for Refusal {
 }
 
 /// One SSE event: what happened and the calibration's status after it.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
 pub struct Event {
     /// `state`, `view`, `round`, `planned` or `moving`.
     pub kind: String,
@@ -191,7 +192,7 @@ pub struct Daemon {
 }
 
 /// Options of `POST /api/v1/calibrations`.
-#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[derive(Clone, Debug, Default, serde::Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StartOptions {
     /// Views at most (default: the config's `calibration.max_views`). Leaving the field out

@@ -35,7 +35,7 @@ pub const CHECKS_FORMAT: &str = "easyhec-daemon-checks/1";
 const CHECKS_KEPT: usize = 200;
 
 /// Where a calibration is in its life.
-#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum State {
     /// Accepted, not started yet.
@@ -72,7 +72,7 @@ impl State {
 }
 
 /// Error of an estimate against a simulated cell's true pose.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
 pub struct TruthError {
     /// Rotation error, degrees.
     pub rotation_deg: f64,
@@ -81,7 +81,7 @@ pub struct TruthError {
 }
 
 /// One calibration: what `GET /api/v1/calibrations/{id}` returns and `index.json` keeps.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
 pub struct CalibrationRecord {
     /// `cal-NNNN`, also the run directory's name.
     pub id: String,
@@ -144,7 +144,7 @@ pub struct CalibrationRecord {
 }
 
 /// `active.json`: the calibration in use, with its result, surviving restarts.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
 pub struct ActiveFile {
     /// Always [`ACTIVE_FORMAT`].
     pub format: String,
@@ -162,7 +162,7 @@ pub struct ActiveFile {
 }
 
 /// One bump check.
-#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
 pub struct CheckRecord {
     /// RFC 3339 time.
     pub at: String,

@@ -458,7 +458,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
 }
 
 /// `easyhec-result/1`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
 pub struct ResultFile {
     /// Always [`RESULT_FORMAT`].
     pub format: String,
@@ -482,7 +482,7 @@ pub struct ResultFile {
 }
 
 /// `per_view[i]`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
 pub struct PerView {
     /// Index into the run's views.
     pub view: usize,
@@ -491,7 +491,7 @@ pub struct PerView {
 }
 
 /// `uncertainty`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
 pub struct UncertaintyEntry {
     /// Rotation about camera x, y, z, degrees (1 sigma).
     pub rotation_deg: [f64; 3],
