@@ -414,3 +414,46 @@ fn diagnostics_are_levelled_by_rust_log_and_the_flags() {
         "{bad:?}"
     );
 }
+
+/// `solve` shows a spinner on a terminal (a pseudo-terminal from util-linux `script`) and
+/// nothing but plain lines when its output is piped.
+#[test]
+fn progress_shows_on_a_terminal_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &[]);
+    let (ok, piped) = solve_logged(&run, None, &[]);
+    assert!(ok, "{piped:?}");
+    assert!(
+        piped
+            .iter()
+            .all(|l| !l.contains('\r') && !l.contains('\x1b')),
+        "control characters in piped output: {piped:?}"
+    );
+    let line = format!(
+        "{} solve {}",
+        common::easyhec_bin().display(),
+        run.display()
+    );
+    let tty = Command::new("script")
+        .args(["-qfec", &line, "/dev/null"])
+        .env_remove("RUST_LOG")
+        .output();
+    let Ok(tty) = tty else {
+        eprintln!("SKIPPED: no `script` (util-linux) to make a pseudo-terminal");
+        return;
+    };
+    let text = String::from_utf8_lossy(&tty.stdout);
+    assert!(tty.status.success(), "{text}");
+    assert!(
+        text.contains("solve [") && text.contains("\x1b[2K"),
+        "no spinner on a terminal: {text:?}"
+    );
+    // --quiet hides it there too.
+    let quiet = Command::new("script")
+        .args(["-qfec", &format!("{line} --quiet"), "/dev/null"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&quiet.stdout);
+    assert!(!text.contains("solve ["), "{text:?}");
+}

@@ -47,7 +47,8 @@ pub enum BenchCommand {}
 impl BenchCommand {
     /// Runs the benchmark and prints its summary.
     pub fn run(self) -> anyhow::Result<()> {
-        let mut log = |line: &str| tracing::info!("{line}");
+        let activity = super::progress::Activity::start("bench");
+        let mut log = |line: &str| activity.note(line);
         let report: Report = match self {
             BenchCommand::Accuracy(b) => b.run(&mut log)?,
             BenchCommand::Coverage(b) => b.run(&mut log)?,
@@ -58,6 +59,7 @@ impl BenchCommand {
             BenchCommand::Explore(b) => b.run(&mut log)?,
             BenchCommand::Speed(b) => b.run(&mut log)?,
         };
+        drop(activity);
         print!("{}", report.text());
         Ok(())
     }

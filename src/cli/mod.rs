@@ -8,6 +8,7 @@ pub mod export;
 pub mod frames;
 pub mod import;
 pub mod logging;
+pub mod progress;
 pub mod publish;
 #[cfg(feature = "sim")]
 pub mod sim_camera;

@@ -106,7 +106,9 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         allow_poor_fit: a.allow_poor_fit,
         joint_noise_rad: a.joint_noise_rad,
     };
-    let outcome = solve_run(&request, &mut |line| tracing::info!("{line}"))?;
+    let activity = super::progress::Activity::start("solve");
+    let outcome = solve_run(&request, &mut |line| activity.note(line))?;
+    drop(activity);
     if !outcome.poor_views.is_empty() {
         tracing::warn!(
             "warning: views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF",

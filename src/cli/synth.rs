@@ -148,6 +148,10 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         ..SynthOptions::default()
     };
     let robot = std::sync::Arc::new(robot);
+    let activity = super::progress::Activity::start("synth");
+    if a.images.is_some() {
+        activity.note(&format!("rendering {} views with scene images", a.views));
+    }
     let imaged = match a.images {
         Some(preset) => Some(generate_frames(
             &robot,
@@ -171,6 +175,7 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         Some(imaged) => write_imaged_scene(imaged, entry, &a.out, a.seed, &noise)?,
         None => write_scene(&generate(&robot, &opts)?, entry, &a.out, a.seed, &noise)?,
     }
+    drop(activity);
     println!(
         "wrote {} views to {} (ground truth in ground_truth.json)",
         a.views,
