@@ -1,7 +1,8 @@
 //! The daemon's web page in headless Chromium, driven over WebDriver (Debian's `chromium` and
 //! `chromium-driver`): open `/?token=…`, click Calibrate, watch the run finish live, see the
-//! result with its uncertainty and the overlays, run a bump check; a screenshot goes to
-//! `target/daemon-browser.png`. Without Chromium the test fails under CI (`CI=true`) and
+//! result with its uncertainty, the overlays and the per-round chart, run a bump check,
+//! download every export format, and pick the run again from the history after a newer one to
+//! see its overlays; a screenshot goes to `target/daemon-browser.png`. Without Chromium the test fails under CI (`CI=true`) and
 //! prints SKIPPED elsewhere.
 
 mod daemon_common;
@@ -11,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use daemon_common::{start, write_config, TOKEN};
+use daemon_common::{call, get_bytes, start, wait_final, write_config, TOKEN};
 use serde_json::{json, Value};
 
 fn find(names: &[&str]) -> Option<PathBuf> {
@@ -223,32 +224,21 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
         );
         let url = js(&session, "return window.location.href");
         assert!(!url.as_str().unwrap().contains("token"), "{url}");
-        let button = wd(
-            "POST",
-            &format!("{session}/element"),
-            Some(json!({ "using": "css selector", "value": "#start" })),
-        );
-        let element = button
-            .as_object()
-            .and_then(|o| o.values().next())
-            .and_then(Value::as_str)
-            .expect("the button")
-            .to_string();
-        wd(
-            "POST",
-            &format!("{session}/element/{element}/click"),
-            Some(json!({})),
-        );
-        // Live progress: the state shows running, then succeeded.
+        previews_the_camera(&session);
+        let dry = draws_a_dry_runs_plan_without_moving(&session, &d);
+        click(&session, "#start");
+        // Live progress: the new run shows running, then succeeded.
+        let this_run =
+            format!("document.getElementById('cal-id').textContent.split(' ')[0] !== '{dry}'");
         wait_js(
             &session,
-            "const s = document.getElementById('state').textContent; return s === 'running' || s === 'succeeded'",
+            &format!("const s = document.getElementById('state').textContent; return {this_run} && (s === 'running' || s === 'succeeded')"),
             Duration::from_secs(20),
             "the run starting",
         );
         let id = wait_js(
             &session,
-            "return document.getElementById('state').textContent === 'succeeded' && document.getElementById('cal-id').textContent",
+            &format!("return {this_run} && document.getElementById('state').textContent === 'succeeded' && document.getElementById('cal-id').textContent"),
             Duration::from_secs(120),
             "the run finishing",
         );
@@ -315,13 +305,195 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             Duration::from_secs(30),
             "the bump check verdict",
         );
+        // The chart has a point per solved round.
+        let points = wait_js(
+            &session,
+            "const n = Number(document.getElementById('chart').dataset.points); return n >= 1 && n",
+            Duration::from_secs(10),
+            "the chart",
+        );
+        assert!(points.as_u64().unwrap() >= 1, "{points}");
+        downloads_every_export_format(&session, &d, &id);
         let target = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/daemon-browser.png");
         screenshot(&session, &target);
         eprintln!("screenshot: {}", target.display());
+        shows_a_past_runs_overlays(&session, &d, &id, views);
     }));
     let _ = agent().delete(&session).call();
     drop(driver);
     if let Err(e) = result {
         std::panic::resume_unwind(e);
     }
+}
+
+/// Clicks every download button: each fetch succeeds, and the daemon's file is exactly what
+/// `easyhec export` writes for that result.
+fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: &str) {
+    let formats = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
+    for format in formats {
+        let button = wd(
+            "POST",
+            &format!("{session}/element"),
+            Some(
+                json!({ "using": "css selector", "value": format!("#downloads button[data-format='{format}']") }),
+            ),
+        );
+        let element = button
+            .as_object()
+            .unwrap()
+            .values()
+            .next()
+            .unwrap()
+            .as_str()
+            .unwrap()
+            .to_string();
+        wd(
+            "POST",
+            &format!("{session}/element/{element}/click"),
+            Some(json!({})),
+        );
+    }
+    wait_js(
+        session,
+        "return [...document.querySelectorAll('#downloads button')].every(b => b.dataset.status === '200' && Number(b.dataset.bytes) > 0)",
+        Duration::from_secs(20),
+        "every download",
+    );
+    let record = d.daemon.store().record(id).unwrap();
+    let run_dir = d.daemon.store().dir().join(&record.run_dir);
+    let result = easyhec::run::ResultFile::read(&run_dir.join("result.json")).unwrap();
+    let edge = easyhec::daemon::exports::edge(None, &result).unwrap();
+    for format in formats {
+        let (code, _, body) = get_bytes(&format!(
+            "{}/api/v1/calibrations/{id}/export/{format}",
+            d.base
+        ));
+        assert_eq!(code, 200, "{format}");
+        let kind =
+            <easyhec::interop::ExportFormat as clap::ValueEnum>::from_str(format, false).unwrap();
+        let want = easyhec::interop::export(&result, kind, &edge).unwrap();
+        assert_eq!(String::from_utf8(body).unwrap(), want, "{format}");
+    }
+    let (code, _, body) = get_bytes(&format!("{}/api/v1/calibrations/{id}/export/yaml", d.base));
+    assert_eq!(code, 400, "{}", String::from_utf8_lossy(&body));
+}
+
+/// After a newer (dry) run, picking the first run in the history shows its overlays again.
+fn shows_a_past_runs_overlays(session: &str, d: &daemon_common::Running, id: &str, views: usize) {
+    let (code, body) = call(
+        "POST",
+        &format!("{}/api/v1/calibrations", d.base),
+        Some(&json!({"dry_run": true})),
+    );
+    assert_eq!(code, 202, "{body}");
+    let newer = body["id"].as_str().unwrap().to_string();
+    wait_final(&d.base, &newer);
+    wait_js(
+        session,
+        &format!("return document.getElementById('cal-id').textContent.startsWith('{newer}')"),
+        Duration::from_secs(30),
+        "the newer run on the page",
+    );
+    let pick = wd(
+        "POST",
+        &format!("{session}/element"),
+        Some(
+            json!({ "using": "css selector", "value": format!("#history button[data-id='{id}']") }),
+        ),
+    );
+    let element = pick
+        .as_object()
+        .unwrap()
+        .values()
+        .next()
+        .unwrap()
+        .as_str()
+        .unwrap()
+        .to_string();
+    wd(
+        "POST",
+        &format!("{session}/element/{element}/click"),
+        Some(json!({})),
+    );
+    let loaded = wait_js(
+        session,
+        &format!("const imgs = [...document.querySelectorAll('#overlays img')]; return document.getElementById('cal-id').textContent.startsWith('{id}') && imgs.length >= 1 && imgs.every(i => i.complete && i.naturalWidth === 320) && imgs.length"),
+        Duration::from_secs(30),
+        "the past run's overlays",
+    );
+    assert_eq!(loaded.as_u64(), Some(views as u64));
+    // It stays shown across the page's periodic refresh.
+    std::thread::sleep(Duration::from_secs(6));
+    let still = js(
+        session,
+        "return document.getElementById('cal-id').textContent",
+    );
+    assert!(still.as_str().unwrap().starts_with(id), "{still}");
+}
+
+/// Clicks `selector` (the first match).
+fn click(session: &str, selector: &str) {
+    let found = wd(
+        "POST",
+        &format!("{session}/element"),
+        Some(json!({ "using": "css selector", "value": selector })),
+    );
+    let element = found
+        .as_object()
+        .and_then(|o| o.values().next())
+        .and_then(Value::as_str)
+        .unwrap_or_else(|| panic!("no {selector}: {found}"))
+        .to_string();
+    wd(
+        "POST",
+        &format!("{session}/element/{element}/click"),
+        Some(json!({})),
+    );
+}
+
+/// "Preview camera" shows a live frame at the camera's size.
+fn previews_the_camera(session: &str) {
+    click(session, "#preview-button");
+    wait_js(
+        session,
+        "const i = document.getElementById('preview'); return !i.hidden && i.complete && i.naturalWidth === 320",
+        Duration::from_secs(20),
+        "the camera preview",
+    );
+}
+
+/// With "dry run" ticked, Calibrate plans and draws each planned pose over the first view,
+/// and the arm receives no command.
+fn draws_a_dry_runs_plan_without_moving(session: &str, d: &daemon_common::Running) -> String {
+    let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
+    let before = arm.commands().len();
+    click(session, "#dry-run");
+    click(session, "#start");
+    let drawn = wait_js(
+        session,
+        "const imgs = [...document.querySelectorAll('#overlays img')].filter(i => i.dataset.key.startsWith('plan-')); \
+         return document.getElementById('state').textContent === 'succeeded' && imgs.length > 0 \
+         && imgs.every(i => i.complete && i.naturalWidth === 320) && imgs.length",
+        Duration::from_secs(60),
+        "the planned poses",
+    );
+    let id = js(
+        session,
+        "return document.getElementById('cal-id').textContent",
+    );
+    let id = id
+        .as_str()
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .to_string();
+    let record = d.daemon.store().record(&id).unwrap();
+    assert!(record.dry_run, "{record:?}");
+    assert_eq!(drawn.as_u64(), record.planned_poses.map(|n| n as u64));
+    assert_eq!(arm.commands().len(), before, "a dry run moved the arm");
+    click(session, "#dry-run");
+    let ticked = js(session, "return document.getElementById('dry-run').checked");
+    assert_eq!(ticked, json!(false));
+    id
 }

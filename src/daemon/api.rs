@@ -73,6 +73,7 @@ impl IntoResponse for Refusal {
                 let what = match &b {
                     Busy::Calibration(id) => format!("calibration {id} is running"),
                     Busy::Check => "a bump check is running".to_string(),
+                    Busy::Preview => "a camera preview is being taken".to_string(),
                 };
                 (
                     StatusCode::CONFLICT,
@@ -110,6 +111,9 @@ fn guarded_routes() -> OpenApiRouter<Shared> {
         .routes(routes!(status))
         .routes(routes!(events))
         .routes(routes!(overlay))
+        .routes(routes!(export_file))
+        .routes(routes!(plan_overlay))
+        .routes(routes!(camera_preview))
         .routes(routes!(cancel))
         .routes(routes!(activate))
         .routes(routes!(active))
@@ -594,6 +598,145 @@ async fn render_overlay(
     let png = Bytes::from(png);
     d.overlays.put(key, png.clone());
     Ok(png)
+}
+
+/// Planned pose `k` of a dry run drawn over its first view: blue where the robot would be,
+/// red where it stands now, green where both are (the estimate of the dry run's view).
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}/plan/{k}/overlay.png", tag = "calibrations",
+    params(("id" = String, Path, description = "A dry run's id, `cal-NNNN`"),
+        ("k" = usize, Path, description = "A planned pose's index (0, 1, …)")),
+    responses(
+        (status = 200, description = "The planned pose over the first view", content_type = "image/png", body = Png),
+        (status = 400, description = "`k` is not an index", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "No such calibration, plan or pose", body = ErrorBody),
+        (status = 409, description = "No estimate to draw with", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn plan_overlay(
+    State(d): State<Shared>,
+    Path((id, k)): Path<(String, String)>,
+) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
+    let k: usize = k
+        .parse()
+        .map_err(|_| Refusal::BadRequest(format!("pose {k:?}: use a pose index (0, 1, …)")))?;
+    let record = d
+        .status(&id)
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let (run_dir, mut view) = overlay_view(&d, &record, 0)?;
+    let rows = record.camera_from_base.ok_or_else(|| {
+        Refusal::Conflict(format!(
+            "calibration {id} has no estimate to draw its plan with"
+        ))
+    })?;
+    view.joints = super::plan::pose(&run_dir, k, d.cell().robot.actuated.len())?;
+    let pose = from_rows(&rows).map_err(Refusal::Internal)?;
+    let cell = d.cell().clone();
+    let png =
+        tokio::task::spawn_blocking(move || overlays::render(&cell, &run_dir, 0, &view, &pose))
+            .await
+            .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        png,
+    )
+        .into_response())
+}
+
+/// One live camera frame, to frame the camera before a run. It takes the arm-and-camera
+/// lease for the grab, so it never competes with a run's or a check's capture (409 then).
+#[utoipa::path(get, path = "/api/v1/camera/preview.png", tag = "service",
+    responses(
+        (status = 200, description = "The frame", content_type = "image/png", body = Png),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 409, description = "The camera is in use; `running` names the holder", body = ErrorBody),
+        (status = 500, description = "The camera failed", body = ErrorBody),
+        (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
+    d.lease(Busy::Preview)?;
+    // On its own task: a client that hangs up mid-grab must not leave the lease taken.
+    let holder = d.clone();
+    let frame = tokio::spawn(async move {
+        let frame = holder.cell().camera.grab().await;
+        holder.release(&Busy::Preview);
+        frame
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("preview task: {e}")))?
+    .map_err(|e| Refusal::Internal(format!("camera: {e}")))?;
+    let png = tokio::task::spawn_blocking(move || {
+        let img =
+            image::RgbImage::from_raw(frame.width, frame.height, frame.rgb).ok_or_else(|| {
+                Refusal::Internal("camera: frame size does not match its pixels".into())
+            })?;
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Png)
+            .map_err(|e| Refusal::Internal(format!("encoding the preview: {e}")))?;
+        Ok::<_, Refusal>(bytes.into_inner())
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("preview task: {e}")))??;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png"),
+            (header::CACHE_CONTROL, "no-store"),
+        ],
+        png,
+    )
+        .into_response())
+}
+
+/// The calibration's result in another tool's form, as a download (the same text as
+/// `easyhec export`; the ROS forms use the config's `[ros2]` frames when it has them).
+#[utoipa::path(get, path = "/api/v1/calibrations/{id}/export/{format}", tag = "calibrations",
+    params(("id" = String, Path, description = "A calibration id, `cal-NNNN`"),
+        ("format" = String, Path, description = "opencv, ros, easy-handeye, easy-handeye-ros1 or urdf")),
+    responses(
+        (status = 200, description = "The file, with Content-Disposition naming it", content_type = "text/plain", body = String),
+        (status = 400, description = "Unknown format", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 404, description = "No such calibration, or it has no result", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn export_file(
+    State(d): State<Shared>,
+    Path((id, format)): Path<(String, String)>,
+) -> Result<Response, Refusal> {
+    let id = daemon_id(id)?;
+    let format = <crate::interop::ExportFormat as clap::ValueEnum>::from_str(&format, false)
+        .map_err(|_| {
+            Refusal::BadRequest(format!(
+                "format {format:?}: allowed: opencv, ros, easy-handeye, easy-handeye-ros1, urdf"
+            ))
+        })?;
+    let record = d
+        .status(&id)
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let store = d.store();
+    let run_dir = inside(store.dir(), store.canonical_dir(), &record.run_dir)
+        .map_err(|m| Refusal::Conflict(format!("calibration {id}: run_dir: {m}")))?;
+    let result = crate::run::ResultFile::read(&run_dir.join("result.json"))
+        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no result")))?;
+    let settings = d.cell().config.ros2.as_ref();
+    let (name, text) = super::exports::render(&id, settings, &result, format)
+        .map_err(|e| Refusal::Conflict(format!("calibration {id}: {e}")))?;
+    Ok((
+        [
+            (
+                header::CONTENT_TYPE,
+                "text/plain; charset=utf-8".to_string(),
+            ),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{name}\""),
+            ),
+        ],
+        text,
+    )
+        .into_response())
 }
 
 /// Cancels a running calibration: the arm is stopped first.

@@ -20,9 +20,11 @@
 pub mod activation;
 pub mod api;
 pub mod bump;
+pub mod exports;
 pub mod http;
 pub mod openapi;
 pub mod overlays;
+pub mod plan;
 pub mod reconcile;
 pub mod store;
 #[cfg(unix)]
@@ -68,6 +70,8 @@ pub enum Busy {
     Calibration(String),
     /// A bump check.
     Check,
+    /// A camera preview for the page.
+    Preview,
 }
 
 impl Busy {
@@ -76,6 +80,7 @@ impl Busy {
         match self {
             Busy::Calibration(id) => id,
             Busy::Check => "check",
+            Busy::Preview => "preview",
         }
     }
 }
@@ -503,6 +508,11 @@ impl Daemon {
                 // check against the active calibration at once (it got 409 in between).
                 if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
                     self.activate_new(&id, &o.result);
+                }
+                if opts.dry_run {
+                    if let Err(e) = plan::write(&o.run_dir, &o.planned) {
+                        tracing::error!("easyhec daemon: {id}: cannot keep the plan: {e}");
+                    }
                 }
                 self.finish(job, state, |r| {
                     r.stop_reason = Some(o.result.stop_reason.clone());

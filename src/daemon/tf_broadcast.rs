@@ -8,7 +8,6 @@ use std::time::Duration;
 
 use crate::config::ros2::Ros2Settings;
 use crate::error::{Error, Result};
-use crate::interop::tf_edge::transform_from_parts;
 use crate::interop::TfEdge;
 use crate::ros2::tf::{StaticTfPublisher, TfListener};
 use crate::ros2::{domain_id_from_env, join, GraphPlace};
@@ -112,18 +111,7 @@ fn publish(
     publisher: &StaticTfPublisher,
     result: &ResultFile,
 ) -> Result<TfEdge> {
-    let optical_from_child = settings
-        .optical_from_child
-        .map(|v| transform_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]))
-        .transpose()
-        .map_err(|m| Error::Usage(format!("ros2.optical_from_child {m}")))?;
-    let edge = TfEdge::from_result(
-        result,
-        settings.frame_id.as_deref(),
-        &settings.child_frame_id,
-        optical_from_child.as_ref(),
-        ["ros2.frame_id", "ros2.child_frame_id"],
-    )?;
+    let edge = super::exports::edge(Some(settings), result)?;
     let tree = listener.gather(
         Duration::from_secs_f64(settings.listen_s),
         Some(publisher.gid()),

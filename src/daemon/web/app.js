@@ -11,6 +11,10 @@ const $ = (id) => document.getElementById(id);
 let following = null; // id whose event stream is open
 let shownId = null; // calibration whose views are in the overlay strip
 const overlayViews = new Map(); // view index -> <img>
+let pinned = null; // a past calibration the user picked in the history, shown until cleared
+const EXPORT_FORMATS = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
+const rounds = []; // per-round points of the calibration in the chart
+let chartId = null;
 
 function token() {
   return sessionStorage.getItem(TOKEN_KEY);
@@ -100,18 +104,30 @@ function resetOverlays(id) {
 }
 
 async function loadOverlay(id, n) {
-  let img = overlayViews.get(n);
+  const url = "/api/v1/calibrations/" + encodeURIComponent(id) + "/views/" + n + "/overlay.png";
+  await loadImage(id, n, "view " + n, url);
+}
+
+// A dry run's planned pose `k`, drawn over its first view.
+async function loadPlanned(id, k) {
+  const url = "/api/v1/calibrations/" + encodeURIComponent(id) + "/plan/" + k + "/overlay.png";
+  await loadImage(id, "plan-" + k, "planned pose " + (k + 1), url);
+}
+
+async function loadImage(id, key, caption, url) {
+  let img = overlayViews.get(key);
   if (!img) {
     const fig = document.createElement("figure");
     img = document.createElement("img");
-    img.alt = "view " + n;
+    img.alt = caption;
+    img.dataset.key = String(key);
     const cap = document.createElement("figcaption");
-    cap.textContent = "view " + n;
+    cap.textContent = caption;
     fig.append(img, cap);
     $("overlays").append(fig);
-    overlayViews.set(n, img);
+    overlayViews.set(key, img);
   }
-  const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/views/" + n + "/overlay.png");
+  const resp = await api(url);
   if (!resp.ok || shownId !== id) return;
   const blob = await resp.blob();
   const old = img.src;
@@ -126,11 +142,118 @@ async function showOverlays(s, reloadAll) {
   for (let n = 0; n < s.views; n++) {
     if (reloadAll || !overlayViews.has(n)) await loadOverlay(s.id, n);
   }
+  const planned = s.dry_run && s.planned_poses ? s.planned_poses : 0;
+  for (let k = 0; k < planned; k++) {
+    if (reloadAll || !overlayViews.has("plan-" + k)) await loadPlanned(s.id, k);
+  }
+}
+
+// The result's forms as download buttons, once the calibration has a result.
+function showDownloads(s) {
+  const box = $("downloads");
+  const ready = Boolean(s.camera_from_base) && !s.dry_run && !["running", "queued"].includes(s.state);
+  if (box.dataset.id === s.id && box.dataset.ready === String(ready)) return;
+  box.dataset.id = s.id;
+  box.dataset.ready = String(ready);
+  if (!ready) {
+    const note = document.createElement("span");
+    note.className = "muted";
+    note.textContent = "Exports appear when a run has a result.";
+    box.replaceChildren(note);
+    return;
+  }
+  box.replaceChildren(
+    ...EXPORT_FORMATS.map((format) => {
+      const b = document.createElement("button");
+      b.textContent = format;
+      b.dataset.format = format;
+      b.onclick = () => download(s.id, format, b);
+      return b;
+    }),
+  );
+}
+
+// Fetches an export with the token (a plain link cannot send it) and saves it under the
+// name the daemon gives.
+async function download(id, format, button) {
+  const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/export/" + format);
+  button.dataset.status = String(resp.status);
+  if (!resp.ok) {
+    const body = await resp.json().catch(() => null);
+    $("message").textContent = (body && body.error) || "HTTP " + resp.status;
+    return;
+  }
+  const blob = await resp.blob();
+  const named = (resp.headers.get("Content-Disposition") || "").match(/filename="([^"]+)"/);
+  const a = document.createElement("a");
+  a.href = URL.createObjectURL(blob);
+  a.download = named ? named[1] : id + "." + format;
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+  button.dataset.bytes = String(blob.size);
+}
+
+// One point per solved round: loss, best variance and the 1-sigma translation's norm.
+function recordRound(s) {
+  if (chartId !== s.id) {
+    chartId = s.id;
+    rounds.length = 0;
+  }
+  if (s.round === null || s.round === undefined) return drawChart();
+  const u = s.uncertainty ? Math.hypot(...s.uncertainty.translation_mm) : null;
+  const point = { round: s.round, loss: s.loss, variance: s.best_variance, unc: u };
+  const i = rounds.findIndex((p) => p.round === s.round);
+  if (i >= 0) rounds[i] = point;
+  else rounds.push(point);
+  drawChart();
+}
+
+function drawChart() {
+  const c = $("chart");
+  const g = c.getContext("2d");
+  const [w, h, pad] = [c.width, c.height, 12];
+  g.clearRect(0, 0, w, h);
+  g.strokeStyle = "#d0d5dd";
+  g.strokeRect(pad, pad, w - 2 * pad, h - 2 * pad);
+  c.dataset.points = String(rounds.length);
+  const x = (i) => pad + (rounds.length > 1 ? (i * (w - 2 * pad)) / (rounds.length - 1) : (w - 2 * pad) / 2);
+  for (const [key, colour] of [["loss", "#2454c5"], ["variance", "#b42318"], ["unc", "#1a7f37"]]) {
+    const values = rounds.map((p) => p[key]);
+    const finite = values.filter((v) => v !== null && v !== undefined && Number.isFinite(v));
+    if (!finite.length) continue;
+    const top = Math.max(...finite) || 1;
+    g.strokeStyle = g.fillStyle = colour;
+    g.beginPath();
+    let started = false;
+    values.forEach((v, i) => {
+      if (v === null || v === undefined || !Number.isFinite(v)) return;
+      const y = h - pad - (v / top) * (h - 2 * pad);
+      if (started) g.lineTo(x(i), y);
+      else g.moveTo(x(i), y);
+      started = true;
+      g.fillRect(x(i) - 2, y - 2, 4, 4);
+    });
+    g.stroke();
+  }
+}
+
+// A past calibration picked in the history: its status, overlays and exports stay shown
+// until another is picked or a run starts.
+function showPast(c) {
+  pinned = c.id;
+  showStatus(c);
+  if (chartId !== c.id) recordRound(c);
+  showDownloads(c);
+  showOverlays(c, true);
 }
 
 function handleEvent(e) {
   const s = e.status;
   showStatus(s);
+  showDownloads(s);
+  if (e.kind === "round" || e.kind === "state") recordRound(s);
   if (e.kind === "round") showOverlays(s, false);
   if (e.kind === "state" && s.state !== "running" && s.state !== "queued") {
     showOverlays(s, true);
@@ -214,7 +337,7 @@ function showHistory(list, activeId) {
   const rows = list.map((c) => {
     const tr = document.createElement("tr");
     const cells = [
-      c.id + (c.id === activeId ? " ★" : ""),
+      null,
       c.state,
       String(c.views),
       c.started_at || c.created_at,
@@ -222,6 +345,16 @@ function showHistory(list, activeId) {
     ];
     for (const [i, text] of cells.entries()) {
       const td = document.createElement("td");
+      if (i === 0) {
+        const show = document.createElement("button");
+        show.className = "link";
+        show.dataset.id = c.id;
+        show.textContent = c.id + (c.id === activeId ? " ★" : "");
+        show.onclick = () => showPast(c);
+        td.append(show);
+        tr.append(td);
+        continue;
+      }
       td.textContent = text;
       if (i === 1) td.className = "state " + c.state;
       tr.append(td);
@@ -258,10 +391,16 @@ async function refresh() {
     showActive(active.status === 200 ? active.body : null);
     showCheck(checks.body && checks.body.checks && checks.body.checks[0]);
     const live = list.find((c) => c.state === "running" || c.state === "queued");
+    const picked = pinned && list.find((c) => c.id === pinned);
     if (live) {
+      pinned = null;
       follow(live.id);
+    } else if (picked && !following) {
+      showStatus(picked);
+      showDownloads(picked);
     } else if (list.length && !following) {
       showStatus(list[0]);
+      showDownloads(list[0]);
       if (shownId !== list[0].id) showOverlays(list[0], true);
     }
   } catch (err) {
@@ -271,8 +410,10 @@ async function refresh() {
 
 async function start() {
   $("message").textContent = "";
+  pinned = null;
   const mv = parseInt($("max-views").value, 10);
   const body = Number.isFinite(mv) ? { max_views: mv } : {};
+  if ($("dry-run").checked) body.dry_run = true;
   const { status, body: reply } = await json("/api/v1/calibrations", {
     method: "POST",
     headers: { "Content-Type": "application/json" },
@@ -283,6 +424,22 @@ async function start() {
   } else {
     $("message").textContent = (reply && reply.error) || "HTTP " + status;
   }
+}
+
+// One live frame from the camera, to frame it before a run.
+async function preview() {
+  $("message").textContent = "";
+  const resp = await api("/api/v1/camera/preview.png");
+  if (!resp.ok) {
+    const body = await resp.json().catch(() => null);
+    $("message").textContent = (body && body.error) || "HTTP " + resp.status;
+    return;
+  }
+  const img = $("preview");
+  const old = img.src;
+  img.src = URL.createObjectURL(await resp.blob());
+  img.hidden = false;
+  if (old && old.startsWith("blob:")) URL.revokeObjectURL(old);
 }
 
 async function cancel() {
@@ -320,6 +477,7 @@ function boot() {
   $("start").onclick = start;
   $("cancel").onclick = cancel;
   $("check").onclick = check;
+  $("preview-button").onclick = preview;
   refresh();
 }
 
