@@ -280,25 +280,7 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             "return document.getElementById('history').textContent",
         );
         assert!(history.as_str().unwrap().contains(&id), "{history}");
-        let check = wd(
-            "POST",
-            &format!("{session}/element"),
-            Some(json!({ "using": "css selector", "value": "#check" })),
-        );
-        let check = check
-            .as_object()
-            .unwrap()
-            .values()
-            .next()
-            .unwrap()
-            .as_str()
-            .unwrap()
-            .to_string();
-        wd(
-            "POST",
-            &format!("{session}/element/{check}/click"),
-            Some(json!({})),
-        );
+        click(&session, "#check");
         wait_js(
             &session,
             "return document.getElementById('check-verdict').textContent === 'camera has not moved'",
@@ -331,26 +313,9 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
 fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: &str) {
     let formats = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
     for format in formats {
-        let button = wd(
-            "POST",
-            &format!("{session}/element"),
-            Some(
-                json!({ "using": "css selector", "value": format!("#downloads button[data-format='{format}']") }),
-            ),
-        );
-        let element = button
-            .as_object()
-            .unwrap()
-            .values()
-            .next()
-            .unwrap()
-            .as_str()
-            .unwrap()
-            .to_string();
-        wd(
-            "POST",
-            &format!("{session}/element/{element}/click"),
-            Some(json!({})),
+        click(
+            session,
+            &format!("#downloads button[data-format='{format}']"),
         );
     }
     wait_js(
@@ -394,27 +359,7 @@ fn shows_a_past_runs_overlays(session: &str, d: &daemon_common::Running, id: &st
         Duration::from_secs(30),
         "the newer run on the page",
     );
-    let pick = wd(
-        "POST",
-        &format!("{session}/element"),
-        Some(
-            json!({ "using": "css selector", "value": format!("#history button[data-id='{id}']") }),
-        ),
-    );
-    let element = pick
-        .as_object()
-        .unwrap()
-        .values()
-        .next()
-        .unwrap()
-        .as_str()
-        .unwrap()
-        .to_string();
-    wd(
-        "POST",
-        &format!("{session}/element/{element}/click"),
-        Some(json!({})),
-    );
+    click(session, &format!("#history button[data-id='{id}']"));
     let loaded = wait_js(
         session,
         &format!("const imgs = [...document.querySelectorAll('#overlays img')]; return document.getElementById('cal-id').textContent.startsWith('{id}') && imgs.length >= 1 && imgs.every(i => i.complete && i.naturalWidth === 320) && imgs.length"),

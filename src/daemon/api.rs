@@ -278,6 +278,18 @@ fn daemon_id(id: String) -> Result<String, Refusal> {
     }
 }
 
+/// A calibration's record, or 404.
+fn record_of(d: &Daemon, id: &str) -> Result<CalibrationRecord, Refusal> {
+    d.status(id)
+        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))
+}
+
+/// A view or pose index from a path, or 400 naming what it should be.
+fn path_index(text: &str, what: &str) -> Result<usize, Refusal> {
+    text.parse()
+        .map_err(|_| Refusal::BadRequest(format!("{what} {text:?}: use a {what} index (0, 1, …)")))
+}
+
 async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
     let read_only = matches!(
         *req.method(),
@@ -416,9 +428,7 @@ async fn history(State(d): State<Shared>) -> Json<History> {
     security((), ("bearer" = [])))]
 async fn status(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
-    d.status(&id)
-        .map(|r| Json(r).into_response())
-        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))
+    record_of(&d, &id).map(|r| Json(r).into_response())
 }
 
 fn sse_event(e: &Event) -> SseEvent {
@@ -441,9 +451,7 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
     let id = daemon_id(id)?;
     // Subscribe before reading the snapshot so no event falls between them.
     let rx: Option<broadcast::Receiver<Event>> = d.job(&id).map(|j| j.subscribe());
-    let snapshot = d
-        .status(&id)
-        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let snapshot = record_of(&d, &id)?;
     let first = Event {
         kind: "state".into(),
         view: None,
@@ -508,12 +516,8 @@ async fn overlay(
     Path((id, n)): Path<(String, String)>,
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
-    let n: usize = n
-        .parse()
-        .map_err(|_| Refusal::BadRequest(format!("view {n:?}: use a view index (0, 1, …)")))?;
-    let record = d
-        .status(&id)
-        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let n = path_index(&n, "view")?;
+    let record = record_of(&d, &id)?;
     let (run_dir, view) = overlay_view(&d, &record, n)?;
     let rows = record.camera_from_base.ok_or_else(|| {
         Refusal::Conflict(format!(
@@ -617,12 +621,8 @@ async fn plan_overlay(
     Path((id, k)): Path<(String, String)>,
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
-    let k: usize = k
-        .parse()
-        .map_err(|_| Refusal::BadRequest(format!("pose {k:?}: use a pose index (0, 1, …)")))?;
-    let record = d
-        .status(&id)
-        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let k = path_index(&k, "pose")?;
+    let record = record_of(&d, &id)?;
     let (run_dir, mut view) = overlay_view(&d, &record, 0)?;
     let rows = record.camera_from_base.ok_or_else(|| {
         Refusal::Conflict(format!(
@@ -712,9 +712,7 @@ async fn export_file(
                 "format {format:?}: allowed: opencv, ros, easy-handeye, easy-handeye-ros1, urdf"
             ))
         })?;
-    let record = d
-        .status(&id)
-        .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
+    let record = record_of(&d, &id)?;
     let store = d.store();
     let run_dir = inside(store.dir(), store.canonical_dir(), &record.run_dir)
         .map_err(|m| Refusal::Conflict(format!("calibration {id}: run_dir: {m}")))?;
