@@ -625,6 +625,8 @@ fn spawn_daemon_logged(
         .arg("--data")
         .arg(data)
         .env_remove("EASYHEC_TOKEN")
+        .env_remove("RUST_LOG")
+        .env_remove("EASYHEC_LOG_FORMAT")
         .stderr(Stdio::piped())
         .spawn()
         .expect("easyhec runs");
@@ -1459,16 +1461,34 @@ fn every_request_gets_one_access_line() {
 }
 
 /// Every documented operation, as (method, path with its parameters filled in, whether the
-/// token is required, whether it is accepted).
-fn documented_operations(doc: &Value) -> Vec<(String, String, bool, bool)> {
+/// token is required, whether it is accepted, its documented statuses).
+type Operation = (String, String, bool, bool, Vec<u16>);
+
+fn documented_operations(doc: &Value) -> Vec<Operation> {
     let mut ops = Vec::new();
     for (path, item) in doc["paths"].as_object().expect("paths") {
         for (method, op) in item.as_object().unwrap() {
             let security = op["security"].as_array().cloned().unwrap_or_default();
             let bearer = security.iter().any(|s| s.get("bearer").is_some());
             let optional = security.is_empty() || security.iter().any(|s| s == &json!({}));
-            let url = path.replace("{id}", "cal-0999").replace("{n}", "0");
-            ops.push((method.to_uppercase(), url, bearer && !optional, bearer));
+            let url = path
+                .replace("{id}", "cal-0999")
+                .replace("{n}", "0")
+                .replace("{k}", "0")
+                .replace("{format}", "opencv");
+            let codes = op["responses"]
+                .as_object()
+                .unwrap()
+                .keys()
+                .map(|k| k.parse().unwrap())
+                .collect();
+            ops.push((
+                method.to_uppercase(),
+                url,
+                bearer && !optional,
+                bearer,
+                codes,
+            ));
         }
     }
     ops
@@ -1493,8 +1513,12 @@ fn the_openapi_document_and_the_router_agree() {
         let base = &d.base;
         let (code, served) = call_as("GET", &format!("{base}/openapi.json"), None, None);
         assert_eq!((code, &served), (200, &generated), "served != generated");
-        for (method, path, required, accepted) in &ops {
+        for (method, path, required, accepted, codes) in &ops {
             let (code, body) = call_as(method, &format!("{base}{path}"), None, None);
+            assert!(
+                codes.contains(&code),
+                "{method} {path} answered {code}, not among its documented {codes:?}: {body}"
+            );
             let routed = !body["error"]
                 .as_str()
                 .unwrap_or("")

@@ -359,7 +359,14 @@ fn shows_a_past_runs_overlays(session: &str, d: &daemon_common::Running, id: &st
         Duration::from_secs(30),
         "the newer run on the page",
     );
-    click(session, &format!("#history button[data-id='{id}']"));
+    // In one script: the history table is rebuilt every 5 s, so a found element can go stale
+    // before a separate click reaches it.
+    js(
+        session,
+        &format!(
+            "document.querySelector(\"#history button[data-id='{id}']\").click(); return true"
+        ),
+    );
     let loaded = wait_js(
         session,
         &format!("const imgs = [...document.querySelectorAll('#overlays img')]; return document.getElementById('cal-id').textContent.startsWith('{id}') && imgs.length >= 1 && imgs.every(i => i.complete && i.naturalWidth === 320) && imgs.length"),

@@ -29,9 +29,6 @@ pub struct CalibrateArgs {
     /// Ask before each move.
     #[arg(long)]
     pub confirm: bool,
-    /// No progress bars.
-    #[arg(long)]
-    pub quiet: bool,
     /// Renderer: cpu, wgpu or auto (overrides `[calibration] renderer`).
     #[arg(long)]
     pub renderer: Option<RendererChoice>,
@@ -67,7 +64,8 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
     let opts = RunOptions {
         dry_run: a.dry_run,
         confirm,
-        progress: !a.quiet,
+        // The bar shows at the default log level and above (the global `--quiet` hides it).
+        progress: tracing::enabled!(tracing::Level::INFO),
         ..RunOptions::default()
     };
     let runtime = super::runtime()?;

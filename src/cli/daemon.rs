@@ -44,8 +44,9 @@ pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
             .await
             .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
         let addr = listener.local_addr().context("reading the bound address")?;
-        // Tests and supervisors read this line for the port.
-        tracing::info!(
+        // Output, not a diagnostic: tests and supervisors read this line for the port, so it
+        // is written whatever the log level or format.
+        eprintln!(
             "easyhec daemon listening on http://{addr} (data {})",
             data.display()
         );

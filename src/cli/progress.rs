@@ -16,7 +16,10 @@ pub struct Activity {
 impl Activity {
     /// Starts the spinner labelled `what` (hidden off a terminal or under `--quiet`).
     pub fn start(what: &str) -> Self {
-        let shown = std::io::stderr().is_terminal() && tracing::enabled!(tracing::Level::INFO);
+        // Hidden at debug level too: the solver's records would be written over it.
+        let shown = std::io::stderr().is_terminal()
+            && tracing::enabled!(tracing::Level::INFO)
+            && !tracing::enabled!(tracing::Level::DEBUG);
         if !shown {
             return Activity {
                 pb: ProgressBar::hidden(),

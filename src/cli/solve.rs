@@ -111,7 +111,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     drop(activity);
     if !outcome.poor_views.is_empty() {
         tracing::warn!(
-            "warning: views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF",
+            "views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF",
             outcome.poor_views
         );
     }

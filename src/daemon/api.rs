@@ -113,12 +113,17 @@ fn guarded_routes() -> OpenApiRouter<Shared> {
         .routes(routes!(overlay))
         .routes(routes!(export_file))
         .routes(routes!(plan_overlay))
-        .routes(routes!(camera_preview))
         .routes(routes!(cancel))
         .routes(routes!(activate))
         .routes(routes!(active))
         .routes(routes!(run_check, checks))
         .routes(routes!(metrics))
+}
+
+/// Routes that read but always need the token: the camera preview shows the cell and holds
+/// the camera while it grabs.
+fn strict_routes() -> OpenApiRouter<Shared> {
+    OpenApiRouter::new().routes(routes!(camera_preview))
 }
 
 /// The routes that are always open.
@@ -135,6 +140,7 @@ pub fn routes() -> OpenApiRouter<Shared> {
     OpenApiRouter::with_openapi(openapi::ApiRoot::openapi())
         .merge(open_routes())
         .merge(guarded_routes())
+        .merge(strict_routes())
 }
 
 /// The whole router: [`routes`], the token check on the guarded ones, JSON errors, the body
@@ -142,9 +148,12 @@ pub fn routes() -> OpenApiRouter<Shared> {
 pub fn router(daemon: Shared) -> Router {
     let (guarded, _) = guarded_routes().split_for_parts();
     let guarded = guarded.route_layer(middleware::from_fn_with_state(daemon.clone(), auth));
+    let (strict, _) = strict_routes().split_for_parts();
+    let strict = strict.route_layer(middleware::from_fn_with_state(daemon.clone(), auth_always));
     let (open, _) = open_routes().split_for_parts();
     let router = open
         .merge(guarded)
+        .merge(strict)
         .fallback(|| async {
             (
                 StatusCode::NOT_FOUND,
@@ -278,6 +287,34 @@ fn daemon_id(id: String) -> Result<String, Refusal> {
     }
 }
 
+/// Longest wait for a preview frame.
+const PREVIEW_GRAB: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// The preview's hold on the camera, given back when dropped.
+struct PreviewLease(Shared);
+
+impl Drop for PreviewLease {
+    fn drop(&mut self) {
+        self.0.release(&Busy::Preview);
+    }
+}
+
+/// `name` in a calibration's run directory, checked to lie inside the data folder (the
+/// records and the folder are read back from disk, so they are not trusted).
+fn run_file(
+    d: &Daemon,
+    record: &CalibrationRecord,
+    name: &str,
+) -> Result<std::path::PathBuf, Refusal> {
+    let store = d.store();
+    inside(
+        store.dir(),
+        store.canonical_dir(),
+        &format!("{}/{name}", record.run_dir),
+    )
+    .map_err(|m| Refusal::Conflict(format!("calibration {}: {name}: {m}", record.id)))
+}
+
 /// A calibration's record, or 404.
 fn record_of(d: &Daemon, id: &str) -> Result<CalibrationRecord, Refusal> {
     d.status(id)
@@ -290,6 +327,7 @@ fn path_index(text: &str, what: &str) -> Result<usize, Refusal> {
         .map_err(|_| Refusal::BadRequest(format!("{what} {text:?}: use a {what} index (0, 1, …)")))
 }
 
+/// The token check of the guarded routes: reads pass without it unless `protect_reads`.
 async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
     let read_only = matches!(
         *req.method(),
@@ -298,6 +336,11 @@ async fn auth(State(d): State<Shared>, req: Request, next: Next) -> Response {
     if read_only && !d.settings().protect_reads {
         return next.run(req).await;
     }
+    auth_always(State(d), req, next).await
+}
+
+/// The token check, whatever the method.
+async fn auth_always(State(d): State<Shared>, req: Request, next: Next) -> Response {
     let given = req
         .headers()
         .get(header::AUTHORIZATION)
@@ -509,7 +552,8 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
         (status = 400, description = "`n` is not a view index", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration or view", body = ErrorBody),
-        (status = 409, description = "No estimate yet", body = ErrorBody)),
+        (status = 409, description = "No estimate yet, or a file leaves the data folder", body = ErrorBody),
+        (status = 500, description = "A recorded file does not read back", body = ErrorBody)),
     security((), ("bearer" = [])))]
 async fn overlay(
     State(d): State<Shared>,
@@ -614,7 +658,8 @@ async fn render_overlay(
         (status = 400, description = "`k` is not an index", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration, plan or pose", body = ErrorBody),
-        (status = 409, description = "No estimate to draw with", body = ErrorBody)),
+        (status = 409, description = "No estimate to draw with, or a file leaves the data folder", body = ErrorBody),
+        (status = 500, description = "plan.json or a view's files do not read back", body = ErrorBody)),
     security((), ("bearer" = [])))]
 async fn plan_overlay(
     State(d): State<Shared>,
@@ -629,13 +674,15 @@ async fn plan_overlay(
             "calibration {id} has no estimate to draw its plan with"
         ))
     })?;
-    view.joints = super::plan::pose(&run_dir, k, d.cell().robot.actuated.len())?;
+    let plan = run_file(&d, &record, "plan.json")?;
     let pose = from_rows(&rows).map_err(Refusal::Internal)?;
     let cell = d.cell().clone();
-    let png =
-        tokio::task::spawn_blocking(move || overlays::render(&cell, &run_dir, 0, &view, &pose))
-            .await
-            .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
+    let png = tokio::task::spawn_blocking(move || {
+        view.joints = super::plan::pose(&plan, k, cell.robot.actuated.len())?;
+        overlays::render(&cell, &run_dir, 0, &view, &pose)
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
     Ok((
         [
             (header::CONTENT_TYPE, "image/png"),
@@ -651,22 +698,29 @@ async fn plan_overlay(
 #[utoipa::path(get, path = "/api/v1/camera/preview.png", tag = "service",
     responses(
         (status = 200, description = "The frame", content_type = "image/png", body = Png),
-        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
+        (status = 401, description = "Missing or wrong token (always needed: it shows the cell and holds the camera)", body = ErrorBody),
         (status = 409, description = "The camera is in use; `running` names the holder", body = ErrorBody),
         (status = 500, description = "The camera failed", body = ErrorBody),
         (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
-    security((), ("bearer" = [])))]
+    security(("bearer" = [])))]
 async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
     d.lease(Busy::Preview)?;
-    // On its own task: a client that hangs up mid-grab must not leave the lease taken.
-    let holder = d.clone();
+    // On its own task, released by a guard: a client that hangs up, a grab that panics or
+    // one that never returns must not leave the lease taken.
+    let lease = PreviewLease(d.clone());
     let frame = tokio::spawn(async move {
-        let frame = holder.cell().camera.grab().await;
-        holder.release(&Busy::Preview);
-        frame
+        let grabbed = tokio::time::timeout(PREVIEW_GRAB, lease.0.cell().camera.grab()).await;
+        drop(lease);
+        grabbed
     })
     .await
     .map_err(|e| Refusal::Internal(format!("preview task: {e}")))?
+    .map_err(|_| {
+        Refusal::Internal(format!(
+            "camera: no frame within {} s",
+            PREVIEW_GRAB.as_secs()
+        ))
+    })?
     .map_err(|e| Refusal::Internal(format!("camera: {e}")))?;
     let png = tokio::task::spawn_blocking(move || {
         let img =
@@ -699,7 +753,9 @@ async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
         (status = 200, description = "The file, with Content-Disposition naming it", content_type = "text/plain", body = String),
         (status = 400, description = "Unknown format", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
-        (status = 404, description = "No such calibration, or it has no result", body = ErrorBody)),
+        (status = 404, description = "No such calibration, or it has no result", body = ErrorBody),
+        (status = 409, description = "The run directory leaves the data folder, or a frame name cannot be written", body = ErrorBody),
+        (status = 500, description = "result.json does not read back", body = ErrorBody)),
     security((), ("bearer" = [])))]
 async fn export_file(
     State(d): State<Shared>,
@@ -713,14 +769,19 @@ async fn export_file(
             ))
         })?;
     let record = record_of(&d, &id)?;
-    let store = d.store();
-    let run_dir = inside(store.dir(), store.canonical_dir(), &record.run_dir)
-        .map_err(|m| Refusal::Conflict(format!("calibration {id}: run_dir: {m}")))?;
-    let result = crate::run::ResultFile::read(&run_dir.join("result.json"))
-        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no result")))?;
-    let settings = d.cell().config.ros2.as_ref();
-    let (name, text) = super::exports::render(&id, settings, &result, format)
-        .map_err(|e| Refusal::Conflict(format!("calibration {id}: {e}")))?;
+    let path = run_file(&d, &record, "result.json")?;
+    let settings = d.cell().config.ros2.clone();
+    let (name, text) = tokio::task::spawn_blocking(move || {
+        if !path.is_file() {
+            return Err(Refusal::NotFound(format!("calibration {id} has no result")));
+        }
+        let result = crate::run::ResultFile::read(&path)
+            .map_err(|e| Refusal::Internal(format!("calibration {id}: {e}")))?;
+        super::exports::render(&id, settings.as_ref(), &result, format)
+            .map_err(|e| Refusal::Conflict(format!("calibration {id}: {e}")))
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("export task: {e}")))??;
     Ok((
         [
             (

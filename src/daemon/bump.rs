@@ -78,6 +78,7 @@ pub async fn check(
         Ok(v) => v,
         Err(e) => {
             m.check_errors.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!("easyhec daemon: {trigger} bump check failed: {e}");
             return Err(Refusal::Internal(format!("bump check failed: {e}")));
         }
     };
@@ -276,7 +277,8 @@ pub async fn schedule(daemon: Arc<Daemon>, interval: Duration) {
         }
         match check(&daemon, "schedule").await {
             Ok(c) if !c.stale => {}
-            Ok(_) | Err(Refusal::Busy(_)) => {}
+            // A failed measurement was logged by `check`.
+            Ok(_) | Err(Refusal::Busy(_) | Refusal::Internal(_)) => {}
             Err(e) => tracing::warn!("easyhec daemon: scheduled check: {e:?}"),
         }
     }

@@ -65,7 +65,7 @@ pub fn document() -> &'static str {
 pub struct ErrorBody {
     /// What went wrong, on one line.
     pub error: String,
-    /// On a 409 for a busy arm: the running calibration's id, or `check`.
+    /// On a 409 for a busy arm: the running calibration's id, `check` or `preview`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub running: Option<String>,
 }
@@ -85,7 +85,7 @@ impl ErrorBody {
 pub struct Health {
     /// Always `ok` while the daemon answers.
     pub status: String,
-    /// What holds the arm: a calibration id, `check`, or null.
+    /// What holds the arm: a calibration id, `check`, `preview`, or null.
     pub busy: Option<String>,
 }
 

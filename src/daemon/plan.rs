@@ -30,12 +30,16 @@ pub fn write(run_dir: &Path, planned: &[PlannedPose]) -> Result<()> {
     crate::io::write_json_atomic(&run_dir.join("plan.json"), &plan)
 }
 
-/// Planned pose `k` of a run, checked: the format, the count, and `dof` finite joints.
-pub fn pose(run_dir: &Path, k: usize, dof: usize) -> std::result::Result<Vec<f64>, Refusal> {
-    let path = run_dir.join("plan.json");
-    let text = crate::io::read_text_input(&path).map_err(|_| {
-        Refusal::NotFound("this calibration has no plan (only a dry run has one)".into())
-    })?;
+/// Planned pose `k` from `path` (a run's `plan.json`, already checked to lie in the data
+/// folder), checked: the format, the count, and `dof` finite joints. Missing is 404; a file
+/// that does not read back is 500.
+pub fn pose(path: &Path, k: usize, dof: usize) -> std::result::Result<Vec<f64>, Refusal> {
+    if !path.is_file() {
+        return Err(Refusal::NotFound(
+            "this calibration has no plan (only a dry run has one)".into(),
+        ));
+    }
+    let text = crate::io::read_text_input(path).map_err(|e| Refusal::Internal(e.to_string()))?;
     let plan: PlanFile = serde_json::from_str(&text)
         .map_err(|e| Refusal::Internal(format!("{}: {e}", path.display())))?;
     if plan.format != PLAN_FORMAT || plan.joints.len() > MAX_POSES {

@@ -242,6 +242,10 @@ function drawChart() {
 // A past calibration picked in the history: its status, overlays and exports stay shown
 // until another is picked or a run starts.
 function showPast(c) {
+  if (following) {
+    $("message").textContent = "A calibration is running: pick a past one when it has ended.";
+    return;
+  }
   pinned = c.id;
   showStatus(c);
   if (chartId !== c.id) recordRound(c);
