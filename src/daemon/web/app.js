@@ -115,6 +115,8 @@ async function loadPlanned(id, k) {
 }
 
 async function loadImage(id, key, caption, url) {
+  // A strip that was switched to another calibration while this one loaded gets nothing.
+  if (shownId !== id) return;
   let img = overlayViews.get(key);
   if (!img) {
     const fig = document.createElement("figure");
@@ -130,6 +132,7 @@ async function loadImage(id, key, caption, url) {
   const resp = await api(url);
   if (!resp.ok || shownId !== id) return;
   const blob = await resp.blob();
+  if (shownId !== id) return;
   const old = img.src;
   img.src = URL.createObjectURL(blob);
   img.dataset.loaded = "1";
