@@ -120,11 +120,13 @@ pub fn seeded_sim_cell(
     config_path: &std::path::Path,
     seed: u64,
 ) -> Result<crate::config::CellConfig> {
-    use crate::cell::Cell;
     use crate::config::InitialGuess;
-    use crate::config::{ArmConfig, CameraConfig, LookAt};
+    use crate::config::{CameraConfig, LookAt};
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
+    if !base.camera.mount().is_fixed() {
+        return seeded_wrist_cell(base, config_path, seed, &mut rng);
+    }
     let mut cfg = base.clone();
     let distance = rng.random_range(1.1..1.6);
     let azimuth: f64 = rng.random_range(0.0..std::f64::consts::TAU);
@@ -168,20 +170,83 @@ pub fn seeded_sim_cell(
     if let crate::config::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
         *s = seed;
     }
-    // A start pose that is safe and shows the robot to the true camera.
+    with_visible_start(cfg, config_path, seed, &mut rng, None)
+}
+
+/// A seeded variant of a cell whose camera is on a link: the config's mount pose moved by up
+/// to 1 cm and about 3° (brackets differ that much from their drawing), a random safe start
+/// pose that shows the robot, a guess 2–6° / 2–8 cm off, as for a fixed camera.
+fn seeded_wrist_cell(
+    base: &crate::config::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    rng: &mut rand_chacha::ChaCha8Rng,
+) -> Result<crate::config::CellConfig> {
+    use crate::config::{CameraConfig, InitialGuess};
+    use rand::Rng;
+    let mut cfg = base.clone();
+    let CameraConfig::Sim { truth, scene, .. } = &mut cfg.camera else {
+        return Err(crate::Error::input(
+            config_path,
+            "camera.kind",
+            "the loop benchmark needs a simulated camera (kind = \"sim\")",
+        ));
+    };
+    for v in &mut truth.eye {
+        *v += rng.random_range(-0.01..0.01);
+    }
+    for v in &mut truth.look_at {
+        *v += rng.random_range(-0.05..0.05);
+    }
+    truth.roll_deg += rng.random_range(-5.0..5.0);
+    let pose = truth.camera_from_base();
+    scene.seed = seed;
+    cfg.calibration.seed = seed;
+    let guess = crate::synth::perturb(rng, &pose, (2.0, 6.0), (0.02, 0.08));
+    cfg.calibration.initial_guess = Some(InitialGuess::Matrix {
+        camera_from_base: crate::geometry::to_rows(&guess),
+    });
+    if let crate::config::SegmenterConfig::SimTruth { seed: s, .. } = &mut cfg.segmenter {
+        *s = seed;
+    }
+    // An operator starts where the wrist camera sees the robot, under the drawing's pose too.
+    with_visible_start(cfg, config_path, seed, rng, Some(guess))
+}
+
+/// `cfg` with a start pose that is safe and shows the robot to the true camera (by the
+/// camera's own visibility rule, with a margin for a fixed camera).
+fn with_visible_start(
+    mut cfg: crate::config::CellConfig,
+    config_path: &std::path::Path,
+    seed: u64,
+    rng: &mut rand_chacha::ChaCha8Rng,
+    also_under: Option<nalgebra::Isometry3<f64>>,
+) -> Result<crate::config::CellConfig> {
+    use crate::calibrate::VisibilityRule;
+    use crate::cell::Cell;
+    use crate::config::ArmConfig;
     let cell = Cell::build(cfg.clone(), config_path)?;
+    let pose = cell.sim.camera_from_base.ok_or_else(|| {
+        crate::Error::input(config_path, "camera.kind", "needs a simulated camera")
+    })?;
+    let rule = match VisibilityRule::of(&cell) {
+        VisibilityRule::InImage(_) => VisibilityRule::InImage(0.97),
+        coverage => coverage,
+    };
     let camera = cfg
         .camera
         .camera()
         .ok_or_else(|| crate::Error::input(config_path, "camera.kind", "needs a simulated camera"))?
         .undistorted();
+    let low = camera.downsampled(cfg.calibration.score_downsample);
     for _ in 0..10_000 {
-        let q = uniform_joints(cell.checker.limits(), &mut rng);
+        let q = uniform_joints(cell.checker.limits(), rng);
         if cell.checker.check_pose(&q).is_err() {
             continue;
         }
-        let posed = PosedRobot::new(&cell.robot, &q).decimated(0.01);
-        if crate::calibrate::in_image_fraction(&posed, &camera, &pose) < 0.97 {
+        let posed = PosedRobot::new(&cell.seen, &q).decimated(0.01);
+        let shown = |p: &nalgebra::Isometry3<f64>| rule.shows(&posed, &camera, &low, p).is_some();
+        if !shown(&pose) || also_under.is_some_and(|g| !shown(&g)) {
             continue;
         }
         let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {

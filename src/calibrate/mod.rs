@@ -7,6 +7,7 @@
 pub mod planner;
 pub mod recorder;
 mod session;
+pub mod visibility;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -23,6 +24,7 @@ use crate::solve::SolveReport;
 
 pub use planner::{choose_reachable, in_image_fraction, rank_poses, PlanStats, Ranked};
 pub use recorder::Recorder;
+pub use visibility::VisibilityRule;
 
 /// One round of the loop, as `rounds.json` records it.
 #[derive(Clone, Debug, Serialize, Deserialize)]

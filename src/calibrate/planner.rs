@@ -8,6 +8,7 @@ use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use super::visibility::VisibilityRule;
 use super::PlannedPose;
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
@@ -55,7 +56,8 @@ pub struct Ranked {
     /// Variance of the camera candidates' masks at this pose (computed for the best only,
     /// unless the variance ranked them all).
     pub variance: Option<f64>,
-    /// In-image fraction under the estimate.
+    /// What the view shows under the estimate: the in-image share of the robot (fixed
+    /// camera) or the image share it covers (camera on a link).
     pub in_image: f64,
 }
 
@@ -66,7 +68,7 @@ pub struct PlanStats {
     pub sampled: usize,
     /// Samples that passed limits/collision/workspace.
     pub safe: usize,
-    /// …and the in-image rule (scored).
+    /// …and show the robot (scored).
     pub scored: usize,
 }
 
@@ -147,6 +149,7 @@ struct RoundPlan<'a> {
     candidates: Vec<Isometry3<f64>>,
     coarse: CoarseRobot,
     estimate: Isometry3<f64>,
+    visibility: VisibilityRule,
 }
 
 impl<'a> RoundPlan<'a> {
@@ -183,9 +186,10 @@ impl<'a> RoundPlan<'a> {
             low,
             cell_m,
             candidates,
-            coarse: CoarseRobot::new(&cell.robot, cell_m),
+            coarse: CoarseRobot::new(&cell.seen, cell_m),
             estimate: report.camera_from_base,
             pinhole,
+            visibility: VisibilityRule::of(cell),
         }
     }
 
@@ -211,9 +215,9 @@ impl<'a> RoundPlan<'a> {
     /// surface more faithfully when each pose is clustered in the base frame.
     fn pose_coarse(&self, q: &[f64]) -> PosedRobot {
         if self.settings.score == ScoreSetting::Information {
-            PosedRobot::new(&self.cell.robot, q).decimated(self.cell_m)
+            PosedRobot::new(&self.cell.seen, q).decimated(self.cell_m)
         } else {
-            self.coarse.pose(&self.cell.robot, q)
+            self.coarse.pose(&self.cell.seen, q)
         }
     }
 
@@ -233,10 +237,17 @@ impl<'a> RoundPlan<'a> {
     fn in_view(&self, safe: Vec<Posed>) -> Vec<InView> {
         safe.into_par_iter()
             .filter_map(|(q, posed)| {
-                let in_image = in_image_fraction(&posed, &self.pinhole, &self.estimate);
-                (in_image >= self.cell.checker.min_in_image).then_some((in_image, q, posed))
+                let in_image = self.shows(&posed)?;
+                Some((in_image, q, posed))
             })
             .collect()
+    }
+
+    /// How much of the robot a view of `posed` shows under the estimate, when enough
+    /// ([`VisibilityRule`]).
+    fn shows(&self, posed: &PosedRobot) -> Option<f64> {
+        self.visibility
+            .shows(posed, &self.pinhole, &self.low, &self.estimate)
     }
 
     /// Batched through the renderer: a GPU backend scores the whole pool per submission.
@@ -270,7 +281,7 @@ impl<'a> RoundPlan<'a> {
             &self.low,
             self.pinhole.fx,
             posed,
-            &self.cell.robot.joint_motions(q),
+            &self.cell.seen.joint_motions(q),
             &self.estimate,
             self.report.outline_noise_px2,
             self.settings.joint_noise_rad,
@@ -340,9 +351,8 @@ impl<'a> RoundPlan<'a> {
                             return None;
                         }
                         let posed = self.pose_coarse(q);
-                        let in_image = in_image_fraction(&posed, &self.pinhole, &self.estimate);
-                        (in_image >= checker.min_in_image)
-                            .then(|| (score(&posed, q), in_image, posed))
+                        let in_image = self.shows(&posed)?;
+                        Some((score(&posed, q), in_image, posed))
                     },
                 )
             })
@@ -388,7 +398,7 @@ impl<'a> RoundPlan<'a> {
             t_checked.elapsed().as_secs_f64(),
             ranked.len(),
             PosedRobot::new(
-                &self.cell.robot,
+                &self.cell.seen,
                 &ranked.first().map(|r| r.joints.clone()).unwrap_or_default()
             )
             .decimated(self.cell_m)

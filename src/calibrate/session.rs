@@ -71,7 +71,11 @@ impl<'a> Session<'a> {
         let settings = run_settings(cell, opts)?;
         let camera = cell.camera.intrinsics().clone();
         let guess = initial_guess(cell, opts, &settings)?;
-        let rec = Recorder::create(out, robot_entry(cell), CameraEntry::of(&camera), guess)?;
+        let camera_entry = CameraEntry {
+            mount: cell.config.camera.mount().clone(),
+            ..CameraEntry::of(&camera)
+        };
+        let rec = Recorder::create(out, robot_entry(cell), camera_entry, guess)?;
         let pb = progress_bar(opts, settings.max_views);
         let renderer = open_renderer(settings.renderer, !opts.progress)
             .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
@@ -189,10 +193,17 @@ impl<'a> Session<'a> {
         let chosen = choose_reachable(self.cell, &ranked, &from, speed, |_| false, &mut events);
         self.last_round().events.extend(events);
         let Some((pose, mv)) = chosen else {
-            return Ok(Some(format!(
-                "no safe, reachable pose left after {} views",
-                self.views.len()
-            )));
+            return Ok(Some(if ranked.is_empty() {
+                format!(
+                    "no safe pose shows enough of the robot to the camera after {} views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
+                    self.views.len()
+                )
+            } else {
+                format!(
+                    "no safe, reachable pose left after {} views",
+                    self.views.len()
+                )
+            }));
         };
         match self.move_to(&pose, &mv).await? {
             MoveOutcome::Arrived => {}
@@ -448,7 +459,7 @@ impl<'a> Session<'a> {
             self.rec.add_view(&joints, &frame, &mask)?;
             self.taken.push(joints.clone());
             self.views.push(View {
-                robot: PosedRobot::new(&cell.robot, &joints),
+                robot: PosedRobot::new(&cell.seen, &joints),
                 observed: camera.undistort_mask(&mask),
             });
             return Ok(());
@@ -460,7 +471,7 @@ impl<'a> Session<'a> {
         let masks = match live.resegment(
             self.renderer.as_ref(),
             cell.segmenter.as_ref(),
-            &cell.robot,
+            &cell.seen,
             camera,
             band,
             &self.taken,
@@ -500,7 +511,7 @@ impl<'a> Session<'a> {
         live.resegment(
             self.renderer.as_ref(),
             self.cell.segmenter.as_ref(),
-            &self.cell.robot,
+            &self.cell.seen,
             &self.camera,
             floor,
             &self.taken,
@@ -537,7 +548,7 @@ impl<'a> Session<'a> {
         let report = self.report.take().expect("round 0 solved");
         let cell = self.cell;
         let mut result =
-            ResultFile::new(&report.camera_from_base, &cell.robot.links[cell.robot.base]);
+            ResultFile::new(&report.camera_from_base, &cell.seen.links[cell.seen.base]);
         result.views_used = (0..self.views.len()).collect();
         result.per_view = report
             .per_view_iou

@@ -51,8 +51,12 @@ pub struct Cell {
     pub config: CellConfig,
     /// Where it was read from.
     pub config_path: PathBuf,
-    /// Robot model (rendering, FK).
+    /// Robot model in the cell's base frame (the arm, safety, FK).
     pub robot: Arc<RobotModel>,
+    /// The robot as the camera sees it, for every render and solve: `robot` itself for a
+    /// fixed camera; for a camera on a link, rooted at that link (so the solved pose is
+    /// `camera_from_<link>`) and without the links that move with the camera.
+    pub seen: Arc<RobotModel>,
     /// The arm, behind the safety gate: every move must be a [`crate::safety::CheckedMove`].
     pub arm: SafeArm,
     /// The camera.
@@ -95,6 +99,7 @@ impl Cell {
         // So does a bad segmentation model.
         let segmenter = crate::segment::build(&config.segmenter, path)?;
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
+        let seen = seen_robot(&config, &robot, path)?;
         let arm = build_arm(&config, &robot, path)?;
         let feed = ros2::joint_feed(&config, &robot, path)?;
         let camera = build_camera(&config, calibration, &robot, &arm, feed, path)?;
@@ -115,12 +120,34 @@ impl Cell {
             config,
             config_path: path.to_path_buf(),
             robot,
+            seen,
             arm: SafeArm::new(arm.device),
             camera: camera.device,
             checker,
             sim,
         })
     }
+}
+
+/// The robot as the camera sees it (see [`Cell::seen`]). A camera on a link needs a starting
+/// pose: the automatic initialisation searches around a fixed camera only.
+fn seen_robot(
+    config: &CellConfig,
+    robot: &Arc<RobotModel>,
+    path: &Path,
+) -> Result<Arc<RobotModel>> {
+    let Some(link) = config.camera.mount().link() else {
+        return Ok(robot.clone());
+    };
+    let seen = robot.seen_from_link(link, path, "camera.mount.link")?;
+    if config.calibration.initial_guess.is_none() {
+        return Err(crate::error::Error::input(
+            path,
+            "calibration.initial_guess",
+            format!("a camera on link '{link}' needs a starting camera_from_{link}, from the mount's drawing: {{ eye = […], look_at = […] }} in the link's frame, or a 4x4 matrix"),
+        ));
+    }
+    Ok(Arc::new(seen))
 }
 
 /// The `[robot]` table as a model source, its paths resolved against the config's folder.

@@ -250,6 +250,7 @@ pub(super) fn ros2_camera(
         camera_info_topic,
         connect_timeout_s,
         frame_timeout_s,
+        ..
     } = camera
     else {
         unreachable!("called for kind = \"ros2\" only")

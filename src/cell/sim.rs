@@ -187,7 +187,28 @@ pub(super) fn camera(
         .camera()
         .ok_or_else(|| Error::input(path, "camera", "a simulated camera without its intrinsics"))?;
     scene.validate(path, "camera.scene")?;
-    let scene = Arc::new(SimScene::new(robot.clone(), model, pose, scene.clone()));
+    let scene = Arc::new(match camera.mount().link() {
+        None => SimScene::new(robot.clone(), model, pose, scene.clone()),
+        Some(link) => {
+            if scene.effects().distractors.is_some() {
+                return Err(Error::input(
+                    path,
+                    "camera.scene.distractors",
+                    "distractors are placed for a fixed camera: leave them out for a camera on a link",
+                ));
+            }
+            let l = robot.link_index(link).ok_or_else(|| {
+                Error::input(path, "camera.mount.link", format!("no link named '{link}'"))
+            })?;
+            SimScene::new(
+                Arc::new(robot.without_links_fixed_to(l)),
+                model,
+                pose,
+                scene.clone(),
+            )
+            .mounted_on(l)
+        }
+    });
     Ok(SimCameraParts {
         camera: Arc::new(SimCamera::watching(source, scene.clone())),
         camera_from_base: pose,

@@ -140,7 +140,8 @@ fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyho
     let gt = easyhec::cell::sim::ground_truth(&cell.config, &truth);
     easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &gt)?;
     println!(
-        "error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
+        "error against the simulated truth ({}): rotation {:.4} deg, translation {:.3} mm",
+        cell.config.camera.mount().transform_name(),
         rotation_error_deg(estimate, &truth),
         translation_error_mm(estimate, &truth)
     );

@@ -117,7 +117,8 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     }
     let report = &outcome.report;
     println!(
-        "camera_from_base solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%) -> {}",
+        "{} solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%) -> {}",
+        outcome.transform,
         outcome.views,
         outcome.solve_s,
         report.mean_iou(),

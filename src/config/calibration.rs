@@ -74,6 +74,11 @@ pub struct CalibrationSettings {
     /// kinematic error). `information` scoring counts what such errors do to the estimate.
     #[serde(default = "default_joint_noise")]
     pub joint_noise_rad: f64,
+    /// For a camera on a link: the least fraction of the image the robot must cover (under
+    /// the estimate) for a pose to be worth a view. A fixed camera uses
+    /// `[safety] min_in_image` instead.
+    #[serde(default = "default_min_robot_image_fraction")]
+    pub min_robot_image_fraction: f64,
     /// Renderer backend: `auto` (default: wgpu on a hardware GPU, the CPU otherwise), `cpu`
     /// or `wgpu` (any adapter, software ones included). `--renderer` overrides it.
     #[serde(default)]
@@ -115,6 +120,9 @@ fn default_max_failures() -> usize {
 }
 fn default_joint_noise() -> f64 {
     0.0005
+}
+fn default_min_robot_image_fraction() -> f64 {
+    0.05
 }
 fn default_score_downsample() -> u32 {
     8

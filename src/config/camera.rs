@@ -10,6 +10,7 @@ use easyhec_drivers::Intrinsics;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::mount::Mount;
 use super::scene::SceneSettings;
 use super::seconds;
 use crate::error::{Error, Result};
@@ -67,7 +68,8 @@ pub enum CameraConfig {
         /// `plumb_bob` k1 k2 p1 p2 k3.
         #[serde(default)]
         distortion: Option<[f64; 5]>,
-        /// The true pose, which only the simulator sees.
+        /// The true pose, which only the simulator sees: `camera_from_base`, or for a
+        /// camera on a link `camera_from_<link>` (eye and target in that link's frame).
         truth: LookAt,
         /// Scene dressing.
         #[serde(default)]
@@ -76,6 +78,9 @@ pub enum CameraConfig {
         /// simulated arm).
         #[serde(default)]
         joints_from: Option<JointsFrom>,
+        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+        #[serde(default)]
+        mount: Mount,
     },
     /// A UVC webcam through V4L2. Needs the `v4l2` cargo feature; the variant exists without
     /// it so such a config gets a one-line "rebuild" error.
@@ -97,6 +102,9 @@ pub enum CameraConfig {
         /// Limit for one frame, seconds (default 2).
         #[serde(default)]
         frame_timeout_s: Option<f64>,
+        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+        #[serde(default)]
+        mount: Mount,
     },
     /// A GigE Vision or USB3 Vision camera through Aravis. Needs the `aravis` cargo feature;
     /// the variant exists without it so such a config gets a one-line "rebuild" error.
@@ -119,6 +127,9 @@ pub enum CameraConfig {
         /// Limit for one frame, seconds (default 2).
         #[serde(default)]
         frame_timeout_s: Option<f64>,
+        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+        #[serde(default)]
+        mount: Mount,
     },
     /// A ROS 2 camera driver's topics (the `ros2` feature): `sensor_msgs/Image` frames and
     /// the intrinsics of its `sensor_msgs/CameraInfo`, in the `[ros2]` table's domain.
@@ -135,6 +146,9 @@ pub enum CameraConfig {
         /// Limit for one fresh frame, seconds (default 2).
         #[serde(default)]
         frame_timeout_s: Option<f64>,
+        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+        #[serde(default)]
+        mount: Mount,
     },
 }
 
@@ -182,6 +196,16 @@ pub enum JointsFrom {
 }
 
 impl CameraConfig {
+    /// Where the camera is fixed.
+    pub fn mount(&self) -> &Mount {
+        match self {
+            CameraConfig::Sim { mount, .. }
+            | CameraConfig::V4l2 { mount, .. }
+            | CameraConfig::Aravis { mount, .. }
+            | CameraConfig::Ros2 { mount, .. } => mount,
+        }
+    }
+
     /// The camera model written in the config itself: a simulated camera's. Hardware cameras
     /// (`None` here) take theirs from their calibration file ([`CameraConfig::calibration`]).
     pub fn camera(&self) -> Option<Intrinsics> {

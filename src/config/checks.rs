@@ -289,6 +289,13 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
         c.within("calibration.stop_centre_95_mm", target, 0.0, 1000.0, true)?;
     }
     c.within(
+        "calibration.min_robot_image_fraction",
+        s.min_robot_image_fraction,
+        0.0,
+        1.0,
+        true,
+    )?;
+    c.within(
         "calibration.joint_noise_rad",
         s.joint_noise_rad,
         0.0,

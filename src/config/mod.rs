@@ -14,6 +14,7 @@ pub mod calibration;
 pub mod camera;
 pub mod checks;
 pub mod daemon;
+pub mod mount;
 pub mod robot;
 pub mod ros2;
 pub mod safety;
@@ -34,6 +35,7 @@ pub use calibration::{
 };
 pub use camera::{CameraCalibration, CameraConfig, JointsFrom, LookAt};
 pub use daemon::DaemonSettings;
+pub use mount::Mount;
 pub use robot::RobotConfig;
 pub use safety::{ObstacleConfig, SafetyConfig, WorkspaceConfig};
 pub use scene::{

@@ -214,7 +214,7 @@ async fn measure(
             crate::pipeline::segment_solve::segment_among_recorded(
                 &CpuRenderer,
                 cell.segmenter.as_ref(),
-                &cell.robot,
+                &cell.seen,
                 &camera,
                 frame,
                 &q,
@@ -228,12 +228,8 @@ async fn measure(
         };
         let observed = camera.undistort_mask(&mask);
         let pinhole = camera.undistorted();
-        let rendered = CpuRenderer.render(
-            &PosedRobot::new(&cell.robot, &q),
-            &pinhole,
-            &pose,
-            Some(1.0),
-        );
+        let rendered =
+            CpuRenderer.render(&PosedRobot::new(&cell.seen, &q), &pinhole, &pose, Some(1.0));
         let explained = covariance.map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
         Ok((agreement(&observed, &rendered.mask), explained))
     })

@@ -119,7 +119,7 @@ pub fn render(
     }
     let rendered = CpuRenderer
         .render(
-            &PosedRobot::new(&cell.robot, &view.joints),
+            &PosedRobot::new(&cell.seen, &view.joints),
             &camera.undistorted(),
             pose,
             None,

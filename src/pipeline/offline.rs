@@ -63,6 +63,8 @@ pub struct OfflineSolve {
 pub struct OfflineOutcome {
     /// The result as written.
     pub result: ResultFile,
+    /// What was solved: `camera_from_base`, or `camera_from_<link>` for a camera on a link.
+    pub transform: String,
     /// Where it was written.
     pub out: PathBuf,
     /// The final solve.
@@ -150,6 +152,7 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
         .unwrap_or_else(|| run.dir.join("result.json"));
     crate::io::write_json_atomic(&out, &result)?;
     Ok(OfflineOutcome {
+        transform: run.file.camera.mount.transform_name(),
         truth_error: truth_error(&run.dir, &report.camera_from_base),
         views: order.len(),
         poor_views: poor_views(&order, &report),

@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::geometry::from_xyz_rpy;
 use crate::mesh::{load_mesh_file, TriMesh};
 
+mod mount;
 mod packages;
 mod urdf_numbers;
 mod xacro;
@@ -349,7 +350,7 @@ impl RobotModel {
                 let j = &self.joints[ji];
                 // The joint frame sits at the child link's origin (URDF), axis in that frame.
                 let frame = poses[j.child];
-                let moves_link = (0..self.links.len())
+                let moves_link: Vec<bool> = (0..self.links.len())
                     .map(|mut l| {
                         for _ in 0..self.links.len() {
                             let pj = parent_joint[l];
@@ -364,10 +365,23 @@ impl RobotModel {
                         false
                     })
                     .collect();
+                let axis_base = frame.rotation * j.axis.into_inner();
+                let origin_base = Point3::from(frame.translation.vector);
+                let prismatic = j.kind == JointKind::Prismatic;
+                if moves_link[self.base] {
+                    // A base below the joint (a model rooted at a wrist camera's link): the
+                    // joint moves everything else the opposite way relative to it.
+                    return JointMotion {
+                        axis_base: -axis_base,
+                        origin_base,
+                        prismatic,
+                        moves_link: moves_link.iter().map(|m| !m).collect(),
+                    };
+                }
                 JointMotion {
-                    axis_base: frame.rotation * j.axis.into_inner(),
-                    origin_base: Point3::from(frame.translation.vector),
-                    prismatic: j.kind == JointKind::Prismatic,
+                    axis_base,
+                    origin_base,
+                    prismatic,
                     moves_link,
                 }
             })

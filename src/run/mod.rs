@@ -10,6 +10,7 @@ use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 use crate::camera::{Intrinsics, LensWarp};
+use crate::config::Mount;
 use crate::error::{Error, Result};
 use crate::geometry::{from_rows, to_rows};
 use crate::mask::Mask;
@@ -122,6 +123,10 @@ pub struct CameraEntry {
     /// `k1 k2 p1 p2 k3`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub distortion: Option<Vec<f64>>,
+    /// Where the camera is fixed: absent or `"fixed"`, or `{"link": "<link>"}` for a camera
+    /// on a link (the solve then finds `camera_from_<link>`, see docs/mounts.md).
+    #[serde(default, skip_serializing_if = "Mount::is_fixed")]
+    pub mount: Mount,
 }
 
 impl CameraEntry {
@@ -136,6 +141,7 @@ impl CameraEntry {
             cy: camera.cy,
             distortion_model: camera.distortion.map(|_| "plumb_bob".to_string()),
             distortion: camera.distortion.map(|d| d.to_vec()),
+            mount: Mount::Fixed,
         }
     }
 }
@@ -307,7 +313,8 @@ pub struct LoadedRun {
     pub dir: PathBuf,
     /// The parsed file.
     pub file: RunFile,
-    /// The robot model.
+    /// The robot model as the camera sees it: rooted at the mount link for a camera on a
+    /// link (`RobotModel::seen_from_link`).
     pub robot: RobotModel,
     /// Camera (possibly distorted; masks in `views` are already undistorted).
     pub camera: Intrinsics,
@@ -369,7 +376,12 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         joints: Some(file.robot.joints.clone()),
         xacro_args: file.robot.xacro_args.clone(),
     };
-    let robot = RobotModel::load(&source)?;
+    let robot = match file.camera.mount.link() {
+        None => RobotModel::load(&source)?,
+        Some(link) => {
+            RobotModel::load(&source)?.seen_from_link(link, &json, "camera.mount.link")?
+        }
+    };
     let initial_guess = match &file.initial_guess {
         Some(g) => Some(
             from_rows(&g.camera_from_base)

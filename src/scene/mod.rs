@@ -141,8 +141,11 @@ pub struct SimFrame {
 pub struct SimScene {
     robot: Arc<RobotModel>,
     camera: Intrinsics,
-    /// Behind a lock so tests can bump the camera ([`SimScene::set_camera_from_base`]).
+    /// The true pose: `camera_from_base`, or `camera_from_<mount link>` for a camera on a
+    /// link. Behind a lock so tests can bump the camera ([`SimScene::set_camera_from_base`]).
     camera_from_base: RwLock<Isometry3<f64>>,
+    /// The link a wrist camera is fixed to (`None`: fixed in the cell).
+    mount: Option<usize>,
     intrinsics: Intrinsics,
     settings: SceneSettings,
     effects: SceneEffects,
@@ -231,13 +234,34 @@ impl SimScene {
             robot,
             camera,
             camera_from_base: RwLock::new(camera_from_base),
+            mount: None,
             intrinsics,
             settings,
             effects,
         }
     }
 
-    /// The true pose (tests and the final error report only).
+    /// The same scene seen by a camera fixed to link `link`: the pose given to
+    /// [`SimScene::new`] is then `camera_from_<link>`, and each frame's camera pose follows
+    /// the true joints. `robot` should leave out the links that move with the camera
+    /// (`RobotModel::without_links_fixed_to`).
+    pub fn mounted_on(mut self, link: usize) -> SimScene {
+        self.mount = Some(link);
+        self
+    }
+
+    /// Where the camera is at true joints `q`: the fixed pose, or the mount's pose composed
+    /// with the forward kinematics.
+    pub fn camera_from_base_at(&self, q: &[f64]) -> Isometry3<f64> {
+        let pose = self.camera_from_base();
+        match self.mount {
+            Some(link) => pose * self.robot.base_from_links(q)[link].inverse(),
+            None => pose,
+        }
+    }
+
+    /// The true pose (tests and the final error report only): `camera_from_base`, or
+    /// `camera_from_<link>` for a camera on a link.
     pub fn camera_from_base(&self) -> Isometry3<f64> {
         *self
             .camera_from_base
@@ -480,7 +504,7 @@ impl SimScene {
     fn render_pinhole(&self, q: &[f64], frame_index: u64) -> (Vec<[f64; 3]>, Mask, Mask, Mask) {
         let cam = self.camera.undistorted();
         // One pose for the whole frame, even if a test bumps the camera meanwhile.
-        let camera_from_base = self.camera_from_base();
+        let camera_from_base = self.camera_from_base_at(q);
         let frame = self.pinhole_frame(q, frame_index, cam, camera_from_base);
         self.colour_pass(&frame)
     }

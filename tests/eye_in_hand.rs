@@ -1,0 +1,196 @@
+//! Cameras on a link (eye-in-hand): the loop solves `camera_from_<link>` on the simulated
+//! xArm6 and UR5e wrist cells, every commanded pose passes the safety checker, the run
+//! records the mount and re-solves offline to the same transform, and a mount the robot
+//! cannot carry is refused before anything moves.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use easyhec::calibrate::{calibrate, Outcome, RunOptions};
+use easyhec::cell::Cell;
+use easyhec::config::{read_config, CellConfig, Mount};
+use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::run::load_run;
+
+fn config_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(name)
+}
+
+fn run(cell: &Cell, out: &Path) -> Outcome {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(calibrate(cell, out, &RunOptions::default()))
+        .unwrap()
+}
+
+fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
+    cfg.calibration.max_views = views;
+    cfg.calibration.min_views = views;
+    cfg.calibration.joint_samples = 1000;
+    cfg.calibration.candidates = 24;
+    cfg
+}
+
+/// Every command the simulated arm received was accepted and passes the checker from where
+/// the arm truly was, along a path re-checked finer than the checker samples it.
+fn assert_every_command_safe(cell: &Cell) -> usize {
+    let sim = cell.sim.arm.as_ref().expect("simulated arm");
+    let commands = sim.commands();
+    for (i, c) in commands.iter().enumerate() {
+        assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
+        assert!(c.speed_rad_s <= cell.checker.speed_cap_rad_s());
+        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
+    }
+    commands.len()
+}
+
+#[test]
+fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
+    for (name, link) in [
+        ("sim-xarm6-eye-in-hand.toml", "link6"),
+        ("sim-ur5e-eye-in-hand.toml", "wrist_3_link"),
+    ] {
+        let path = config_path(name);
+        let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
+        assert_eq!(cell.config.camera.mount(), &Mount::Link(link.into()));
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("run");
+        let outcome = run(&cell, &out);
+        let truth = cell.sim.camera_from_base.unwrap();
+        let est = outcome.result.camera_from_base();
+        let (r, t) = (
+            rotation_error_deg(&est, &truth),
+            translation_error_mm(&est, &truth),
+        );
+        assert!(
+            r < 0.2 && t < 1.0,
+            "{name}: camera_from_{link} off by {r:.4} deg {t:.3} mm"
+        );
+        // The result is named by the mount: the transform goes from the link.
+        assert_eq!(outcome.result.base_link, link);
+        let views = outcome.result.views_used.len();
+        assert_eq!(views, 4, "{name}: {}", outcome.result.stop_reason);
+        assert_eq!(assert_every_command_safe(&cell), views - 1, "{name}");
+
+        // The run records the mount, and the offline solve finds the same transform.
+        let loaded = load_run(&out).unwrap();
+        assert_eq!(loaded.file.camera.mount, Mount::Link(link.into()));
+        assert_eq!(loaded.robot.links[loaded.robot.base], link);
+        let solved = dir.path().join("solved.json");
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_easyhec"))
+            .args(["solve", "-q"])
+            .arg(&out)
+            .arg("--out")
+            .arg(&solved)
+            .output()
+            .unwrap();
+        assert!(
+            status.status.success(),
+            "{}",
+            String::from_utf8_lossy(&status.stderr)
+        );
+        let stdout = String::from_utf8_lossy(&status.stdout);
+        assert!(
+            stdout.starts_with(&format!("camera_from_{link} solved from 4 views")),
+            "{stdout}"
+        );
+        let offline = easyhec::run::ResultFile::read(&solved).unwrap();
+        assert_eq!(offline.base_link, link);
+        let drift = rotation_error_deg(&offline.camera_from_base(), &est);
+        assert!(drift < 0.05, "{name}: offline solve moved {drift:.4} deg");
+    }
+}
+
+#[test]
+fn a_mount_the_robot_cannot_carry_is_refused_with_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(config_path("sim-xarm6-eye-in-hand.toml"))
+        .unwrap()
+        .replace(
+            "../robots/xarm6/robot.urdf",
+            &config_path("../robots/xarm6/robot.urdf")
+                .display()
+                .to_string(),
+        );
+    let guess_line = base
+        .lines()
+        .find(|l| l.starts_with("initial_guess"))
+        .unwrap()
+        .to_string();
+    let cases = [
+        (
+            base.replace(
+                "mount = { link = \"link6\" }",
+                "mount = { link = \"link9\" }",
+            ),
+            "camera.mount.link: no link named 'link9'",
+        ),
+        (
+            base.replace(
+                "mount = { link = \"link6\" }",
+                "mount = { link = \"link_base\" }",
+            ),
+            "does not move with any actuated joint",
+        ),
+        (
+            base.replace("mount = { link = \"link6\" }", "mount = \"wrist\""),
+            "\"fixed\" or { link",
+        ),
+        (base.replace(&guess_line, ""), "calibration.initial_guess"),
+        (
+            base.replace(
+                "scene = { seed = 1 }",
+                "scene = { seed = 1, preset = \"hard\" }",
+            ),
+            "camera.scene.distractors",
+        ),
+        (
+            base.replace(
+                "max_views = 5",
+                "max_views = 5\nmin_robot_image_fraction = 1.5",
+            ),
+            "calibration.min_robot_image_fraction",
+        ),
+    ];
+    for (i, (text, needle)) in cases.iter().enumerate() {
+        assert_ne!(text, &base, "case {i} changed nothing");
+        let p = dir.path().join(format!("bad{i}.toml"));
+        std::fs::write(&p, text).unwrap();
+        let e = match Cell::open(&p) {
+            Ok(_) => panic!("case {i} accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains(&format!("bad{i}.toml")) && e.contains(needle),
+            "case {i}: {e}"
+        );
+        assert!(!e.contains('\n'), "case {i}: {e}");
+    }
+}
+
+/// When no pose shows the robot to the wrist camera, the loop says so and stops after the
+/// first view instead of wandering.
+#[test]
+fn no_pose_that_shows_the_robot_is_said_plainly() {
+    let path = config_path("sim-xarm6-eye-in-hand.toml");
+    let mut cfg = quick(read_config(&path).unwrap(), 4);
+    // Nothing can cover 95% of the image clear of the lens.
+    cfg.calibration.min_robot_image_fraction = 0.95;
+    let cell = Cell::build(cfg, &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let outcome = run(&cell, &dir.path().join("run"));
+    assert!(
+        outcome
+            .result
+            .stop_reason
+            .contains("no safe pose shows enough of the robot to the camera after 1 views"),
+        "{}",
+        outcome.result.stop_reason
+    );
+    assert_eq!(assert_every_command_safe(&cell), 0);
+}
