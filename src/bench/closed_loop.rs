@@ -157,12 +157,21 @@ impl LoopBench {
             base.calibration.score = score;
         }
         let mut all: Vec<(String, Vec<LoopTrial>)> = Vec::new();
+        let mut failed: Vec<u64> = Vec::new();
         for &selection in &selections {
             let name = super::value_name(&selection);
             let mut trials = Vec::new();
             for seed in first_seed..first_seed + cells {
                 let cfg = seeded_sim_cell(&base, &config, seed)?;
-                let t = run_loop_trial(&cfg, &config, seed, selection, views)?;
+                let t = match run_loop_trial(&cfg, &config, seed, selection, views) {
+                    Ok(t) => t,
+                    Err(e) => {
+                        // A failed calibration is a result too: counted, never hidden.
+                        log(&format!("{name} seed {seed}: failed: {e}"));
+                        failed.push(seed);
+                        continue;
+                    }
+                };
                 let last = t.errors.last().copied().unwrap_or((0, f64::NAN, f64::NAN));
                 // Every view count's error, so medians over any subset of seeds can be
                 // taken from one run.
@@ -214,6 +223,11 @@ impl LoopBench {
                 plan.iter().cloned().fold(0.0, f64::max),
                 median(&compute),
                 compute.iter().cloned().fold(0.0, f64::max)
+            ));
+        }
+        if !failed.is_empty() {
+            report.line(format!(
+                "failed calibrations (left out of the medians): seeds {failed:?}"
             ));
         }
         if all.len() == 2 {

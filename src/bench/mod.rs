@@ -7,6 +7,7 @@
 //! - [`coverage`]: how often the reported uncertainty covers the true error.
 //! - [`init`]: automatic initialisation over cameras anywhere on a hemisphere.
 //! - [`closed_loop`]: exploration against random selection on seeded simulated cells.
+//! - [`motion`]: planning that weighs motion time, on the mock xArm in real time.
 //! - [`view_sets`]: how far choosing two views can go, against the score's model.
 //! - [`segmentation`]: the builtin segmenter's masks and RGB-only calibrations.
 //! - [`speed`]: solve time and memory, and one exploration round's scoring time.
@@ -15,6 +16,7 @@ pub mod accuracy;
 pub mod closed_loop;
 pub mod coverage;
 pub mod init;
+pub mod motion;
 pub mod segmentation;
 pub mod speed;
 pub mod view_sets;
@@ -32,6 +34,7 @@ pub use accuracy::AccuracyBench;
 pub use closed_loop::LoopBench;
 pub use coverage::CoverageBench;
 pub use init::InitBench;
+pub use motion::MotionBench;
 pub use segmentation::SegmentBench;
 pub use speed::{ExploreBench, SpeedBench};
 pub use view_sets::ViewSetsBench;

@@ -213,8 +213,12 @@ impl TrialCell {
         )?;
         let noise_px2 = report.outline_noise_px2;
         for round in 0..2 {
-            let (ranked, _) =
-                rank_poses(&CpuRenderer, cell, camera, &report, &taken, settings, round);
+            let request = crate::calibrate::PlanRequest {
+                round,
+                taken: &taken,
+                motion: None,
+            };
+            let (ranked, _) = rank_poses(&CpuRenderer, cell, camera, &report, settings, &request);
             let from = taken.last().expect("view 0").clone();
             let (next, _) = choose_reachable(
                 cell,

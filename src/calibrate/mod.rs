@@ -4,6 +4,7 @@
 //! as it happens ([`recorder`]), so a crash loses nothing and `easyhec solve` can re-solve it
 //! offline. Where to go next is the [`planner`]'s job; this module runs the rounds.
 
+pub mod motion_cost;
 pub mod planner;
 pub mod recorder;
 mod session;
@@ -22,7 +23,10 @@ use crate::run::{ResultFile, UncertaintyEntry};
 use crate::safety::Clearance;
 use crate::solve::SolveReport;
 
-pub use planner::{choose_reachable, in_image_fraction, rank_poses, PlanStats, Ranked};
+pub use motion_cost::MotionCost;
+pub use planner::{
+    choose_reachable, in_image_fraction, rank_poses, PlanRequest, PlanStats, Ranked,
+};
 pub use recorder::Recorder;
 pub use visibility::VisibilityRule;
 

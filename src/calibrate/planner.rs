@@ -8,6 +8,7 @@ use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use super::motion_cost::MotionCost;
 use super::visibility::VisibilityRule;
 use super::PlannedPose;
 use crate::backend::Backend;
@@ -72,6 +73,18 @@ pub struct PlanStats {
     pub scored: usize,
 }
 
+/// What one round plans from besides the estimate: the round, the views taken, and the time
+/// model when moves cost time.
+#[derive(Clone, Debug)]
+pub struct PlanRequest<'a> {
+    /// 0-based round (seeds the samples).
+    pub round: usize,
+    /// Reported joints of every view taken.
+    pub taken: &'a [Vec<f64>],
+    /// Rank by information per second of this time model (`information` score only).
+    pub motion: Option<MotionCost>,
+}
+
 /// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
 /// by the candidates' disagreement, best first.
 pub fn rank_poses(
@@ -79,11 +92,12 @@ pub fn rank_poses(
     cell: &Cell,
     camera: &Intrinsics,
     report: &SolveReport,
-    taken: &[Vec<f64>],
     settings: &CalibrationSettings,
-    round: usize,
+    request: &PlanRequest,
 ) -> (Vec<Ranked>, PlanStats) {
-    let round_plan = RoundPlan::new(renderer, cell, camera, report, settings, round);
+    let (round, taken) = (request.round, request.taken);
+    let mut round_plan = RoundPlan::new(renderer, cell, camera, report, settings, round);
+    round_plan.motion = request.motion.clone();
     let samples = round_plan.draw_samples();
     let t_start = std::time::Instant::now();
     let safe = round_plan.statically_safe(samples);
@@ -150,6 +164,7 @@ struct RoundPlan<'a> {
     coarse: CoarseRobot,
     estimate: Isometry3<f64>,
     visibility: VisibilityRule,
+    motion: Option<MotionCost>,
 }
 
 impl<'a> RoundPlan<'a> {
@@ -190,6 +205,7 @@ impl<'a> RoundPlan<'a> {
             estimate: report.camera_from_base,
             pinhole,
             visibility: VisibilityRule::of(cell),
+            motion: None,
         }
     }
 
@@ -300,7 +316,11 @@ impl<'a> RoundPlan<'a> {
             .reduce(ViewTerms::zeros, |a, b| a + b);
         current.outline_information += Matrix6::identity() * 1e-6;
         let score = |posed: &PosedRobot, q: &[f64]| {
-            cost_reduction(&current, &self.terms(posed, q), &self.estimate)
+            let gain = cost_reduction(&current, &self.terms(posed, q), &self.estimate);
+            match &self.motion {
+                Some(m) => m.rate(gain, q),
+                None => gain,
+            }
         };
         let mut scored: Vec<RankedPosed> = in_view
             .into_par_iter()

@@ -8,7 +8,8 @@ use std::time::Instant;
 use easyhec_drivers::ArmStatus;
 use nalgebra::Isometry3;
 
-use super::planner::{choose_reachable, rank_poses, Ranked};
+use super::motion_cost::{self, MotionCost};
+use super::planner::{choose_reachable, rank_poses, PlanRequest, Ranked};
 use super::recorder::{self, Recorder};
 use super::{Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
 use crate::backend::{open_renderer, Backend};
@@ -179,12 +180,12 @@ impl<'a> Session<'a> {
         if let Some(reason) = self.precise_enough() {
             return Ok(Some(reason));
         }
-        let (ranked, best) = self.plan(round);
+        let from = self.cell.arm.read_joints().await?;
+        let (ranked, best) = self.plan(round, &from);
         if let Some(reason) = self.converged(best) {
             return Ok(Some(reason));
         }
         self.previous_best = best;
-        let from = self.cell.arm.read_joints().await?;
         if self.opts.dry_run {
             return Ok(Some(self.plan_dry_run(&ranked, &from)));
         }
@@ -214,17 +215,21 @@ impl<'a> Session<'a> {
         Ok(None)
     }
 
-    /// Ranks the next poses and records the planning step.
-    fn plan(&mut self, round: usize) -> (Vec<Ranked>, Option<f64>) {
+    /// Ranks the next poses from where the arm stands and records the planning step.
+    fn plan(&mut self, round: usize, from: &[f64]) -> (Vec<Ranked>, Option<f64>) {
         let t = Instant::now();
+        let request = PlanRequest {
+            round,
+            taken: &self.taken,
+            motion: self.motion_cost(from),
+        };
         let (ranked, stats) = rank_poses(
             self.renderer.as_ref(),
             self.cell,
             &self.camera,
             self.report(),
-            &self.taken,
             &self.settings,
-            round,
+            &request,
         );
         let best = ranked.first().and_then(|r| r.variance);
         self.explore_s += t.elapsed().as_secs_f64();
@@ -239,6 +244,26 @@ impl<'a> Session<'a> {
             stats.sampled, stats.safe, stats.scored
         ));
         (ranked, best)
+    }
+
+    /// The time model of the next move, when moves take time and the settings weigh it: the
+    /// overhead is `view_overhead_s`, else this run's own wall time per view besides motion
+    /// so far.
+    fn motion_cost(&self, from: &[f64]) -> Option<MotionCost> {
+        let time_scale = motion_cost::time_scale(&self.cell.config);
+        if !self.settings.weigh_motion_time || time_scale <= 0.0 {
+            return None;
+        }
+        let measured = || {
+            let busy_s = (self.started.elapsed().as_secs_f64() - self.motion_s).max(0.0);
+            busy_s / self.views.len().max(1) as f64
+        };
+        Some(MotionCost {
+            from: from.to_vec(),
+            speed_rad_s: self.settings.speed_rad_s,
+            time_scale,
+            overhead_s: self.settings.view_overhead_s.unwrap_or_else(measured),
+        })
     }
 
     /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
@@ -396,13 +421,7 @@ impl<'a> Session<'a> {
         emit_view(self.opts, &self.taken);
         self.pb.set_position(self.views.len() as u64);
         let t = Instant::now();
-        let mut report = solve(
-            self.renderer.as_ref(),
-            &self.camera,
-            &self.views,
-            &previous,
-            &self.solve_opts,
-        )?;
+        let mut report = self.solve_from(&previous)?;
         report.trajectory.insert(0, previous);
         self.solve_s += t.elapsed().as_secs_f64();
         let change = [
@@ -433,6 +452,25 @@ impl<'a> Session<'a> {
         ));
         self.report = Some(report);
         Ok(())
+    }
+
+    /// Solves every view from `previous`. When that fits poorly and the run has a starting
+    /// pose of its own (a drawing, a tape measure, the last calibration), solves from that
+    /// too and keeps the better fit: one ambiguous first view (a wrist camera that saw only a
+    /// round base) can lead the estimate far from the start, and later views then fit
+    /// nowhere near it.
+    fn solve_from(&self, previous: &Isometry3<f64>) -> Result<SolveReport> {
+        let r = self.renderer.as_ref();
+        let report = solve(r, &self.camera, &self.views, previous, &self.solve_opts)?;
+        let Some(guess) = self.guess.filter(|_| report.mean_iou() < POOR_FIT_IOU) else {
+            return Ok(report);
+        };
+        let again = solve(r, &self.camera, &self.views, &guess, &self.solve_opts)?;
+        Ok(if again.mean_iou() > report.mean_iou() {
+            again
+        } else {
+            report
+        })
     }
 
     /// Reads the joints and grabs a frame at the arm's present pose, segments it, records the
@@ -546,6 +584,9 @@ impl<'a> Session<'a> {
         }
         self.rec.write_rounds(&self.rounds)?;
         let report = self.report.take().expect("round 0 solved");
+        if !self.opts.dry_run {
+            judge_loop_fit(&report, self.rec.dir())?;
+        }
         let cell = self.cell;
         let mut result =
             ResultFile::new(&report.camera_from_base, &cell.seen.links[cell.seen.base]);
@@ -579,6 +620,27 @@ impl<'a> Session<'a> {
             cancelled: self.cancelled,
         })
     }
+}
+
+/// Refuses to write a result whose silhouettes do not match the masks (mean IoU under
+/// [`POOR_FIT_IOU`]): its covariance would describe a wrong pose and still look tight. The
+/// run directory keeps every view for a look and an offline re-solve.
+fn judge_loop_fit(report: &SolveReport, run_dir: &Path) -> Result<()> {
+    let mean = report.mean_iou();
+    if mean.is_nan() || mean < POOR_FIT_IOU {
+        let poor: Vec<usize> = report
+            .per_view_iou
+            .iter()
+            .enumerate()
+            .filter(|(_, &iou)| iou < POOR_FIT_IOU)
+            .map(|(i, _)| i)
+            .collect();
+        return Err(Error::Solve(format!(
+            "poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then `easyhec solve` it",
+            run_dir.display()
+        )));
+    }
+    Ok(())
 }
 
 /// The `[calibration]` settings of this run: `RunOptions::max_views` applied, the commanded

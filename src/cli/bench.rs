@@ -5,8 +5,8 @@ use clap::Subcommand;
 
 #[cfg(feature = "sim")]
 use easyhec::bench::{
-    AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, Report, SegmentBench,
-    SpeedBench, ViewSetsBench,
+    AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, MotionBench, Report,
+    SegmentBench, SpeedBench, ViewSetsBench,
 };
 
 /// The benchmarks.
@@ -24,6 +24,9 @@ pub enum BenchCommand {
     /// Closed loop on seeded simulated cells: exploration vs random pose selection (median
     /// error after each view), planning time per round and compute per calibration.
     Loop(LoopBench),
+    /// Planning that weighs motion time against planning by information alone, on the mock
+    /// xArm in real time: wall time, motion, views and error per seeded cell.
+    Motion(MotionBench),
     /// How far 3-view selection can go: per seeded cell, the loop's explored pair and random
     /// pairs, each solved many times with fresh noise, against the selection score's
     /// prediction (docs/benchmarks.md).
@@ -54,6 +57,7 @@ impl BenchCommand {
             BenchCommand::Coverage(b) => b.run(&mut log)?,
             BenchCommand::Init(b) => b.run(&mut log)?,
             BenchCommand::Loop(b) => b.run(&mut log)?,
+            BenchCommand::Motion(b) => b.run(&mut log)?,
             BenchCommand::ViewSets(b) => b.run(&mut log)?,
             BenchCommand::Segment(b) => b.run(&mut log)?,
             BenchCommand::Explore(b) => b.run(&mut log)?,

@@ -74,6 +74,15 @@ pub struct CalibrationSettings {
     /// kinematic error). `information` scoring counts what such errors do to the estimate.
     #[serde(default = "default_joint_noise")]
     pub joint_noise_rad: f64,
+    /// Rank poses by information per second (the move plus each view's other work) instead
+    /// of by information alone. Only arms whose moves take time are affected: the simulated
+    /// arm arrives at once unless `[arm] speedup` slows it.
+    #[serde(default = "default_weigh_motion_time")]
+    pub weigh_motion_time: bool,
+    /// What each view costs besides its move, seconds (capture, segmentation, solve and
+    /// planning), for `weigh_motion_time`; absent: measured during the run.
+    #[serde(default)]
+    pub view_overhead_s: Option<f64>,
     /// For a camera on a link: the least fraction of the image the robot must cover (under
     /// the estimate) for a pose to be worth a view. A fixed camera uses
     /// `[safety] min_in_image` instead.
@@ -120,6 +129,9 @@ fn default_max_failures() -> usize {
 }
 fn default_joint_noise() -> f64 {
     0.0005
+}
+fn default_weigh_motion_time() -> bool {
+    true
 }
 fn default_min_robot_image_fraction() -> f64 {
     0.05

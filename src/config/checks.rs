@@ -288,6 +288,9 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
     if let Some(target) = s.stop_centre_95_mm {
         c.within("calibration.stop_centre_95_mm", target, 0.0, 1000.0, true)?;
     }
+    if let Some(o) = s.view_overhead_s {
+        c.within("calibration.view_overhead_s", o, 0.0, 3600.0, true)?;
+    }
     c.within(
         "calibration.min_robot_image_fraction",
         s.min_robot_image_fraction,
