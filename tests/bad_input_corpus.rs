@@ -662,6 +662,27 @@ fn solve_cases() -> Vec<Case> {
             run_json(|v| v["initial_guess"]["camera_from_base"][3][0] = json!(1.0)),
         ),
         case(
+            "mount link unknown",
+            SOLVE,
+            &[rj, "camera.mount.link", "no link named 'link9'"],
+            run_json(|v| v["camera"]["mount"] = json!({"link": "link9"})),
+        ),
+        case(
+            "mount spelled wrong",
+            SOLVE,
+            &[rj, "\"fixed\" or { link"],
+            run_json(|v| v["camera"]["mount"] = json!("wrist")),
+        ),
+        case(
+            "mount link without initial guess",
+            SOLVE,
+            &[rj, "initial_guess", "camera_from_link6"],
+            run_json(|v| {
+                v["camera"]["mount"] = json!({"link": "link6"});
+                v.as_object_mut().unwrap().remove("initial_guess");
+            }),
+        ),
+        case(
             "URDF origin NaN",
             SOLVE,
             &["robot.urdf", "origin xyz", "NaN"],
@@ -872,6 +893,9 @@ fn calibrate_cases() -> Vec<Case> {
         case("robot joints repeated", CAL, &[c, "robot.joints[1]"], cell_line("robot", "joints = [\"joint1\", \"joint1\", \"joint3\", \"joint4\", \"joint5\", \"joint6\"]")),
         case("robot urdf missing", CAL, &["missing.urdf"], cell_line("robot", "urdf = \"missing.urdf\"")),
         case("initial guess not rigid", CAL, &[c, "calibration.initial_guess"], cell_line("calibration", "initial_guess = { camera_from_base = [[2.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]] }")),
+        case("mount on a link that never moves", CAL, &[c, "camera.mount.link", "mount = \"fixed\""], cell_line("camera", "mount = { link = \"link_base\" }")),
+        case("view overhead negative", CAL, &[c, "calibration.view_overhead_s"], cell_line("calibration", "view_overhead_s = -1.0")),
+        case("robot image fraction zero", CAL, &[c, "calibration.min_robot_image_fraction"], cell_line("calibration", "min_robot_image_fraction = 0.0")),
     ];
     v.push(case(
         "renderer unknown",

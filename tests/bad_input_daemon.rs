@@ -527,6 +527,11 @@ fn id_cases(run: &str) -> Vec<Case> {
             Expect::Error(409, &["dry_run"]),
         ),
         case(
+            "activate_other_mount",
+            post(format!("{CALS}/cal-0003/activate")),
+            Expect::Error(409, &["result.json base_link", "link6", "[camera] mount"]),
+        ),
+        case(
             "cancel_cancelled",
             post(format!("{CALS}/{run}/cancel")),
             Expect::Error(409, &["cancelled"]),
@@ -780,11 +785,16 @@ fn malformed_and_hostile_api_requests_get_one_line_4xx_and_change_nothing() {
     });
     let data = dir.path().join("data");
     write_result(&data.join("runs/cal-0001"), &result_json(POSE, "converged"));
+    // A wrist camera's result (camera_from_link6) in a cell whose camera is fixed.
+    let mut wrist = result_json(POSE, "converged");
+    wrist["base_link"] = "link6".into();
+    write_result(&data.join("runs/cal-0003"), &wrist);
     write_index(
         &data,
         &[
             record("cal-0001", "succeeded", false, "runs/cal-0001"),
             record("cal-0002", "succeeded", true, "runs/cal-0002"),
+            record("cal-0003", "succeeded", false, "runs/cal-0003"),
         ],
     );
     let d = start(&config, &data);

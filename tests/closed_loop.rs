@@ -335,7 +335,15 @@ fn dry_run_plans_checked_poses_and_never_moves() {
 #[test]
 fn bad_cell_configs_get_one_line_errors_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let base = std::fs::read_to_string(config_path("sim-xarm6.toml")).unwrap();
+    // Relative paths resolve against the config's folder: point the URDF at the checkout.
+    let base = std::fs::read_to_string(config_path("sim-xarm6.toml"))
+        .unwrap()
+        .replace(
+            "../robots/xarm6/robot.urdf",
+            &config_path("../robots/xarm6/robot.urdf")
+                .display()
+                .to_string(),
+        );
     let cases = [
         (
             base.replace("kind = \"sim-truth\"", "kind = \"magic\""),
@@ -368,27 +376,7 @@ fn bad_cell_configs_get_one_line_errors_naming_the_key() {
             "segmenter.final_band_px",
         ),
     ];
-    for (i, (text, needle)) in cases.iter().enumerate() {
-        let p = dir.path().join(format!("bad{i}.toml"));
-        std::fs::write(&p, text).unwrap();
-        // Relative paths resolve against the config's folder: point the URDF at the checkout.
-        let fixed = text.replace(
-            "../robots/xarm6/robot.urdf",
-            &config_path("../robots/xarm6/robot.urdf")
-                .display()
-                .to_string(),
-        );
-        std::fs::write(&p, fixed).unwrap();
-        let e = match Cell::open(&p) {
-            Ok(_) => panic!("case {i} accepted"),
-            Err(e) => e.to_string(),
-        };
-        assert!(
-            e.contains(&format!("bad{i}.toml")) && e.contains(needle),
-            "case {i}: {e}"
-        );
-        assert!(!e.contains('\n'), "case {i}: {e}");
-    }
+    common::assert_configs_refused(dir.path(), &base, &cases);
 }
 
 #[test]

@@ -157,7 +157,7 @@ impl LoopBench {
             base.calibration.score = score;
         }
         let mut all: Vec<(String, Vec<LoopTrial>)> = Vec::new();
-        let mut failed: Vec<u64> = Vec::new();
+        let mut failed: Vec<String> = Vec::new();
         for &selection in &selections {
             let name = super::value_name(&selection);
             let mut trials = Vec::new();
@@ -168,7 +168,7 @@ impl LoopBench {
                     Err(e) => {
                         // A failed calibration is a result too: counted, never hidden.
                         log(&format!("{name} seed {seed}: failed: {e}"));
-                        failed.push(seed);
+                        failed.push(format!("{name} {seed}"));
                         continue;
                     }
                 };
@@ -227,7 +227,8 @@ impl LoopBench {
         }
         if !failed.is_empty() {
             report.line(format!(
-                "failed calibrations (left out of the medians): seeds {failed:?}"
+                "failed calibrations (selection and seed; left out of the medians): {}",
+                failed.join(", ")
             ));
         }
         if all.len() == 2 {

@@ -54,6 +54,7 @@ impl MotionBench {
         let base = read_config(&self.config)?;
         let sim_base = read_config(&self.cells_from)?;
         let mut pairs: Vec<(MotionTrial, MotionTrial)> = Vec::new();
+        let mut failed: Vec<u64> = Vec::new();
         for seed in self.first_seed..self.first_seed + self.cells {
             let seeded = seeded_sim_cell(&sim_base, &self.cells_from, seed)?;
             let trial = |weigh: bool| -> Result<MotionTrial> {
@@ -61,7 +62,23 @@ impl MotionBench {
                 cfg.calibration.weigh_motion_time = weigh;
                 run_on_mock(cfg, &self.config, start_of(&seeded))
             };
-            let (old, new) = (trial(false)?, trial(true)?);
+            let (old, new) = match (trial(false), trial(true)) {
+                (Ok(old), Ok(new)) => (old, new),
+                (old, new) => {
+                    // A failed calibration is a result too: counted, never hidden.
+                    let say = |r: &Result<MotionTrial>| match r {
+                        Ok(_) => "ok".to_string(),
+                        Err(e) => format!("failed: {e}"),
+                    };
+                    log(&format!(
+                        "seed {seed}: information only {}; per second {}",
+                        say(&old),
+                        say(&new)
+                    ));
+                    failed.push(seed);
+                    continue;
+                }
+            };
             log(&format!(
                 "seed {seed}: information only {:.1} s ({:.1} s moving, {} views, {:.4} deg {:.3} mm); per second {:.1} s ({:.1} s moving, {} views, {:.4} deg {:.3} mm); {} | {}",
                 old.total_s, old.motion_s, old.views, old.error.0, old.error.1,
@@ -70,7 +87,13 @@ impl MotionBench {
             ));
             pairs.push((old, new));
         }
-        Ok(summary(&pairs))
+        let mut report = summary(&pairs);
+        if !failed.is_empty() {
+            report.line(format!(
+                "cells where either calibration failed (left out above): seeds {failed:?}"
+            ));
+        }
+        Ok(report)
     }
 }
 

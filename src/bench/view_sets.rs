@@ -473,6 +473,13 @@ impl ViewSetsBench {
             ));
         }
         let base = read_config(&config)?;
+        if !base.camera.mount().is_fixed() {
+            return Err(crate::Error::input(
+                &config,
+                "camera.mount",
+                "bench view-sets measures fixed cameras only: use bench loop for a camera on a link",
+            ));
+        }
         let mut results = Vec::new();
         for seed in first_seed..first_seed + cells {
             let cfg = seeded_sim_cell(&base, &config, seed)?;

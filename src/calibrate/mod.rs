@@ -64,7 +64,8 @@ pub struct PlannedPose {
     /// Variance of the camera candidates' masks at this pose (computed for the best only,
     /// unless the variance ranked them all).
     pub variance: Option<f64>,
-    /// Fraction of the robot inside the image under the current estimate.
+    /// What the view shows under the current estimate: the share of the robot inside the image
+    /// (fixed camera), or the share of the image the robot covers (camera on a link).
     pub in_image: f64,
     /// Clearances along the path.
     pub clearance: Clearance,

@@ -81,6 +81,19 @@ mod tests {
     }
 
     #[test]
+    fn only_arms_whose_moves_take_time_have_a_time_scale() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim-xarm6.toml");
+        let mut cfg = crate::config::read_config(&path).unwrap();
+        assert_eq!(time_scale(&cfg), 0.0, "the simulated arm arrives at once");
+        if let ArmConfig::Sim { speedup, .. } = &mut cfg.arm {
+            *speedup = Some(20.0);
+        }
+        assert_eq!(time_scale(&cfg), 0.05);
+        let mock = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/mock-xarm.toml");
+        assert_eq!(time_scale(&crate::config::read_config(&mock).unwrap()), 1.0);
+    }
+
+    #[test]
     fn nearer_poses_rank_higher_at_equal_gain_whatever_its_sign() {
         let c = cost(1.0);
         let (near, far) = ([0.2, 0.0], [2.0, 0.0]);

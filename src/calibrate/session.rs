@@ -50,6 +50,8 @@ pub(super) struct Session<'a> {
     solve_s: f64,
     explore_s: f64,
     motion_s: f64,
+    /// Seconds spent reading joints, grabbing and segmenting.
+    capture_s: f64,
     guess: Option<Isometry3<f64>>,
     /// Reported joints of every view.
     taken: Vec<Vec<f64>>,
@@ -102,6 +104,7 @@ impl<'a> Session<'a> {
             solve_s: 0.0,
             explore_s: 0.0,
             motion_s: 0.0,
+            capture_s: 0.0,
             guess,
             taken: Vec::new(),
             live,
@@ -129,7 +132,9 @@ impl<'a> Session<'a> {
     /// automatic initialisation).
     pub(super) async fn first_view(&mut self) -> Result<()> {
         let guess = self.guess;
+        let t = Instant::now();
         self.capture(guess.as_ref(), None).await?;
+        self.capture_s += t.elapsed().as_secs_f64();
         emit_view(self.opts, &self.taken);
         self.pb.set_position(1);
         let t = Instant::now();
@@ -247,17 +252,15 @@ impl<'a> Session<'a> {
     }
 
     /// The time model of the next move, when moves take time and the settings weigh it: the
-    /// overhead is `view_overhead_s`, else this run's own wall time per view besides motion
-    /// so far.
+    /// overhead is `view_overhead_s`, else this run's own capture, solve and planning time per
+    /// view so far (setup and waiting for an operator left out).
     fn motion_cost(&self, from: &[f64]) -> Option<MotionCost> {
         let time_scale = motion_cost::time_scale(&self.cell.config);
         if !self.settings.weigh_motion_time || time_scale <= 0.0 {
             return None;
         }
-        let measured = || {
-            let busy_s = (self.started.elapsed().as_secs_f64() - self.motion_s).max(0.0);
-            busy_s / self.views.len().max(1) as f64
-        };
+        let measured =
+            || (self.capture_s + self.solve_s + self.explore_s) / self.views.len().max(1) as f64;
         Some(MotionCost {
             from: from.to_vec(),
             speed_rad_s: self.settings.speed_rad_s,
@@ -415,7 +418,9 @@ impl<'a> Session<'a> {
     async fn capture_and_solve(&mut self, round: usize, best: Option<f64>) -> Result<()> {
         let previous = self.report().camera_from_base;
         let report = self.report.take().expect("round 0 solved");
+        let t = Instant::now();
         let captured = self.capture(Some(&previous), Some(&report)).await;
+        self.capture_s += t.elapsed().as_secs_f64();
         self.report = Some(report);
         captured?;
         emit_view(self.opts, &self.taken);
@@ -584,7 +589,7 @@ impl<'a> Session<'a> {
         }
         self.rec.write_rounds(&self.rounds)?;
         let report = self.report.take().expect("round 0 solved");
-        if !self.opts.dry_run {
+        if !self.opts.dry_run && !self.cancelled {
             judge_loop_fit(&report, self.rec.dir())?;
         }
         let cell = self.cell;
@@ -636,7 +641,7 @@ fn judge_loop_fit(report: &SolveReport, run_dir: &Path) -> Result<()> {
             .map(|(i, _)| i)
             .collect();
         return Err(Error::Solve(format!(
-            "poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then `easyhec solve` it",
+            "poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then re-solve them with `easyhec solve` (`--allow-poor-fit` writes a poor result anyway)",
             run_dir.display()
         )));
     }

@@ -107,7 +107,8 @@ pub struct Ros2Settings {
     /// The daemon publishes the active calibration on `/tf_static` (default true).
     #[serde(default = "yes")]
     pub publish_tf: bool,
-    /// Parent frame of the published edge; absent: the robot's base link.
+    /// Parent frame of the published edge; absent: the result's `base_link` (the robot's base
+    /// link, or the mount link of a camera on a link).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frame_id: Option<String>,
     /// Child frame: the optical frame, or the camera's root link with `optical_from_child`.

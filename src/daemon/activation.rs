@@ -8,7 +8,9 @@
 //! - not a dry run (it only planned);
 //! - `run_dir` is the record's own `runs/ID`, and it and `result.json` resolve inside the data
 //!   folder (a record edited to point at another run or outside the folder is refused);
-//! - `camera_from_base` finite and rigid within 1e-6, `base_from_camera` its inverse.
+//! - `camera_from_base` finite and rigid within 1e-6, `base_from_camera` its inverse;
+//! - `base_link` fits the camera's mount: the mount link for a camera on a link, a frame no
+//!   joint moves for a fixed camera. A result for another mount is refused.
 //!
 //! Each refusal is a 409 whose message names the calibration and the field.
 
@@ -28,6 +30,9 @@ impl Daemon {
             .status(id)
             .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
         let result = activatable(&self.store, &record)?;
+        if let Some(why) = self.frame_mismatch(&result.base_link) {
+            return Err(refuse(&record, "result.json base_link", why));
+        }
         let active = self.store.activate(id, result, &now())?;
         self.announce_active(&active);
         Ok(active)

@@ -20,6 +20,7 @@ use nalgebra::{Isometry3, Matrix6, Vector6};
 use super::store::CheckRecord;
 use super::{now, Busy, Daemon, Refusal, StartOptions};
 use crate::camera::{Intrinsics, LensWarp};
+use crate::cell::Cell;
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
@@ -152,6 +153,26 @@ fn recorded_views(
         .collect()
 }
 
+/// A check compares silhouettes, so the camera must see the robot where the arm stands.
+/// A fixed camera always does; a wrist camera only from some poses, and a check elsewhere
+/// would read the robot's absence as a bump.
+fn check_robot_in_view(cell: &Cell, joints: &[f64], pose: &Isometry3<f64>) -> Result<()> {
+    use crate::calibrate::VisibilityRule;
+    let rule = VisibilityRule::of(cell);
+    if matches!(rule, VisibilityRule::InImage(_)) {
+        return Ok(());
+    }
+    let camera = cell.camera.intrinsics().undistorted();
+    let low = camera.downsampled(cell.config.calibration.score_downsample);
+    let posed = PosedRobot::new(&cell.seen, joints).decimated(0.01);
+    match rule.shows(&posed, &camera, &low, pose) {
+        Some(_) => Ok(()),
+        None => Err(Error::Hardware(
+            "the camera on the arm does not see enough of the robot at the arm's pose to check it: set [daemon] check_pose to a pose that shows the robot (calibration.min_robot_image_fraction)".into(),
+        )),
+    }
+}
+
 /// Moves to `check_pose` if configured, captures, segments and compares.
 async fn measure(
     daemon: &Arc<Daemon>,
@@ -197,6 +218,7 @@ async fn measure(
         }
     }
     let joints = cell.arm.read_joints().await?;
+    check_robot_in_view(&cell, &joints, pose)?;
     let frame = cell.camera.grab().await?;
     let pose = *pose;
     let q = joints.clone();

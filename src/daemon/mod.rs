@@ -674,11 +674,33 @@ impl Daemon {
         }
     }
 
-    /// The active calibration's pose, for bump checks and warm starts.
+    /// The active calibration's pose, for bump checks and warm starts; none when it was
+    /// solved for another frame than this cell's camera pose refers to (the mount changed).
     pub fn active_pose(&self) -> Option<(String, Isometry3<f64>)> {
         let a = self.store.active()?;
+        if self.frame_mismatch(&a.result.base_link).is_some() {
+            return None;
+        }
         let pose = from_rows(&a.result.camera_from_base).ok()?;
         Some((a.id, pose))
+    }
+
+    /// Why a result solved from frame `base_link` does not fit this cell's camera mount, if it
+    /// does not: a camera on a link needs a result for that link, and a fixed camera one for
+    /// a frame that no joint moves (the base link or a frame fixed to it).
+    pub fn frame_mismatch(&self, base_link: &str) -> Option<String> {
+        let robot = &self.cell.robot;
+        match self.cell.config.camera.mount().link() {
+            Some(link) if base_link != link => Some(format!(
+                "is '{base_link}', but this cell's camera is on link '{link}' ([camera] mount): calibrate again for this mount"
+            )),
+            None if robot.link_index(base_link).is_some_and(|i| robot.link_moves(i)) => {
+                Some(format!(
+                    "is '{base_link}', a link the arm moves: that result is for a camera on the arm, and this cell's camera is fixed ([camera] mount): calibrate again for this mount"
+                ))
+            }
+            _ => None,
+        }
     }
 }
 

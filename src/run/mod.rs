@@ -379,6 +379,13 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
     let robot = match file.camera.mount.link() {
         None => RobotModel::load(&source)?,
         Some(link) => {
+            if file.initial_guess.is_none() {
+                return Err(Error::input(
+                    &json,
+                    "initial_guess",
+                    format!("is absent: a camera on link '{link}' needs camera_from_{link} to start from (the automatic initialisation searches around a fixed camera only)"),
+                ));
+            }
             RobotModel::load(&source)?.seen_from_link(link, &json, "camera.mount.link")?
         }
     };

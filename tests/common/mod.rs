@@ -134,3 +134,23 @@ pub fn assert_logged_commands_safe(
     }
     moves
 }
+
+/// Each `(config text, needle)` written into `dir` as `bad{i}.toml` is refused by
+/// `Cell::open` with one line that names the file and contains `needle`; `base` is the valid
+/// text every case was edited from (a case that changed nothing is itself an error).
+pub fn assert_configs_refused(dir: &std::path::Path, base: &str, cases: &[(String, &str)]) {
+    for (i, (text, needle)) in cases.iter().enumerate() {
+        assert_ne!(text, base, "case {i} changed nothing");
+        let p = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&p, text).unwrap();
+        let e = match easyhec::cell::Cell::open(&p) {
+            Ok(_) => panic!("case {i} accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains(&format!("bad{i}.toml")) && e.contains(needle),
+            "case {i}: {e}"
+        );
+        assert!(!e.contains('\n'), "case {i}: {e}");
+    }
+}
