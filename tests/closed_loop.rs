@@ -335,15 +335,7 @@ fn dry_run_plans_checked_poses_and_never_moves() {
 #[test]
 fn bad_cell_configs_get_one_line_errors_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    // Relative paths resolve against the config's folder: point the URDF at the checkout.
-    let base = std::fs::read_to_string(config_path("sim-xarm6.toml"))
-        .unwrap()
-        .replace(
-            "../robots/xarm6/robot.urdf",
-            &config_path("../robots/xarm6/robot.urdf")
-                .display()
-                .to_string(),
-        );
+    let base = common::shipped_config_text("sim-xarm6.toml");
     let cases = [
         (
             base.replace("kind = \"sim-truth\"", "kind = \"magic\""),

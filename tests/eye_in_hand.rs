@@ -109,14 +109,7 @@ fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
 #[test]
 fn a_mount_the_robot_cannot_carry_is_refused_with_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let base = std::fs::read_to_string(config_path("sim-xarm6-eye-in-hand.toml"))
-        .unwrap()
-        .replace(
-            "../robots/xarm6/robot.urdf",
-            &config_path("../robots/xarm6/robot.urdf")
-                .display()
-                .to_string(),
-        );
+    let base = common::shipped_config_text("sim-xarm6-eye-in-hand.toml");
     let guess_line = base
         .lines()
         .find(|l| l.starts_with("initial_guess"))

@@ -2,6 +2,8 @@
 //! frames are a function of (seed, frame index), and seeded hard cells come out of
 //! `synth::generate_frames` and into run directories with images.
 
+mod common;
+
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
@@ -424,12 +426,7 @@ fn a_hard_640x480_frame_renders_in_well_under_half_a_second() {
 #[test]
 fn bad_scene_settings_name_the_key() {
     let dir = tempfile::tempdir().unwrap();
-    let base = std::fs::read_to_string(repo("config/sim-xarm6.toml"))
-        .unwrap()
-        .replace(
-            "../robots/xarm6/robot.urdf",
-            &repo("robots/xarm6/robot.urdf").display().to_string(),
-        );
+    let base = common::shipped_config_text("sim-xarm6.toml");
     let cases = [
         (
             "scene = { seed = 1, preset = \"hard\", shadows = { strength = 2.0 } }",
@@ -442,19 +439,11 @@ fn bad_scene_settings_name_the_key() {
         ("scene = { seed = 1, preset = \"medium\" }", "medium"),
         ("scene = { seed = 1, distractors = { cuont = 2 } }", "cuont"),
     ];
-    for (i, (line, needle)) in cases.iter().enumerate() {
-        let p = dir.path().join(format!("bad{i}.toml"));
-        std::fs::write(&p, base.replace("scene = { seed = 1 }", line)).unwrap();
-        let e = match easyhec::cell::Cell::open(&p) {
-            Ok(_) => panic!("case {i} accepted"),
-            Err(e) => e.to_string(),
-        };
-        assert!(
-            e.contains(&format!("bad{i}.toml")) && e.contains(needle),
-            "case {i}: {e}"
-        );
-        assert!(!e.contains('\n'), "case {i}: {e}");
-    }
+    let cases: Vec<(String, &str)> = cases
+        .iter()
+        .map(|(line, needle)| (base.replace("scene = { seed = 1 }", line), *needle))
+        .collect();
+    common::assert_configs_refused(dir.path(), &base, &cases);
 }
 
 #[test]

@@ -154,3 +154,15 @@ pub fn assert_configs_refused(dir: &std::path::Path, base: &str, cases: &[(Strin
         assert!(!e.contains('\n'), "case {i}: {e}");
     }
 }
+
+/// The text of the shipped `config/NAME` with its `../robots/` paths made absolute, so an
+/// edited copy written anywhere still finds the checkout's robot descriptions.
+pub fn shipped_config_text(name: &str) -> String {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    std::fs::read_to_string(root.join("config").join(name))
+        .unwrap()
+        .replace(
+            "\"../robots/",
+            &format!("\"{}/", root.join("robots").display()),
+        )
+}
