@@ -237,7 +237,7 @@ fn shipped_camera_template_parses_with_either_table() {
         pixel_format,
         exposure_us,
         ..
-    } = &cfg.camera
+    } = &*cfg.camera
     else {
         panic!("{:?}", cfg.camera)
     };
@@ -274,7 +274,7 @@ fn shipped_camera_template_parses_with_either_table() {
         pixel_format,
         gain_db,
         ..
-    } = &cfg.camera
+    } = &*cfg.camera
     else {
         panic!("{:?}", cfg.camera)
     };

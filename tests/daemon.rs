@@ -825,7 +825,7 @@ fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
         c.daemon.bump_min_iou = 0.78;
         c.daemon.bump_max_boundary_px = 3.8;
         c.segmenter = SegmenterConfig::by_name("builtin").unwrap();
-        if let CameraConfig::Sim { scene, .. } = &mut c.camera {
+        if let CameraConfig::Sim { scene, .. } = &mut *c.camera {
             scene.preset = ScenePreset::Hard;
         }
     });

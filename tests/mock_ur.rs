@@ -62,7 +62,7 @@ fn cell_config(mock: &MockUr, views: usize) -> CellConfig {
         panic!("config/mock-ur.toml drives a UR arm")
     };
     *host = mock.host().to_string();
-    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
         panic!("the camera is simulated")
     };
     let Some(JointsFrom::UrRtde { addr, .. }) = joints_from else {

@@ -53,7 +53,7 @@ fn cell_config(mock: &MockXArm, views: usize) -> CellConfig {
         panic!("config/mock-xarm.toml drives an xArm")
     };
     *addr = mock.command_addr().to_string();
-    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
         panic!("the camera is simulated")
     };
     let Some(JointsFrom::XarmReport { addr, .. }) = joints_from else {

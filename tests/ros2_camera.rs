@@ -34,7 +34,7 @@ fn calibration_from_ros2_topics_alone_reaches_the_truth_safely() {
     let dir = tempfile::tempdir().unwrap();
     let (sim, start) = ros2_sim_cell(DOMAIN);
     write(dir.path(), "sim.toml", &sim);
-    let CameraConfig::Sim { truth, .. } = &sim.camera else {
+    let CameraConfig::Sim { truth, .. } = &*sim.camera else {
         unreachable!()
     };
     let truth = truth.camera_from_base();

@@ -17,6 +17,7 @@ pub mod closed_loop;
 pub mod coverage;
 pub mod init;
 pub mod motion;
+pub mod rig;
 pub mod segmentation;
 pub mod speed;
 pub mod view_sets;
@@ -35,6 +36,7 @@ pub use closed_loop::LoopBench;
 pub use coverage::CoverageBench;
 pub use init::InitBench;
 pub use motion::MotionBench;
+pub use rig::RigBench;
 pub use segmentation::SegmentBench;
 pub use speed::{ExploreBench, SpeedBench};
 pub use view_sets::ViewSetsBench;
@@ -126,6 +128,10 @@ pub fn seeded_sim_cell(
     use crate::config::InitialGuess;
     use crate::config::{CameraConfig, LookAt};
     use rand::{Rng, SeedableRng};
+    base.camera.require_one(
+        config_path,
+        "this benchmark (bench rig measures several cameras)",
+    )?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
     if !base.camera.mount().is_fixed() {
         return seeded_wrist_cell(base, config_path, seed, &mut rng);
@@ -151,7 +157,7 @@ pub fn seeded_sim_cell(
     let pose = truth.camera_from_base();
     let CameraConfig::Sim {
         truth: t, scene, ..
-    } = &mut cfg.camera
+    } = &mut *cfg.camera
     else {
         return Err(crate::Error::input(
             config_path,
@@ -188,7 +194,7 @@ fn seeded_wrist_cell(
     use crate::config::{CameraConfig, InitialGuess};
     use rand::Rng;
     let mut cfg = base.clone();
-    let CameraConfig::Sim { truth, scene, .. } = &mut cfg.camera else {
+    let CameraConfig::Sim { truth, scene, .. } = &mut *cfg.camera else {
         return Err(crate::Error::input(
             config_path,
             "camera.kind",

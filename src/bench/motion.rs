@@ -143,12 +143,12 @@ fn start_of(seeded: &CellConfig) -> Vec<f64> {
 /// The mock xArm cell with the seeded cell's camera, segmenter, guess and seed.
 fn on_mock_arm(base: &CellConfig, seeded: &CellConfig) -> CellConfig {
     let mut cfg = base.clone();
-    let joints_from = match &base.camera {
+    let joints_from = match &*base.camera {
         CameraConfig::Sim { joints_from, .. } => joints_from.clone(),
         _ => None,
     };
     cfg.camera = seeded.camera.clone();
-    if let CameraConfig::Sim { joints_from: j, .. } = &mut cfg.camera {
+    if let CameraConfig::Sim { joints_from: j, .. } = &mut *cfg.camera {
         *j = joints_from;
     }
     cfg.segmenter = seeded.segmenter.clone();
@@ -188,7 +188,7 @@ fn run_on_mock(
     if let CameraConfig::Sim {
         joints_from: Some(JointsFrom::XarmReport { addr, .. }),
         ..
-    } = &mut cfg.camera
+    } = &mut *cfg.camera
     {
         if let Some(a) = mock.real_report_addr() {
             *addr = a.to_string();

@@ -59,7 +59,7 @@ pub fn cell_trial(
     preset: crate::config::ScenePreset,
 ) -> Result<CellTrial> {
     let mut cfg = cfg.clone();
-    if let crate::config::CameraConfig::Sim { scene, .. } = &mut cfg.camera {
+    if let crate::config::CameraConfig::Sim { scene, .. } = &mut *cfg.camera {
         scene.preset = preset;
     }
     cfg.segmenter = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 use super::{median, seeded_sim_cell, uniform_joints, Report};
-use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses};
+use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses, PlanCamera};
 use crate::camera::Intrinsics;
 use crate::cell::Cell;
 use crate::config::{read_config, ArmConfig, NoiseModel, SelectionSetting};
@@ -218,7 +218,12 @@ impl TrialCell {
                 taken: &taken,
                 motion: None,
             };
-            let (ranked, _) = rank_poses(&CpuRenderer, cell, camera, &report, settings, &request);
+            let one = [PlanCamera {
+                camera,
+                report: &report,
+                wants_views: true,
+            }];
+            let (ranked, _) = rank_poses(&CpuRenderer, cell, &one, settings, &request);
             let from = taken.last().expect("view 0").clone();
             let (next, _) = choose_reachable(
                 cell,

@@ -25,7 +25,7 @@ use crate::solve::SolveReport;
 
 pub use motion_cost::MotionCost;
 pub use planner::{
-    choose_reachable, in_image_fraction, rank_poses, PlanRequest, PlanStats, Ranked,
+    choose_reachable, in_image_fraction, rank_poses, PlanCamera, PlanRequest, PlanStats, Ranked,
 };
 pub use recorder::Recorder;
 pub use visibility::VisibilityRule;
@@ -52,6 +52,41 @@ pub struct RoundRecord {
     /// Events (faults, refusals, skipped candidates).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub events: Vec<String>,
+    /// Each camera's figures, for a list of cameras (the round's own figures are then the
+    /// first camera's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cameras: Vec<CameraRound>,
+}
+
+/// One camera's figures in a round of a rig.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct CameraRound {
+    /// The camera's name.
+    pub name: String,
+    /// Its estimate after this round.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// Mean mask IoU at the estimate.
+    pub mean_iou: f64,
+    /// Mask loss at the estimate.
+    pub loss: f64,
+    /// Change from the previous round's estimate, degrees / millimetres.
+    pub pose_change: Option<[f64; 2]>,
+    /// The reported 95% bound on the camera centre, millimetres.
+    pub camera_centre_95_mm: f64,
+    /// Why the camera stopped asking for views, once it has.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub done: Option<String>,
+}
+
+/// What the loop produced for one camera.
+#[derive(Clone, Debug)]
+pub struct CameraOutcome {
+    /// The camera's name.
+    pub name: String,
+    /// Its result, as `easyhec-result/1` would record it.
+    pub result: ResultFile,
+    /// Its final solve.
+    pub report: SolveReport,
 }
 
 /// A pose chosen by the planner, with its checks.
@@ -170,10 +205,13 @@ impl RunOptions {
 /// What a calibration produced.
 #[derive(Clone, Debug)]
 pub struct Outcome {
-    /// The result as written to `result.json` (not written on a dry run).
+    /// The result as written to `result.json` (not written on a dry run); for a list of
+    /// cameras, the first camera's part of it.
     pub result: ResultFile,
-    /// The final solve.
+    /// The final solve (the first camera's).
     pub report: SolveReport,
+    /// Every camera's result and solve, in the config's order.
+    pub cameras: Vec<CameraOutcome>,
     /// Every round.
     pub rounds: Vec<RoundRecord>,
     /// Dry run: the poses that would be visited.

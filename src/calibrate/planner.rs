@@ -85,18 +85,32 @@ pub struct PlanRequest<'a> {
     pub motion: Option<MotionCost>,
 }
 
-/// Draws joint samples, keeps the statically safe ones that show the robot, and scores them
-/// by the candidates' disagreement, best first.
+/// One camera as the planner sees it: its model, its current estimate, and whether it still
+/// asks for views (a camera that has converged in a rig does not).
+#[derive(Clone, Copy)]
+pub struct PlanCamera<'a> {
+    /// The camera's intrinsics (distortion allowed).
+    pub camera: &'a Intrinsics,
+    /// Its latest solve.
+    pub report: &'a SolveReport,
+    /// Whether a view's value to this camera counts.
+    pub wants_views: bool,
+}
+
+/// Draws joint samples, keeps the statically safe ones that show the robot to every camera,
+/// and scores them by what a view would tell the cameras that still want views, best first.
+/// With several cameras the scores add: each camera's information score is a reduction of
+/// `ln det` of its covariance, which has no units and no scale, so a pose that shrinks one
+/// camera's uncertainty volume by some factor is worth the same whichever camera it is.
 pub fn rank_poses(
     renderer: &dyn Backend,
     cell: &Cell,
-    camera: &Intrinsics,
-    report: &SolveReport,
+    cameras: &[PlanCamera],
     settings: &CalibrationSettings,
     request: &PlanRequest,
 ) -> (Vec<Ranked>, PlanStats) {
     let (round, taken) = (request.round, request.taken);
-    let mut round_plan = RoundPlan::new(renderer, cell, camera, report, settings, round);
+    let mut round_plan = RoundPlan::new(renderer, cell, cameras, settings, round);
     round_plan.motion = request.motion.clone();
     let samples = round_plan.draw_samples();
     let t_start = std::time::Instant::now();
@@ -124,10 +138,7 @@ pub fn rank_poses(
     // The stop rule watches the candidates' disagreement at the best pose, whatever ranked it.
     if let Some((best, posed)) = ranked.first_mut() {
         if best.variance.is_none() {
-            best.variance = round_plan
-                .variances(&[&*posed], &round_plan.candidates)
-                .first()
-                .copied();
+            best.variance = round_plan.variances(&[&*posed]).first().copied();
         }
     }
     let ranked: Vec<Ranked> = ranked.into_iter().map(|r| r.0).collect();
@@ -149,39 +160,37 @@ type InView = (f64, Vec<f64>, PosedRobot);
 /// A ranked sample with the posed robot it was scored on.
 type RankedPosed = (Ranked, PosedRobot);
 
-/// What one planning round shares between its steps: the scoring camera, the camera
-/// candidates drawn around the estimate, and how samples are posed coarsely.
+/// One camera's share of a planning round: its scoring images, the camera candidates drawn
+/// around its estimate, and whether its score counts.
+struct CameraPlan<'a> {
+    report: &'a SolveReport,
+    pinhole: Intrinsics,
+    low: Intrinsics,
+    candidates: Vec<Isometry3<f64>>,
+    estimate: Isometry3<f64>,
+    wants_views: bool,
+}
+
+/// What one planning round shares between its steps: every camera's plan, and how samples
+/// are posed coarsely.
 struct RoundPlan<'a> {
     renderer: &'a dyn Backend,
     cell: &'a Cell,
-    report: &'a SolveReport,
     settings: &'a CalibrationSettings,
     round: usize,
-    pinhole: Intrinsics,
-    low: Intrinsics,
+    cameras: Vec<CameraPlan<'a>>,
     cell_m: f64,
-    candidates: Vec<Isometry3<f64>>,
     coarse: CoarseRobot,
-    estimate: Isometry3<f64>,
     visibility: VisibilityRule,
     motion: Option<MotionCost>,
 }
 
-impl<'a> RoundPlan<'a> {
-    fn new(
-        renderer: &'a dyn Backend,
-        cell: &'a Cell,
-        camera: &Intrinsics,
-        report: &'a SolveReport,
-        settings: &'a CalibrationSettings,
-        round: usize,
-    ) -> Self {
-        let pinhole = camera.undistorted();
+impl<'a> CameraPlan<'a> {
+    fn new(cam: &PlanCamera<'a>, settings: &CalibrationSettings, round: usize) -> Self {
+        let pinhole = cam.camera.undistorted();
         let low = pinhole.downsampled(settings.score_downsample);
-        // Vertex clustering at one scoring pixel (at 1 m): coarse masks need no finer mesh.
-        let cell_m = f64::from(settings.score_downsample) / pinhole.fx.max(pinhole.fy);
         let candidates = camera_candidates(
-            &widened_posterior(report, &pinhole, settings.score_downsample),
+            &widened_posterior(cam.report, &pinhole, settings.score_downsample),
             &ExploreOptions {
                 candidates: settings.candidates,
                 source: match settings.candidate_source {
@@ -192,18 +201,44 @@ impl<'a> RoundPlan<'a> {
                 ..ExploreOptions::default()
             },
         );
+        CameraPlan {
+            report: cam.report,
+            low,
+            candidates,
+            estimate: cam.report.camera_from_base,
+            pinhole,
+            wants_views: cam.wants_views,
+        }
+    }
+}
+
+impl<'a> RoundPlan<'a> {
+    fn new(
+        renderer: &'a dyn Backend,
+        cell: &'a Cell,
+        cameras: &[PlanCamera<'a>],
+        settings: &'a CalibrationSettings,
+        round: usize,
+    ) -> Self {
+        let cameras: Vec<CameraPlan> = cameras
+            .iter()
+            .map(|c| CameraPlan::new(c, settings, round))
+            .collect();
+        // Vertex clustering at one scoring pixel (at 1 m) of the sharpest camera: coarse
+        // masks need no finer mesh.
+        let f_max = cameras
+            .iter()
+            .map(|c| c.pinhole.fx.max(c.pinhole.fy))
+            .fold(1.0, f64::max);
+        let cell_m = f64::from(settings.score_downsample) / f_max;
         RoundPlan {
             renderer,
             cell,
-            report,
             settings,
             round,
-            low,
+            cameras,
             cell_m,
-            candidates,
             coarse: CoarseRobot::new(&cell.seen, cell_m),
-            estimate: report.camera_from_base,
-            pinhole,
             visibility: VisibilityRule::of(cell),
             motion: None,
         }
@@ -228,7 +263,8 @@ impl<'a> RoundPlan<'a> {
 
     /// The variance score only needs coarse masks: one decimation per robot (link frames),
     /// posed per sample. The information score reads outline samples, which follow the posed
-    /// surface more faithfully when each pose is clustered in the base frame.
+    /// surface more faithfully when each pose is clustered in the base frame. Every camera
+    /// of a rig is fixed, so all see the same robot (`cell.seen`).
     fn pose_coarse(&self, q: &[f64]) -> PosedRobot {
         if self.settings.score == ScoreSetting::Information {
             PosedRobot::new(&self.cell.seen, q).decimated(self.cell_m)
@@ -259,16 +295,37 @@ impl<'a> RoundPlan<'a> {
             .collect()
     }
 
-    /// How much of the robot a view of `posed` shows under the estimate, when enough
-    /// ([`VisibilityRule`]).
+    /// How much of the robot a view of `posed` shows under the estimates, when enough for
+    /// every camera ([`VisibilityRule`]): every camera records every view, so each must see
+    /// the robot. The least share of any camera.
     fn shows(&self, posed: &PosedRobot) -> Option<f64> {
-        self.visibility
-            .shows(posed, &self.pinhole, &self.low, &self.estimate)
+        self.cameras
+            .iter()
+            .map(|c| {
+                self.visibility
+                    .shows(posed, &c.pinhole, &c.low, &c.estimate)
+            })
+            .try_fold(f64::INFINITY, |least, s| s.map(|s| least.min(s)))
     }
 
-    /// Batched through the renderer: a GPU backend scores the whole pool per submission.
-    fn variances(&self, pool: &[&PosedRobot], cands: &[Isometry3<f64>]) -> Vec<f64> {
-        self.renderer.disagreement_many(&self.low, pool, cands)
+    /// The candidates' disagreement at each pool pose, added over the cameras that want
+    /// views. Batched through the renderer: a GPU backend scores the whole pool per
+    /// submission.
+    fn variances(&self, pool: &[&PosedRobot]) -> Vec<f64> {
+        self.variances_with(pool, |c| &c.candidates)
+    }
+
+    fn variances_with(
+        &self,
+        pool: &[&PosedRobot],
+        candidates: impl for<'c> Fn(&'c CameraPlan<'a>) -> &'c [Isometry3<f64>],
+    ) -> Vec<f64> {
+        let mut total = vec![0.0; pool.len()];
+        for c in self.cameras.iter().filter(|c| c.wants_views) {
+            let v = self.renderer.disagreement_many(&c.low, pool, candidates(c));
+            total.iter_mut().zip(v).for_each(|(t, v)| *t += v);
+        }
+        total
     }
 
     /// The baseline: a seeded random order (a hash of the joints, so it is repeatable).
@@ -291,15 +348,16 @@ impl<'a> RoundPlan<'a> {
             .collect()
     }
 
-    /// What a view at `q` adds to the estimate's information (outline and joint terms).
-    fn terms(&self, posed: &PosedRobot, q: &[f64]) -> ViewTerms {
+    /// What a view at `q` adds to camera `c`'s estimate's information (outline and joint
+    /// terms).
+    fn terms(&self, c: &CameraPlan, posed: &PosedRobot, q: &[f64]) -> ViewTerms {
         view_terms(
-            &self.low,
-            self.pinhole.fx,
+            &c.low,
+            c.pinhole.fx,
             posed,
             &self.cell.seen.joint_motions(q),
-            &self.estimate,
-            self.report.outline_noise_px2,
+            &c.estimate,
+            c.report.outline_noise_px2,
             self.settings.joint_noise_rad,
         )
     }
@@ -308,15 +366,26 @@ impl<'a> RoundPlan<'a> {
     /// few: 2000 random samples leave the best view's information well short of what a few
     /// steps of local search from the best of them reach.
     fn rank_by_information(&self, in_view: Vec<InView>, taken: &[Vec<f64>]) -> Vec<RankedPosed> {
-        // What the views taken so far contribute, on the same footing as the candidates
-        // (a tiny ridge keeps a one-view outline matrix invertible).
-        let mut current: ViewTerms = taken
-            .par_iter()
-            .map(|q| self.terms(&self.pose_coarse(q), q))
-            .reduce(ViewTerms::zeros, |a, b| a + b);
-        current.outline_information += Matrix6::identity() * 1e-6;
+        // What the views taken so far contribute to each camera, on the same footing as the
+        // candidates (a tiny ridge keeps a one-view outline matrix invertible).
+        let wanting: Vec<&CameraPlan> = self.cameras.iter().filter(|c| c.wants_views).collect();
+        let current: Vec<ViewTerms> = wanting
+            .iter()
+            .map(|c| {
+                let mut t = taken
+                    .par_iter()
+                    .map(|q| self.terms(c, &self.pose_coarse(q), q))
+                    .reduce(ViewTerms::zeros, |a, b| a + b);
+                t.outline_information += Matrix6::identity() * 1e-6;
+                t
+            })
+            .collect();
         let score = |posed: &PosedRobot, q: &[f64]| {
-            let gain = cost_reduction(&current, &self.terms(posed, q), &self.estimate);
+            let gain: f64 = wanting
+                .iter()
+                .zip(&current)
+                .map(|(c, now)| cost_reduction(now, &self.terms(c, posed, q), &c.estimate))
+                .sum();
             match &self.motion {
                 Some(m) => m.rate(gain, q),
                 None => gain,
@@ -383,10 +452,10 @@ impl<'a> RoundPlan<'a> {
     /// candidates, then the best quarter against all of them (the argmax is almost always in
     /// that quarter; this halves the planning time).
     fn rank_by_variance(&self, in_view: Vec<InView>, n_scored: usize) -> Vec<RankedPosed> {
-        let candidates = &self.candidates;
-        let quick = &candidates[..(candidates.len() / 5).max(2).min(candidates.len())];
         let pool: Vec<&PosedRobot> = in_view.iter().map(|(_, _, p)| p).collect();
-        let quick_scores = self.variances(&pool, quick);
+        let quick_scores = self.variances_with(&pool, |c| {
+            &c.candidates[..(c.candidates.len() / 5).max(2).min(c.candidates.len())]
+        });
         let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = in_view
             .into_iter()
             .zip(quick_scores)
@@ -395,7 +464,7 @@ impl<'a> RoundPlan<'a> {
         first.sort_by(|a, b| b.0.total_cmp(&a.0));
         first.truncate((n_scored / 4).max(64.min(n_scored)));
         let pool: Vec<&PosedRobot> = first.iter().map(|(_, _, _, p)| p).collect();
-        let full = self.variances(&pool, candidates);
+        let full = self.variances(&pool);
         first
             .into_iter()
             .zip(full)

@@ -5,16 +5,18 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use easyhec_drivers::ArmStatus;
 use nalgebra::Isometry3;
 
 use super::motion_cost::{self, MotionCost};
-use super::planner::{choose_reachable, rank_poses, PlanRequest, Ranked};
-use super::recorder::{self, Recorder};
-use super::{Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
+use super::planner::{choose_reachable, rank_poses, PlanCamera, PlanRequest, Ranked};
+use super::recorder::{self, RecordedCamera, Recorder};
+use super::{CameraOutcome, CameraRound, Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
 use crate::backend::{open_renderer, Backend};
 use crate::camera::{Intrinsics, LensWarp};
-use crate::cell::Cell;
+use crate::cell::{CameraRef, Cell};
 use crate::config::CalibrationSettings;
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
@@ -22,6 +24,7 @@ use crate::init::{initialise, InitOptions};
 use crate::io::write_json_atomic;
 use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
 use crate::render::PosedRobot;
+use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
 use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
 use crate::safety::CheckedMove;
 use crate::solve::{solve, SolveOptions, SolveReport, View};
@@ -36,12 +39,36 @@ enum MoveOutcome {
     Stop(String),
 }
 
+/// One camera's side of the loop: its views, masks and estimate. A single camera is a rig of
+/// one; every camera of a rig sees every view.
+struct Track<'a> {
+    unit: CameraRef<'a>,
+    camera: Intrinsics,
+    guess: Option<Isometry3<f64>>,
+    /// Frames kept for a context-aware segmenter (absent for per-frame segmenters).
+    live: Option<LiveFrames>,
+    views: Vec<View>,
+    report: Option<SolveReport>,
+    /// Change of the estimate in the last round, degrees / millimetres.
+    change: Option<[f64; 2]>,
+    /// Why this camera stopped asking for views (a rig's camera that converged).
+    done: Option<String>,
+}
+
+impl Track<'_> {
+    fn report(&self) -> &SolveReport {
+        self.report
+            .as_ref()
+            .expect("round 0 solved before any other step")
+    }
+}
+
 /// Everything one calibration carries from round to round.
 pub(super) struct Session<'a> {
     cell: &'a Cell,
     opts: &'a RunOptions,
     settings: CalibrationSettings,
-    camera: Intrinsics,
+    tracks: Vec<Track<'a>>,
     rec: Recorder,
     pb: indicatif::ProgressBar,
     renderer: Arc<dyn Backend>,
@@ -52,13 +79,8 @@ pub(super) struct Session<'a> {
     motion_s: f64,
     /// Seconds spent reading joints, grabbing and segmenting.
     capture_s: f64,
-    guess: Option<Isometry3<f64>>,
     /// Reported joints of every view.
     taken: Vec<Vec<f64>>,
-    /// Frames kept for a context-aware segmenter (absent for per-frame segmenters).
-    live: Option<LiveFrames>,
-    views: Vec<View>,
-    report: Option<SolveReport>,
     rounds: Vec<RoundRecord>,
     previous_best: Option<f64>,
     failures: usize,
@@ -72,21 +94,42 @@ impl<'a> Session<'a> {
         // The total time counts setup too (the renderer, a GPU device included).
         let started = Instant::now();
         let settings = run_settings(cell, opts)?;
-        let camera = cell.camera.intrinsics().clone();
         let guess = initial_guess(cell, opts, &settings)?;
-        let camera_entry = CameraEntry {
-            mount: cell.config.camera.mount().clone(),
-            ..CameraEntry::of(&camera)
-        };
-        let rec = Recorder::create(out, robot_entry(cell), camera_entry, guess)?;
+        let tracks = cell
+            .cameras()
+            .into_iter()
+            .enumerate()
+            .map(|(i, unit)| {
+                let own = unit
+                    .initial_guess
+                    .map(|g| g.camera_from_base())
+                    .transpose()
+                    .map_err(|m| {
+                        Error::input(
+                            &cell.config_path,
+                            format!("{}.initial_guess", cell.config.camera.key(i)),
+                            m,
+                        )
+                    })?;
+                track(cell, unit, own.or(guess))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let recorded = tracks
+            .iter()
+            .map(|t| RecordedCamera {
+                name: t.unit.name.to_string(),
+                entry: CameraEntry {
+                    mount: t.unit.config.mount().clone(),
+                    ..CameraEntry::of(&t.camera)
+                },
+                guess: t.guess,
+            })
+            .collect();
+        let listed = cell.config.camera.is_listed();
+        let rec = Recorder::create(out, robot_entry(cell), recorded, listed)?;
         let pb = progress_bar(opts, settings.max_views);
         let renderer = open_renderer(settings.renderer, !opts.progress)
             .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
-        let live = cell.segmenter.uses_context().then(|| LiveFrames {
-            frames: Vec::new(),
-            min_band_px: cell.config.segmenter.min_band_px(),
-            final_band_px: cell.config.segmenter.final_band_px(),
-        });
         let solve_opts = SolveOptions {
             joint_noise_rad: settings.joint_noise_rad,
             ..SolveOptions::default()
@@ -95,7 +138,7 @@ impl<'a> Session<'a> {
             cell,
             opts,
             settings,
-            camera,
+            tracks,
             rec,
             pb,
             renderer,
@@ -105,11 +148,7 @@ impl<'a> Session<'a> {
             explore_s: 0.0,
             motion_s: 0.0,
             capture_s: 0.0,
-            guess,
             taken: Vec::new(),
-            live,
-            views: Vec::new(),
-            report: None,
             rounds: Vec::new(),
             previous_best: None,
             failures: 0,
@@ -118,38 +157,50 @@ impl<'a> Session<'a> {
         })
     }
 
+    /// The first camera's latest solve (the one a single-camera run reports).
     fn report(&self) -> &SolveReport {
-        self.report
-            .as_ref()
-            .expect("round 0 solved before any other step")
+        self.tracks[0].report()
+    }
+
+    fn is_rig(&self) -> bool {
+        self.tracks.len() > 1
+    }
+
+    fn views(&self) -> usize {
+        self.taken.len()
     }
 
     fn last_round(&mut self) -> &mut RoundRecord {
         self.rounds.last_mut().expect("round 0 exists")
     }
 
-    /// The view where the arm stands, and the first estimate from it (the guess, or an
-    /// automatic initialisation).
+    /// The view where the arm stands, and the first estimate of every camera from it (its
+    /// guess, or an automatic initialisation).
     pub(super) async fn first_view(&mut self) -> Result<()> {
-        let guess = self.guess;
         let t = Instant::now();
-        self.capture(guess.as_ref(), None).await?;
+        self.capture(true).await?;
         self.capture_s += t.elapsed().as_secs_f64();
         emit_view(self.opts, &self.taken);
         self.pb.set_position(1);
         let t = Instant::now();
         let r = self.renderer.as_ref();
-        let report = match guess {
-            Some(g) => solve(r, &self.camera, &self.views, &g, &self.solve_opts)?,
-            None => initialise(
-                r,
-                &self.camera,
-                &self.views,
-                &self.solve_opts,
-                &InitOptions::default(),
-            )?,
-        };
+        let opts = &self.solve_opts;
+        let reports: Vec<Result<SolveReport>> = self
+            .tracks
+            .iter()
+            .map(|t| (&t.camera, &t.views[..], t.guess))
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(camera, views, guess)| match guess {
+                Some(g) => solve(r, camera, views, &g, opts),
+                None => initialise(r, camera, views, opts, &InitOptions::default()),
+            })
+            .collect();
+        for (track, report) in self.tracks.iter_mut().zip(reports) {
+            track.report = Some(report?);
+        }
         self.solve_s += t.elapsed().as_secs_f64();
+        let report = self.report();
         self.rounds = vec![RoundRecord {
             round: 0,
             views: 1,
@@ -160,11 +211,34 @@ impl<'a> Session<'a> {
             best_variance: None,
             next_joints: None,
             events: Vec::new(),
+            cameras: self.camera_rounds(),
         }];
         self.rec.write_rounds(&self.rounds)?;
-        emit_round(self.opts, &self.rounds, &report);
-        self.report = Some(report);
+        emit_round(self.opts, &self.rounds, self.report());
         Ok(())
+    }
+
+    /// Each camera's figures for `rounds.json`, in a rig (empty for one camera, whose
+    /// figures are the round's own).
+    fn camera_rounds(&self) -> Vec<CameraRound> {
+        if !self.is_rig() {
+            return Vec::new();
+        }
+        self.tracks
+            .iter()
+            .map(|t| {
+                let r = t.report();
+                CameraRound {
+                    name: t.unit.name.to_string(),
+                    camera_from_base: to_rows(&r.camera_from_base),
+                    mean_iou: r.mean_iou(),
+                    loss: r.loss,
+                    pose_change: t.change,
+                    camera_centre_95_mm: r.uncertainty.camera_centre_95_mm,
+                    done: t.done.clone(),
+                }
+            })
+            .collect()
     }
 
     /// One round: plan, check the stop rules, move, capture and solve. `Some(reason)` ends
@@ -173,16 +247,19 @@ impl<'a> Session<'a> {
         let round = self.rounds.len() - 1;
         if self.opts.cancelled() {
             self.cancelled = true;
-            return Ok(Some(format!("cancelled after {} views", self.views.len())));
+            return Ok(Some(format!("cancelled after {} views", self.views())));
         }
         let s = &self.settings;
-        if self.views.len() >= s.max_views && !self.opts.dry_run {
+        if self.views() >= s.max_views && !self.opts.dry_run {
             return Ok(Some(format!(
                 "reached the maximum of {} views",
                 s.max_views
             )));
         }
         if let Some(reason) = self.precise_enough() {
+            return Ok(Some(reason));
+        }
+        if let Some(reason) = self.rig_converged() {
             return Ok(Some(reason));
         }
         let from = self.cell.arm.read_joints().await?;
@@ -199,16 +276,18 @@ impl<'a> Session<'a> {
         let chosen = choose_reachable(self.cell, &ranked, &from, speed, |_| false, &mut events);
         self.last_round().events.extend(events);
         let Some((pose, mv)) = chosen else {
+            let seen_by = if self.is_rig() {
+                "every camera"
+            } else {
+                "the camera"
+            };
             return Ok(Some(if ranked.is_empty() {
                 format!(
-                    "no safe pose shows enough of the robot to the camera after {} views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
-                    self.views.len()
+                    "no safe pose shows enough of the robot to {seen_by} after {} views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
+                    self.views()
                 )
             } else {
-                format!(
-                    "no safe, reachable pose left after {} views",
-                    self.views.len()
-                )
+                format!("no safe, reachable pose left after {} views", self.views())
             }));
         };
         match self.move_to(&pose, &mv).await? {
@@ -228,11 +307,19 @@ impl<'a> Session<'a> {
             taken: &self.taken,
             motion: self.motion_cost(from),
         };
+        let cameras: Vec<PlanCamera> = self
+            .tracks
+            .iter()
+            .map(|t| PlanCamera {
+                camera: &t.camera,
+                report: t.report(),
+                wants_views: t.done.is_none(),
+            })
+            .collect();
         let (ranked, stats) = rank_poses(
             self.renderer.as_ref(),
             self.cell,
-            &self.camera,
-            self.report(),
+            &cameras,
             &self.settings,
             &request,
         );
@@ -242,10 +329,15 @@ impl<'a> Session<'a> {
             round,
             best_variance: best,
         });
+        let seen_by = if self.is_rig() {
+            "every camera"
+        } else {
+            "the robot"
+        };
         let last = self.last_round();
         last.best_variance = best;
         last.events.push(format!(
-            "{} joint samples: {} safe, {} show the robot",
+            "{} joint samples: {} safe, {} show {seen_by}",
             stats.sampled, stats.safe, stats.scored
         ));
         (ranked, best)
@@ -260,7 +352,7 @@ impl<'a> Session<'a> {
             return None;
         }
         let measured =
-            || (self.capture_s + self.solve_s + self.explore_s) / self.views.len().max(1) as f64;
+            || (self.capture_s + self.solve_s + self.explore_s) / self.views().max(1) as f64;
         Some(MotionCost {
             from: from.to_vec(),
             speed_rad_s: self.settings.speed_rad_s,
@@ -270,24 +362,36 @@ impl<'a> Session<'a> {
     }
 
     /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
-    /// the camera centre within `stop_centre_95_mm`. The bound is calibrated to cover the
-    /// true error (docs/uncertainty.md), so stopping on it keeps the promise.
+    /// the camera centre within `stop_centre_95_mm`, for every camera. The bound is
+    /// calibrated to cover the true error (docs/uncertainty.md), so stopping on it keeps the
+    /// promise.
     fn precise_enough(&self) -> Option<String> {
         let target = self.settings.stop_centre_95_mm?;
-        let report = self.report.as_ref()?;
-        let bound = report.uncertainty.camera_centre_95_mm;
-        let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
-        (self.views.len() >= self.settings.min_views && fits && bound <= target).then(|| {
+        let mut worst: f64 = 0.0;
+        for t in &self.tracks {
+            let report = t.report.as_ref()?;
+            let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
+            if !fits || self.views() < self.settings.min_views {
+                return None;
+            }
+            worst = worst.max(report.uncertainty.camera_centre_95_mm);
+        }
+        (worst <= target).then(|| {
+            let which = if self.is_rig() { " for every camera" } else { "" };
             format!(
-                "camera centre within {bound:.2} mm (95%) after {} views, target {target} mm",
-                self.views.len()
+                "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
+                self.views()
             )
         })
     }
 
-    /// The variance rule: the best disagreement settled, enough views, and the estimate
-    /// barely moved in the last round.
+    /// The variance rule of a single camera: the best disagreement settled, enough views,
+    /// and the estimate barely moved in the last round. (A rig's cameras each converge on
+    /// their own: [`Session::mark_converged`].)
     fn converged(&self, best: Option<f64>) -> Option<String> {
+        if self.is_rig() {
+            return None;
+        }
         let s = &self.settings;
         let last = self.rounds.last()?;
         let (Some(prev), Some(best), Some([deg, mm])) =
@@ -296,8 +400,33 @@ impl<'a> Session<'a> {
             return None;
         };
         let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
-        (settled && self.views.len() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm)
-            .then(|| format!("variance converged after {} views", self.views.len()))
+        (settled && self.views() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm)
+            .then(|| format!("variance converged after {} views", self.views()))
+    }
+
+    /// A rig's cameras that have converged: enough views, and the estimate moved less than
+    /// the pose tolerances in the last round. Such a camera stops asking for views; it keeps
+    /// every view the others ask for.
+    fn mark_converged(&mut self) {
+        if !self.is_rig() {
+            return;
+        }
+        let (s, n) = (&self.settings, self.taken.len());
+        for t in self.tracks.iter_mut().filter(|t| t.done.is_none()) {
+            if let Some([deg, mm]) = t.change {
+                if n >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm {
+                    t.done = Some(format!(
+                        "converged after {n} views (moved {deg:.4} deg / {mm:.3} mm in the last round)"
+                    ));
+                }
+            }
+        }
+    }
+
+    /// The rig's stop: every camera converged.
+    fn rig_converged(&self) -> Option<String> {
+        (self.is_rig() && self.tracks.iter().all(|t| t.done.is_some()))
+            .then(|| format!("every camera converged after {} views", self.views()))
     }
 
     /// A dry run plans the whole sequence from the first view's estimate, chaining paths,
@@ -337,7 +466,7 @@ impl<'a> Session<'a> {
     /// cancel flag included; a failed move is recorded and, within the failure budget,
     /// retried from wherever the arm stopped.
     async fn move_to(&mut self, pose: &PlannedPose, mv: &CheckedMove) -> Result<MoveOutcome> {
-        let n = self.views.len();
+        let n = self.views();
         if let Some(confirm) = &self.opts.confirm {
             if !self.pb.suspend(|| confirm(pose)) {
                 return Ok(MoveOutcome::Stop(format!(
@@ -413,29 +542,41 @@ impl<'a> Session<'a> {
         Ok(MoveOutcome::Retry)
     }
 
-    /// Captures the view at the new pose, solves from the previous estimate and records the
-    /// round.
+    /// Captures the view at the new pose, solves every camera from its previous estimate
+    /// and records the round.
     async fn capture_and_solve(&mut self, round: usize, best: Option<f64>) -> Result<()> {
-        let previous = self.report().camera_from_base;
-        let report = self.report.take().expect("round 0 solved");
         let t = Instant::now();
-        let captured = self.capture(Some(&previous), Some(&report)).await;
+        let captured = self.capture(false).await;
         self.capture_s += t.elapsed().as_secs_f64();
-        self.report = Some(report);
         captured?;
         emit_view(self.opts, &self.taken);
-        self.pb.set_position(self.views.len() as u64);
+        self.pb.set_position(self.views() as u64);
         let t = Instant::now();
-        let mut report = self.solve_from(&previous)?;
-        report.trajectory.insert(0, previous);
+        let previous: Vec<Isometry3<f64>> = self
+            .tracks
+            .iter()
+            .map(|t| t.report().camera_from_base)
+            .collect();
+        let reports: Vec<Result<SolveReport>> = (0..self.tracks.len())
+            .into_par_iter()
+            .map(|k| self.solve_from(k, &previous[k]))
+            .collect();
+        for ((track, report), before) in self.tracks.iter_mut().zip(reports).zip(&previous) {
+            let mut report = report?;
+            report.trajectory.insert(0, *before);
+            track.change = Some([
+                rotation_error_deg(before, &report.camera_from_base),
+                translation_error_mm(before, &report.camera_from_base),
+            ]);
+            track.report = Some(report);
+        }
         self.solve_s += t.elapsed().as_secs_f64();
-        let change = [
-            rotation_error_deg(&previous, &report.camera_from_base),
-            translation_error_mm(&previous, &report.camera_from_base),
-        ];
+        self.mark_converged();
+        let report = self.report();
+        let change = self.tracks[0].change.expect("just solved");
         self.rounds.push(RoundRecord {
             round: round + 1,
-            views: self.views.len(),
+            views: self.views(),
             camera_from_base: to_rows(&report.camera_from_base),
             mean_iou: report.mean_iou(),
             loss: report.loss,
@@ -443,9 +584,11 @@ impl<'a> Session<'a> {
             best_variance: None,
             next_joints: None,
             events: Vec::new(),
+            cameras: self.camera_rounds(),
         });
         self.rec.write_rounds(&self.rounds)?;
-        emit_round(self.opts, &self.rounds, &report);
+        let report = self.report();
+        emit_round(self.opts, &self.rounds, report);
         self.pb.set_message(format!(
             "round {} loss {:.5} IoU {:.4} best var {:.1} px change {:.3} deg / {:.2} mm",
             round + 1,
@@ -455,22 +598,21 @@ impl<'a> Session<'a> {
             change[0],
             change[1]
         ));
-        self.report = Some(report);
         Ok(())
     }
 
-    /// Solves every view from `previous`. When that fits poorly and the run has a starting
-    /// pose of its own (a drawing, a tape measure, the last calibration), solves from that
-    /// too and keeps the better fit: one ambiguous first view (a wrist camera that saw only a
-    /// round base) can lead the estimate far from the start, and later views then fit
-    /// nowhere near it.
-    fn solve_from(&self, previous: &Isometry3<f64>) -> Result<SolveReport> {
-        let r = self.renderer.as_ref();
-        let report = solve(r, &self.camera, &self.views, previous, &self.solve_opts)?;
-        let Some(guess) = self.guess.filter(|_| report.mean_iou() < POOR_FIT_IOU) else {
+    /// Solves camera `k`'s views from `previous`. When that fits poorly and the run has a
+    /// starting pose of its own (a drawing, a tape measure, the last calibration), solves
+    /// from that too and keeps the better fit: one ambiguous first view (a wrist camera that
+    /// saw only a round base) can lead the estimate far from the start, and later views then
+    /// fit nowhere near it.
+    fn solve_from(&self, k: usize, previous: &Isometry3<f64>) -> Result<SolveReport> {
+        let (r, t) = (self.renderer.as_ref(), &self.tracks[k]);
+        let report = solve(r, &t.camera, &t.views, previous, &self.solve_opts)?;
+        let Some(guess) = t.guess.filter(|_| report.mean_iou() < POOR_FIT_IOU) else {
             return Ok(report);
         };
-        let again = solve(r, &self.camera, &self.views, &guess, &self.solve_opts)?;
+        let again = solve(r, &t.camera, &t.views, &guess, &self.solve_opts)?;
         Ok(if again.mean_iou() > report.mean_iou() {
             again
         } else {
@@ -478,49 +620,81 @@ impl<'a> Session<'a> {
         })
     }
 
-    /// Reads the joints and grabs a frame at the arm's present pose, segments it, records the
-    /// view and adds it to `views`. With a context-aware segmenter the new frame is segmented
-    /// together with every earlier one under `estimate`, and earlier masks are re-segmented
-    /// and rewritten when they change.
-    async fn capture(
-        &mut self,
-        estimate: Option<&Isometry3<f64>>,
-        report: Option<&SolveReport>,
-    ) -> Result<()> {
+    /// Reads the joints and grabs a frame from every camera at the arm's present pose,
+    /// segments them, records the view and adds it to each camera's views. With a
+    /// context-aware segmenter (one camera only) the new frame is segmented together with
+    /// every earlier one under the estimate, and earlier masks are re-segmented and
+    /// rewritten when they change.
+    async fn capture(&mut self, first: bool) -> Result<()> {
         let cell = self.cell;
         let joints = cell.arm.read_joints().await?;
-        let frame = cell.camera.grab().await?;
-        let camera = &self.camera;
-        if frame.width != camera.width || frame.height != camera.height {
-            return Err(Error::Hardware(format!(
-                "camera returned a {}x{} frame; its intrinsics say {}x{}",
-                frame.width, frame.height, camera.width, camera.height
-            )));
+        let mut frames = Vec::with_capacity(self.tracks.len());
+        for t in &self.tracks {
+            let frame = t.unit.device.grab().await?;
+            let camera = &t.camera;
+            if frame.width != camera.width || frame.height != camera.height {
+                return Err(Error::Hardware(format!(
+                    "camera '{}' returned a {}x{} frame; its intrinsics say {}x{}",
+                    t.unit.name, frame.width, frame.height, camera.width, camera.height
+                )));
+            }
+            frames.push(frame);
         }
-        let Some(live) = self.live.as_mut() else {
-            let mask = cell.segmenter.segment(&frame)?;
-            self.rec.add_view(&joints, &frame, &mask)?;
-            self.taken.push(joints.clone());
-            self.views.push(View {
-                robot: PosedRobot::new(&cell.seen, &joints),
-                observed: camera.undistort_mask(&mask),
+        if self.tracks[0].live.is_some() {
+            let frame = frames
+                .pop()
+                .expect("one camera with a context-aware segmenter");
+            return self.capture_in_context(joints, frame, first);
+        }
+        let masks = self
+            .tracks
+            .iter()
+            .zip(&frames)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(t, f)| t.unit.segmenter.segment(f))
+            .collect::<Result<Vec<_>>>()?;
+        let pairs: Vec<_> = frames.iter().zip(&masks).collect();
+        self.rec.add_view(&joints, &pairs)?;
+        self.taken.push(joints.clone());
+        for (t, mask) in self.tracks.iter_mut().zip(&masks) {
+            t.views.push(View {
+                robot: PosedRobot::new(t.unit.seen, &joints),
+                observed: t.camera.undistort_mask(mask),
             });
-            return Ok(());
+        }
+        Ok(())
+    }
+
+    /// [`Session::capture`] for a context-aware segmenter: every frame so far is segmented
+    /// again with the new one, under the estimate (the guess before the first solve).
+    fn capture_in_context(
+        &mut self,
+        joints: Vec<f64>,
+        frame: easyhec_drivers::Frame,
+        first: bool,
+    ) -> Result<()> {
+        let t = &mut self.tracks[0];
+        let estimate = if first {
+            t.guess
+        } else {
+            t.report.as_ref().map(|r| r.camera_from_base)
         };
+        let live = t.live.as_mut().expect("checked by the caller");
         live.frames.push(frame);
         self.taken.push(joints.clone());
         let band = live.min_band_px;
         let rec = &self.rec;
         let masks = match live.resegment(
             self.renderer.as_ref(),
-            cell.segmenter.as_ref(),
-            &cell.seen,
-            camera,
+            t.unit.segmenter,
+            t.unit.seen,
+            &t.camera,
             band,
             &self.taken,
-            estimate,
-            report,
-            &mut self.views,
+            estimate.as_ref(),
+            t.report.as_ref(),
+            &mut t.views,
             |i, m| rec.replace_mask(i, m),
         ) {
             Ok(m) => m,
@@ -531,8 +705,8 @@ impl<'a> Session<'a> {
             }
         };
         let last = live.frames.last().expect("just pushed");
-        self.rec
-            .add_view(&joints, last, masks.last().expect("one mask per frame"))?;
+        let mask = masks.last().expect("one mask per frame");
+        self.rec.add_view(&joints, &[(last, mask)])?;
         Ok(())
     }
 
@@ -540,11 +714,12 @@ impl<'a> Session<'a> {
     /// under the final one and solve once more; when that estimate fits, with the final
     /// (narrowest) band: a narrow band is only safe around a right render.
     fn resegment_final(&mut self) -> Result<()> {
-        let Some(live) = &self.live else {
+        let t = &mut self.tracks[0];
+        let Some(live) = &t.live else {
             return Ok(());
         };
-        let t = Instant::now();
-        let report = self.report.as_ref().expect("round 0 solved");
+        let started = Instant::now();
+        let report = t.report.as_ref().expect("round 0 solved");
         let floor = if report.mean_iou() >= POOR_FIT_IOU {
             live.final_band_px.min(live.min_band_px)
         } else {
@@ -553,72 +728,98 @@ impl<'a> Session<'a> {
         let rec = &self.rec;
         live.resegment(
             self.renderer.as_ref(),
-            self.cell.segmenter.as_ref(),
-            &self.cell.seen,
-            &self.camera,
+            t.unit.segmenter,
+            t.unit.seen,
+            &t.camera,
             floor,
             &self.taken,
             Some(&report.camera_from_base),
             Some(report),
-            &mut self.views,
+            &mut t.views,
             |i, m| rec.replace_mask(i, m),
         )?;
         let report = solve(
             self.renderer.as_ref(),
-            &self.camera,
-            &self.views,
+            &t.camera,
+            &t.views,
             &report.camera_from_base,
             &self.solve_opts,
         )?;
-        self.solve_s += t.elapsed().as_secs_f64();
+        t.report = Some(report);
+        self.solve_s += started.elapsed().as_secs_f64();
+        let report = self.tracks[0].report().clone();
         let last = self.last_round();
         last.camera_from_base = to_rows(&report.camera_from_base);
         last.mean_iou = report.mean_iou();
         last.loss = report.loss;
         last.events
             .push("re-segmented every view under the final estimate and re-solved".into());
-        self.report = Some(report);
         Ok(())
     }
 
-    /// Re-segments once more when that helps, then writes the result (not on a dry run).
+    /// Re-segments once more when that helps, then writes the result (not on a dry run):
+    /// `easyhec-result/1` for a `[camera]` table, `easyhec-result/2` for `[[camera]]`
+    /// tables.
     pub(super) fn finish(mut self, stop_reason: String) -> Result<Outcome> {
         self.pb.finish_and_clear();
         if !self.opts.dry_run && !self.cancelled {
             self.resegment_final()?;
         }
         self.rec.write_rounds(&self.rounds)?;
-        let report = self.report.take().expect("round 0 solved");
         if !self.opts.dry_run && !self.cancelled {
-            judge_loop_fit(&report, self.rec.dir())?;
+            for t in &self.tracks {
+                let name = self.is_rig().then_some(t.unit.name);
+                judge_loop_fit(t.report(), name, self.rec.dir())?;
+            }
         }
-        let cell = self.cell;
-        let mut result =
-            ResultFile::new(&report.camera_from_base, &cell.seen.links[cell.seen.base]);
-        result.views_used = (0..self.views.len()).collect();
-        result.per_view = report
-            .per_view_iou
-            .iter()
-            .enumerate()
-            .map(|(i, &iou)| PerView { view: i, iou })
-            .collect();
-        result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
-        result.stop_reason = stop_reason;
+        let mut timings_s = std::collections::BTreeMap::new();
         let timings = [
             ("total", self.started.elapsed().as_secs_f64()),
             ("solve", self.solve_s),
             ("explore", self.explore_s),
             ("motion", self.motion_s),
+            ("capture", self.capture_s),
         ];
         for (k, v) in timings {
-            result.timings_s.insert(k.into(), v);
+            timings_s.insert(k.to_string(), v);
         }
+        let cameras: Vec<CameraOutcome> = self
+            .tracks
+            .iter_mut()
+            .map(|t| {
+                let report = t.report.take().expect("round 0 solved");
+                let reason = t.done.clone().unwrap_or_else(|| stop_reason.clone());
+                let result = camera_result(&report, t.unit.seen, reason, &timings_s);
+                CameraOutcome {
+                    name: t.unit.name.to_string(),
+                    result,
+                    report,
+                }
+            })
+            .collect();
+        let mut result = cameras[0].result.clone();
+        result.stop_reason = stop_reason.clone();
         if !self.opts.dry_run {
-            write_json_atomic(&self.rec.dir().join("result.json"), &result)?;
+            let path = self.rec.dir().join("result.json");
+            if self.cell.config.camera.is_listed() {
+                let rig = RigResultFile {
+                    format: RIG_RESULT_FORMAT.into(),
+                    cameras: cameras
+                        .iter()
+                        .map(|c| CameraResult::of(&c.name, &c.result))
+                        .collect(),
+                    stop_reason,
+                    timings_s,
+                };
+                write_json_atomic(&path, &rig)?;
+            } else {
+                write_json_atomic(&path, &result)?;
+            }
         }
         Ok(Outcome {
             result,
-            report,
+            report: cameras[0].report.clone(),
+            cameras,
             rounds: self.rounds,
             planned: self.planned,
             run_dir: self.rec.dir().to_path_buf(),
@@ -627,10 +828,65 @@ impl<'a> Session<'a> {
     }
 }
 
+/// One camera's `easyhec-result/1` record of the loop's final solve.
+fn camera_result(
+    report: &SolveReport,
+    seen: &crate::robot::RobotModel,
+    stop_reason: String,
+    timings_s: &std::collections::BTreeMap<String, f64>,
+) -> ResultFile {
+    let mut result = ResultFile::new(&report.camera_from_base, &seen.links[seen.base]);
+    result.views_used = (0..report.per_view_iou.len()).collect();
+    result.per_view = report
+        .per_view_iou
+        .iter()
+        .enumerate()
+        .map(|(i, &iou)| PerView { view: i, iou })
+        .collect();
+    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
+    result.stop_reason = stop_reason;
+    result.timings_s = timings_s.clone();
+    result
+}
+
+/// A camera of the cell as a track: its intrinsics, its starting pose, and the frames a
+/// context-aware segmenter keeps (refused in a rig, whose cameras segment frame by frame).
+fn track<'a>(
+    cell: &'a Cell,
+    unit: CameraRef<'a>,
+    guess: Option<Isometry3<f64>>,
+) -> Result<Track<'a>> {
+    let live = unit.segmenter.uses_context().then(|| LiveFrames {
+        frames: Vec::new(),
+        min_band_px: unit.segmenter_config.min_band_px(),
+        final_band_px: unit.segmenter_config.final_band_px(),
+    });
+    if live.is_some() && !cell.more_cameras.is_empty() {
+        return Err(Error::input(
+            &cell.config_path,
+            "segmenter",
+            format!("camera '{}': a segmenter that reads the whole run (builtin) serves one camera; a list of cameras needs per-frame segmenters (onnx, sim-truth)", unit.name),
+        ));
+    }
+    Ok(Track {
+        camera: unit.device.intrinsics().clone(),
+        unit,
+        guess,
+        live,
+        views: Vec::new(),
+        report: None,
+        change: None,
+        done: None,
+    })
+}
+
 /// Refuses to write a result whose silhouettes do not match the masks (mean IoU under
 /// [`POOR_FIT_IOU`]): its covariance would describe a wrong pose and still look tight. The
 /// run directory keeps every view for a look and an offline re-solve.
-fn judge_loop_fit(report: &SolveReport, run_dir: &Path) -> Result<()> {
+fn judge_loop_fit(report: &SolveReport, camera: Option<&str>, run_dir: &Path) -> Result<()> {
+    let camera = camera
+        .map(|n| format!("camera '{n}': "))
+        .unwrap_or_default();
     let mean = report.mean_iou();
     if mean.is_nan() || mean < POOR_FIT_IOU {
         let poor: Vec<usize> = report
@@ -641,7 +897,7 @@ fn judge_loop_fit(report: &SolveReport, run_dir: &Path) -> Result<()> {
             .map(|(i, _)| i)
             .collect();
         return Err(Error::Solve(format!(
-            "poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then re-solve them with `easyhec solve` (`--allow-poor-fit` writes a poor result anyway)",
+            "{camera}poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then re-solve them with `easyhec solve` (`--allow-poor-fit` writes a poor result anyway)",
             run_dir.display()
         )));
     }
@@ -681,6 +937,14 @@ fn initial_guess(
     opts: &RunOptions,
     settings: &CalibrationSettings,
 ) -> Result<Option<Isometry3<f64>>> {
+    let given = opts.initial_guess.is_some() || settings.initial_guess.is_some();
+    if given && !cell.more_cameras.is_empty() {
+        return Err(Error::input(
+            &cell.config_path,
+            "calibration.initial_guess",
+            "one starting pose cannot serve several cameras: leave it out, and each fixed camera of the list is found by the automatic initialisation",
+        ));
+    }
     Ok(match (&opts.initial_guess, &settings.initial_guess) {
         (Some(g), _) => Some(*g),
         (None, Some(g)) => Some(

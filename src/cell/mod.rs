@@ -59,8 +59,10 @@ pub struct Cell {
     pub seen: Arc<RobotModel>,
     /// The arm, behind the safety gate: every move must be a [`crate::safety::CheckedMove`].
     pub arm: SafeArm,
-    /// The camera.
+    /// The camera (the first, in a rig).
     pub camera: Arc<dyn CameraDevice>,
+    /// The other cameras of a rig (`[[camera]]` tables after the first); empty for one.
+    pub more_cameras: Vec<CameraUnit>,
     /// The segmenter.
     pub segmenter: Box<dyn Segmenter>,
     /// The safety checker.
@@ -83,6 +85,45 @@ struct BuiltCamera {
     sim: Option<sim::SimCameraParts>,
 }
 
+/// One camera of a cell beyond the first: what the first keeps in [`Cell`]'s own fields.
+pub struct CameraUnit {
+    /// The camera's single-camera config (its table as `[camera]`, its segmenter as
+    /// `[segmenter]`, everything else shared).
+    pub config: CellConfig,
+    /// The camera's name in the config.
+    pub name: String,
+    /// The device.
+    pub device: Arc<dyn CameraDevice>,
+    /// The robot as this camera sees it.
+    pub seen: Arc<RobotModel>,
+    /// This camera's segmenter.
+    pub segmenter: Box<dyn Segmenter>,
+    /// Simulator handles for this camera (empty on real hardware).
+    pub sim: SimHandles,
+}
+
+/// One camera of the cell, borrowed: the first from [`Cell`]'s own fields, the others from
+/// [`Cell::more_cameras`], so a rig and a single camera run through the same code.
+#[derive(Clone, Copy)]
+pub struct CameraRef<'a> {
+    /// The camera's name in the config (`camera` for a single `[camera]` table).
+    pub name: &'a str,
+    /// The camera's table.
+    pub config: &'a CameraConfig,
+    /// The segmenter's settings this camera uses.
+    pub segmenter_config: &'a crate::config::SegmenterConfig,
+    /// The device.
+    pub device: &'a Arc<dyn CameraDevice>,
+    /// The robot as this camera sees it.
+    pub seen: &'a Arc<RobotModel>,
+    /// Its segmenter.
+    pub segmenter: &'a dyn Segmenter,
+    /// Its simulator handles.
+    pub sim: &'a SimHandles,
+    /// Its own starting pose (`[[camera]] initial_guess`).
+    pub initial_guess: Option<&'a crate::config::InitialGuess>,
+}
+
 impl Cell {
     /// Builds every backend named in the config at `path`.
     pub fn open(path: &Path) -> Result<Cell> {
@@ -94,15 +135,16 @@ impl Cell {
     pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
         // Every value that needs only the file, before anything is read or opened.
         config.validate(path)?;
+        let first = config.for_camera(0);
         // A bad calibration file fails here, before any hardware is opened.
-        let calibration = config.camera.calibration(path)?;
+        let calibration = first.camera.calibration(path)?;
         // So does a bad segmentation model.
-        let segmenter = crate::segment::build(&config.segmenter, path)?;
+        let segmenter = crate::segment::build(&first.segmenter, path)?;
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
         let seen = seen_robot(&config, &robot, path)?;
         let arm = build_arm(&config, &robot, path)?;
-        let feed = ros2::joint_feed(&config, &robot, path)?;
-        let camera = build_camera(&config, calibration, &robot, &arm, feed, path)?;
+        let feed = ros2::joint_feed(&first, &robot, path)?;
+        let camera = build_camera(&first, calibration, &robot, &arm, feed, path)?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -111,8 +153,14 @@ impl Cell {
             .collect();
         let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
         config.daemon.validate(path, robot.actuated.len())?;
+        let more_cameras = (1..config.camera.cameras().len())
+            .map(|i| {
+                build_unit(&config, i, &robot, &arm, path)
+                    .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))
+            })
+            .collect::<Result<Vec<_>>>()?;
         #[cfg(feature = "sim")]
-        let (segmenter, sim) = sim::attach(&config, path, segmenter, arm.sim, camera.sim)?;
+        let (segmenter, sim) = sim::attach(&first, path, segmenter, arm.sim, camera.sim)?;
         #[cfg(not(feature = "sim"))]
         let sim = SimHandles::default();
         Ok(Cell {
@@ -123,10 +171,70 @@ impl Cell {
             seen,
             arm: SafeArm::new(arm.device),
             camera: camera.device,
+            more_cameras,
             checker,
             sim,
         })
     }
+
+    /// Every camera, the first from this struct's own fields.
+    pub fn cameras(&self) -> Vec<CameraRef<'_>> {
+        let named = &self.config.camera.cameras()[0];
+        let first = CameraRef {
+            name: &named.name,
+            config: &named.config,
+            segmenter_config: named.segmenter.as_ref().unwrap_or(&self.config.segmenter),
+            device: &self.camera,
+            seen: &self.seen,
+            segmenter: self.segmenter.as_ref(),
+            sim: &self.sim,
+            initial_guess: named.initial_guess.as_ref(),
+        };
+        let listed = &self.config.camera.cameras()[1..];
+        let more = self
+            .more_cameras
+            .iter()
+            .zip(listed)
+            .map(|(u, named)| CameraRef {
+                name: &u.name,
+                config: &u.config.camera,
+                segmenter_config: &u.config.segmenter,
+                device: &u.device,
+                seen: &u.seen,
+                segmenter: u.segmenter.as_ref(),
+                sim: &u.sim,
+                initial_guess: named.initial_guess.as_ref(),
+            });
+        std::iter::once(first).chain(more).collect()
+    }
+}
+
+/// Camera `index` (not the first) of a rig: device, segmenter and simulator handles, built
+/// from its single-camera config on the cell's one arm.
+fn build_unit(
+    config: &CellConfig,
+    index: usize,
+    robot: &Arc<RobotModel>,
+    arm: &BuiltArm,
+    path: &Path,
+) -> Result<CameraUnit> {
+    let one = config.for_camera(index);
+    let calibration = one.camera.calibration(path)?;
+    let segmenter = crate::segment::build(&one.segmenter, path)?;
+    let feed = ros2::joint_feed(&one, robot, path)?;
+    let camera = build_camera(&one, calibration, robot, arm, feed, path)?;
+    #[cfg(feature = "sim")]
+    let (segmenter, sim) = sim::attach(&one, path, segmenter, arm.sim.clone(), camera.sim)?;
+    #[cfg(not(feature = "sim"))]
+    let sim = SimHandles::default();
+    Ok(CameraUnit {
+        name: config.camera.cameras()[index].name.clone(),
+        config: one,
+        device: camera.device,
+        seen: robot.clone(),
+        segmenter,
+        sim,
+    })
 }
 
 /// The robot as the camera sees it (see [`Cell::seen`]). A camera on a link needs a starting
@@ -203,7 +311,7 @@ fn build_camera(
     feed: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
-    let (camera, ros2_settings) = (&config.camera, config.ros2.as_ref());
+    let (camera, ros2_settings) = (&*config.camera, config.ros2.as_ref());
     let device = match camera {
         CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, feed, path),
         CameraConfig::V4l2 { .. } => hardware::v4l2_camera(camera, calibration, path)?,

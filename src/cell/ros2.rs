@@ -151,7 +151,7 @@ pub(super) fn joint_feed(
     let CameraConfig::Sim {
         joints_from: Some(JointsFrom::Ros2 { topic, timeout_s }),
         ..
-    } = &config.camera
+    } = &*config.camera
     else {
         return Ok(None);
     };

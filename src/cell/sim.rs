@@ -306,7 +306,7 @@ pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> G
             ..crate::config::NoiseModel::none()
         },
         seed: config.calibration.seed,
-        scene: match &config.camera {
+        scene: match &*config.camera {
             CameraConfig::Sim { scene, .. } => Some(scene.clone()),
             _ => None,
         },

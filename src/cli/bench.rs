@@ -6,7 +6,7 @@ use clap::Subcommand;
 #[cfg(feature = "sim")]
 use easyhec::bench::{
     AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, MotionBench, Report,
-    SegmentBench, SpeedBench, ViewSetsBench,
+    RigBench, SegmentBench, SpeedBench, ViewSetsBench,
 };
 
 /// The benchmarks.
@@ -27,6 +27,9 @@ pub enum BenchCommand {
     /// Planning that weighs motion time against planning by information alone, on the mock
     /// xArm in real time: wall time, motion, views and error per seeded cell.
     Motion(MotionBench),
+    /// Several cameras calibrated in one run against each camera alone, on seeded simulated
+    /// cells: each camera's median error with the same views, and the wall time.
+    Rig(RigBench),
     /// How far 3-view selection can go: per seeded cell, the loop's explored pair and random
     /// pairs, each solved many times with fresh noise, against the selection score's
     /// prediction (docs/benchmarks.md).
@@ -58,6 +61,7 @@ impl BenchCommand {
             BenchCommand::Init(b) => b.run(&mut log)?,
             BenchCommand::Loop(b) => b.run(&mut log)?,
             BenchCommand::Motion(b) => b.run(&mut log)?,
+            BenchCommand::Rig(b) => b.run(&mut log)?,
             BenchCommand::ViewSets(b) => b.run(&mut log)?,
             BenchCommand::Segment(b) => b.run(&mut log)?,
             BenchCommand::Explore(b) => b.run(&mut log)?,

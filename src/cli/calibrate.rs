@@ -8,7 +8,6 @@ use clap::Args;
 use easyhec::calibrate::{calibrate, ConfirmMove, PlannedPose, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::{read_config, RendererChoice};
-#[cfg(feature = "sim")]
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::time::rfc3339;
 use nalgebra::Isometry3;
@@ -126,8 +125,35 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
             tracing::info!("camera centre within {bound:.2} mm of the estimate (95%)");
         }
     }
-    report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
+    if cell.more_cameras.is_empty() {
+        report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
+    } else {
+        report_cameras(&cell, &outcome);
+    }
     Ok(())
+}
+
+/// Each camera of a rig: why it stopped, its fit and bound, and on a simulated cell its
+/// error against the truth (`<name>: error against the simulated truth: …`).
+fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) {
+    for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
+        let bound = cam.report.uncertainty.camera_centre_95_mm;
+        tracing::info!(
+            "{}: mean IoU {:.4}, camera centre within {bound:.2} mm (95%); {}",
+            cam.name,
+            cam.report.mean_iou(),
+            cam.result.stop_reason
+        );
+        if let Some(truth) = unit.sim.camera_from_base {
+            let estimate = cam.result.camera_from_base();
+            println!(
+                "{}: error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
+                cam.name,
+                rotation_error_deg(&estimate, &truth),
+                translation_error_mm(&estimate, &truth)
+            );
+        }
+    }
 }
 
 /// On a simulated cell: writes `ground_truth.json` into the run and prints the error against

@@ -7,6 +7,7 @@ use clap::Args;
 use easyhec::error::Error;
 use easyhec::interop::export::check_frame_name;
 use easyhec::interop::{export, ExportFormat};
+use easyhec::run::rig::{format_of, RigResultFile, RIG_RESULT_FORMAT};
 use easyhec::run::ResultFile;
 
 use super::frames::FrameArgs;
@@ -27,6 +28,9 @@ pub struct ExportArgs {
 
 /// Writes a result in another tool's form.
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
+    if format_of(&a.result)? == RIG_RESULT_FORMAT {
+        return export_rig(&a);
+    }
     let format = a.format;
     let result = ResultFile::read(&a.result)?;
     check_frame_name(&result.base_link)
@@ -39,4 +43,58 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
         None => print!("{text}"),
     }
     Ok(())
+}
+
+/// Every camera of an `easyhec-result/2`, one file per camera in the `--out` folder
+/// (`<name>.<ext>`), each camera under its own child frame: `--child-frame-id` with `{name}`
+/// replaced by the camera's name, or, without `{name}`, prefixed by `<name>_`.
+fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
+    let rig = RigResultFile::read(&a.result)?;
+    let Some(dir) = &a.out else {
+        return Err(Error::Usage(format!(
+            "--out: {} holds {} cameras, written as one file per camera: give a folder",
+            a.result.display(),
+            rig.cameras.len()
+        ))
+        .into());
+    };
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for (k, cam) in rig.cameras.iter().enumerate() {
+        let result = cam.as_result(&rig.timings_s);
+        check_frame_name(&result.base_link).map_err(|m| {
+            Error::input(
+                &a.result,
+                format!("cameras[{k}].base_link"),
+                format!("is {m}"),
+            )
+        })?;
+        let mut frames = a.frames.clone();
+        frames.child_frame_id = camera_frame(&a.frames.child_frame_id, &cam.name);
+        let edge = frames.edge(&result)?;
+        let text = export(&result, a.format, &edge)?;
+        let path = dir.join(format!("{}.{}", cam.name, extension(a.format)));
+        easyhec::io::write_atomic(&path, text.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("{}: {} -> {}", cam.name, edge.child, path.display());
+    }
+    Ok(())
+}
+
+/// A rig camera's child frame from the `--child-frame-id` pattern.
+fn camera_frame(pattern: &str, name: &str) -> String {
+    if pattern.contains("{name}") {
+        pattern.replace("{name}", name)
+    } else {
+        format!("{name}_{pattern}")
+    }
+}
+
+/// The file extension of each export form.
+fn extension(format: ExportFormat) -> &'static str {
+    match format {
+        ExportFormat::Opencv | ExportFormat::EasyHandeyeRos1 => "yaml",
+        ExportFormat::Ros => "launch.py",
+        ExportFormat::EasyHandeye => "calib",
+        ExportFormat::Urdf => "urdf",
+    }
 }

@@ -50,6 +50,9 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
     easyhec::config::ros2::check_frame_name(&a.frame_id)
         .map_err(|m| Error::Usage(format!("--frame-id is {m}")))?;
     let cell = easyhec::cell::Cell::open(&a.config)?;
+    cell.config
+        .camera
+        .require_one(&a.config, "easyhec sim-camera")?;
     if cell.sim.camera.is_none() {
         return Err(Error::input(
             &a.config,

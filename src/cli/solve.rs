@@ -6,7 +6,7 @@ use anyhow::anyhow;
 use clap::{Args, ValueEnum};
 use easyhec::config::{RendererChoice, SegmenterConfig};
 use easyhec::explore::Selection;
-use easyhec::pipeline::offline::{solve_run, OfflineSolve};
+use easyhec::pipeline::offline::{is_rig_run, solve_rig_run, solve_run, OfflineSolve};
 use easyhec::solve::Optimizer;
 
 #[derive(Args)]
@@ -106,6 +106,9 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         allow_poor_fit: a.allow_poor_fit,
         joint_noise_rad: a.joint_noise_rad,
     };
+    if is_rig_run(&request.run)? {
+        return solve_rig(&request);
+    }
     let activity = super::progress::Activity::start("solve");
     let outcome = solve_run(&request, &mut |line| activity.note(line))?;
     drop(activity);
@@ -133,6 +136,38 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
             path.display()
         );
     }
+    Ok(())
+}
+
+/// Solves every camera of an `easyhec-run/2` run and prints one line per camera.
+fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
+    let activity = super::progress::Activity::start("solve");
+    let outcome = solve_rig_run(request, &mut |line| activity.note(line))?;
+    drop(activity);
+    for cam in &outcome.cameras {
+        if !cam.poor_views.is_empty() {
+            tracing::warn!(
+                "{}: views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model",
+                cam.name,
+                cam.poor_views
+            );
+        }
+        let u = &cam.report.uncertainty;
+        println!(
+            "{}: camera_from_base solved from {} views: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%)",
+            cam.name,
+            cam.views,
+            cam.report.mean_iou(),
+            u.rotation_deg,
+            u.translation_mm,
+            u.camera_centre_95_mm
+        );
+    }
+    println!(
+        "{} cameras -> {}",
+        outcome.cameras.len(),
+        outcome.out.display()
+    );
     Ok(())
 }
 

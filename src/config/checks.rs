@@ -90,8 +90,22 @@ impl CellConfig {
         let c = Check { path };
         check_robot_joints(&c, self.robot.joints.as_deref())?;
         check_arm(&c, &self.arm)?;
-        check_camera(&c, &self.camera)?;
+        self.camera.validate(path)?;
+        for (i, cam) in self.camera.cameras().iter().enumerate() {
+            let rekey = |e| super::cameras::rekey(e, &self.camera, i);
+            check_camera(&c, &cam.config).map_err(rekey)?;
+            if let Some(seg) = &cam.segmenter {
+                check_segmenter(&c, seg).map_err(|e| rekey_segmenter(e, &self.camera.key(i)))?;
+            }
+        }
         check_segmenter(&c, &self.segmenter)?;
+        if self.camera.cameras().len() > 1 && self.calibration.initial_guess.is_some() {
+            return Err(Error::input(
+                path,
+                "calibration.initial_guess",
+                "one starting pose cannot serve several cameras: give each [[camera]] table its own initial_guess, or leave it out for the automatic initialisation",
+            ));
+        }
         check_calibration(&c, &self.calibration)?;
         check_safety(&c, &self.safety)?;
         if let Some(r) = &self.ros2 {
@@ -194,6 +208,18 @@ fn check_camera(c: &Check, camera: &CameraConfig) -> Result<()> {
         return Err(Error::input(c.path, format!("camera.{field}"), allowed));
     }
     Ok(())
+}
+
+/// A camera's own segmenter errors as `camera[i].segmenter.…`.
+fn rekey_segmenter(err: Error, key: &str) -> Error {
+    match err {
+        Error::Input {
+            file,
+            field,
+            message,
+        } => Error::input(file, format!("{key}.{field}"), message),
+        other => other,
+    }
 }
 
 fn check_segmenter(c: &Check, segmenter: &SegmenterConfig) -> Result<()> {

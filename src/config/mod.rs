@@ -12,6 +12,7 @@
 pub mod arm;
 pub mod calibration;
 pub mod camera;
+pub mod cameras;
 pub mod checks;
 pub mod daemon;
 pub mod mount;
@@ -34,6 +35,7 @@ pub use calibration::{
     SourceSetting,
 };
 pub use camera::{CameraCalibration, CameraConfig, JointsFrom, LookAt};
+pub use cameras::{CameraSet, NamedCamera};
 pub use daemon::DaemonSettings;
 pub use mount::Mount;
 pub use robot::RobotConfig;
@@ -52,8 +54,9 @@ pub struct CellConfig {
     pub robot: RobotConfig,
     /// The arm backend.
     pub arm: ArmConfig,
-    /// The camera backend.
-    pub camera: CameraConfig,
+    /// The cameras: one `[camera]` table, or `[[camera]]` tables with names (a rig). Code
+    /// that drives one camera reaches the first through `Deref`.
+    pub camera: CameraSet,
     /// How frames become masks.
     pub segmenter: SegmenterConfig,
     /// Loop settings.
@@ -68,6 +71,22 @@ pub struct CellConfig {
     /// Where easyhec joins a ROS 2 graph (`--features ros2`); absent: it does not.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ros2: Option<ros2::Ros2Settings>,
+}
+
+impl CellConfig {
+    /// The single-camera config of camera `index`: its table as `[camera]` and its own
+    /// segmenter, if it has one, as `[segmenter]`. Everything else is shared.
+    pub fn for_camera(&self, index: usize) -> CellConfig {
+        let named = &self.camera.cameras()[index];
+        CellConfig {
+            camera: CameraSet::one(named.config.clone()),
+            segmenter: named
+                .segmenter
+                .clone()
+                .unwrap_or_else(|| self.segmenter.clone()),
+            ..self.clone()
+        }
+    }
 }
 
 /// Longest duration a config may set, seconds (a day): every timeout and margin is far

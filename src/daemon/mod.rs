@@ -221,6 +221,10 @@ impl Daemon {
     /// Opens the data folder at `data_dir` (repairing what a crash left) for `cell`, serving
     /// API calls that carry `token`.
     pub fn open(cell: Cell, data_dir: &Path, token: String) -> Result<Arc<Daemon>> {
+        // Overlays, bump checks and results are per camera of one camera so far.
+        cell.config
+            .camera
+            .require_one(&cell.config_path, "easyhec daemon")?;
         if token.trim().is_empty() {
             return Err(Error::input(
                 &cell.config_path,

@@ -20,8 +20,7 @@ use crate::overlay::write_overlay;
 use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
 use crate::render::PosedRobot;
 use crate::run::{
-    load_run, load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile,
-    UncertaintyEntry,
+    load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
 use crate::solve::{Optimizer, SolveOptions, SolveReport, View};
 
@@ -79,19 +78,151 @@ pub struct OfflineOutcome {
     pub truth_error: Option<(PathBuf, f64, f64)>,
 }
 
-/// Solves a recorded run; `note` receives the one-line remarks a user should see as they
-/// happen (segmentation rounds, automatic initialisation, views left out).
+/// Solves a recorded `easyhec-run/1` run; `note` receives the one-line remarks a user
+/// should see as they happen (segmentation rounds, automatic initialisation, views left out).
 pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
     let started = Instant::now();
-    let (mut run, k) = load_requested(req)?;
+    let (run, k) = load_requested(req)?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
-    let renderer = renderer.as_ref();
+    let folders = (req.overlays.clone(), req.masks_out.clone());
+    let solved = solve_loaded(req, run, k, renderer.as_ref(), &folders, started, note)?;
+    let out = req
+        .out
+        .clone()
+        .unwrap_or_else(|| solved.run_dir.join("result.json"));
+    crate::io::write_json_atomic(&out, &solved.result)?;
+    Ok(OfflineOutcome {
+        truth_error: truth_error(&solved.run_dir, &solved.report.camera_from_base),
+        transform: solved.transform,
+        views: solved.order.len(),
+        poor_views: poor_views(&solved.order, &solved.report),
+        result: solved.result,
+        out,
+        solve_s: solved.solve_s,
+        report: solved.report,
+    })
+}
+
+/// One camera's solve of an `easyhec-run/2` run.
+#[derive(Clone, Debug)]
+pub struct CameraSolved {
+    /// The camera's name.
+    pub name: String,
+    /// Its final solve.
+    pub report: SolveReport,
+    /// Views its result rests on.
+    pub views: usize,
+    /// Views that fit poorly.
+    pub poor_views: Vec<usize>,
+}
+
+/// What an offline solve of an `easyhec-run/2` run produced.
+#[derive(Clone, Debug)]
+pub struct RigOfflineOutcome {
+    /// The result as written.
+    pub result: crate::run::rig::RigResultFile,
+    /// Where it was written.
+    pub out: PathBuf,
+    /// Every camera's solve, in the run's order.
+    pub cameras: Vec<CameraSolved>,
+}
+
+/// Whether `run` (a folder or its `run.json`) is an `easyhec-run/2` run of several cameras.
+pub fn is_rig_run(run: &Path) -> Result<bool> {
+    let json = if run.is_dir() {
+        run.join("run.json")
+    } else {
+        run.to_path_buf()
+    };
+    Ok(crate::run::rig::format_of(&json)? == crate::run::rig::RIG_RUN_FORMAT)
+}
+
+/// Solves every camera of an `easyhec-run/2` run as [`solve_run`] solves one, and writes one
+/// `easyhec-result/2`. Overlays and masks go to a folder per camera (`DIR/<name>/`). Nothing
+/// is written unless every camera's solve passes.
+pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<RigOfflineOutcome> {
+    use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
+    let started = Instant::now();
+    let cameras = crate::run::load_cameras_with(&req.run, mask_source(req))?;
+    let renderer =
+        open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
+    let mut entries = Vec::with_capacity(cameras.len());
+    let mut solved_cameras = Vec::with_capacity(cameras.len());
+    let mut run_dir = PathBuf::new();
+    for (name, run) in cameras {
+        let k = requested_views(req, run.views.len())?;
+        let per = |d: &Option<PathBuf>| d.as_ref().map(|d| d.join(&name));
+        let folders = (per(&req.overlays), per(&req.masks_out));
+        let mut camera_note = |line: &str| note(&format!("{name}: {line}"));
+        let solved = solve_loaded(
+            req,
+            run,
+            k,
+            renderer.as_ref(),
+            &folders,
+            started,
+            &mut camera_note,
+        )
+        .map_err(|e| match e {
+            Error::Solve(m) => Error::Solve(format!("camera '{name}': {m}")),
+            other => other,
+        })?;
+        run_dir = solved.run_dir.clone();
+        entries.push(CameraResult::of(&name, &solved.result));
+        solved_cameras.push(CameraSolved {
+            name,
+            views: solved.order.len(),
+            poor_views: poor_views(&solved.order, &solved.report),
+            report: solved.report,
+        });
+    }
+    let mut timings_s = std::collections::BTreeMap::new();
+    timings_s.insert("total".to_string(), started.elapsed().as_secs_f64());
+    let result = RigResultFile {
+        format: RIG_RESULT_FORMAT.into(),
+        cameras: entries,
+        stop_reason: "solved every camera".into(),
+        timings_s,
+    };
+    let out = req
+        .out
+        .clone()
+        .unwrap_or_else(|| run_dir.join("result.json"));
+    crate::io::write_json_atomic(&out, &result)?;
+    Ok(RigOfflineOutcome {
+        result,
+        out,
+        cameras: solved_cameras,
+    })
+}
+
+/// One camera's judged solve, not yet written.
+struct Solved {
+    result: ResultFile,
+    report: SolveReport,
+    order: Vec<usize>,
+    run_dir: PathBuf,
+    transform: String,
+    solve_s: f64,
+}
+
+/// Segments, initialises, selects, judges and describes one camera's loaded run; `folders`
+/// are where its overlays and made masks go.
+fn solve_loaded(
+    req: &OfflineSolve,
+    mut run: LoadedRun,
+    k: usize,
+    renderer: &dyn Backend,
+    folders: &(Option<PathBuf>, Option<PathBuf>),
+    started: Instant,
+    note: &mut dyn FnMut(&str),
+) -> Result<Solved> {
     let mut timings = Timings::default();
     let mut settled = None;
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
-        settled = segment_run(&mut run, config, renderer, req.masks_out.as_deref(), note)?;
+        settled = segment_run(&mut run, config, renderer, folders.1.as_deref(), note)?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
@@ -141,43 +272,46 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
     if !req.allow_poor_fit {
         judge_fit(&order, &report, k)?;
     }
-    if let Some(dir) = &req.overlays {
+    if let Some(dir) = &folders.0 {
         write_overlays(renderer, &run, &pool, &order, &report, dir)?;
     }
     timings.total_s = started.elapsed().as_secs_f64();
     let result = result_file(req, &run, &order, &report, stop_reason, &timings);
-    let out = req
-        .out
-        .clone()
-        .unwrap_or_else(|| run.dir.join("result.json"));
-    crate::io::write_json_atomic(&out, &result)?;
-    Ok(OfflineOutcome {
+    Ok(Solved {
         transform: run.file.camera.mount.transform_name(),
-        truth_error: truth_error(&run.dir, &report.camera_from_base),
-        views: order.len(),
-        poor_views: poor_views(&order, &report),
-        result,
-        out,
         solve_s: timings.solve_s,
+        run_dir: run.dir,
+        result,
         report,
+        order,
     })
 }
 
-/// Loads the run the way the request reads it (recorded masks, or images for a segmenter) and
-/// checks `--views` against it, before any renderer is opened.
-fn load_requested(req: &OfflineSolve) -> Result<(LoadedRun, usize)> {
-    let run = match (&req.segmenter, req.ignore_masks) {
-        (None, _) => load_run(&req.run)?,
-        (Some(_), true) => load_run_with(&req.run, MaskSource::Image)?,
-        (Some(_), false) => load_run_with(&req.run, MaskSource::RecordedElseImage)?,
-    };
-    let total = run.views.len();
+/// Where the request takes masks from.
+fn mask_source(req: &OfflineSolve) -> MaskSource {
+    match (&req.segmenter, req.ignore_masks) {
+        (None, _) => MaskSource::Recorded,
+        (Some(_), true) => MaskSource::Image,
+        (Some(_), false) => MaskSource::RecordedElseImage,
+    }
+}
+
+/// `--views` against a run of `total` views.
+fn requested_views(req: &OfflineSolve, total: usize) -> Result<usize> {
     let k = req.views.unwrap_or(total);
     if k == 0 || k > total {
         return Err(Error::Usage(format!(
             "--views {k}: the run has {total} views"
         )));
     }
+    Ok(k)
+}
+
+/// Loads the run the way the request reads it (recorded masks, or images for a segmenter) and
+/// checks `--views` against it, before any renderer is opened.
+fn load_requested(req: &OfflineSolve) -> Result<(LoadedRun, usize)> {
+    let run = load_run_with(&req.run, mask_source(req))?;
+    let k = requested_views(req, run.views.len())?;
     Ok((run, k))
 }
 

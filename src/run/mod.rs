@@ -17,6 +17,7 @@ use crate::mask::Mask;
 use crate::robot::{RobotModel, RobotSource};
 
 mod checks;
+pub mod rig;
 
 pub use checks::{
     available_memory_bytes, MAX_RUN_JOINTS, MAX_RUN_VIEWS, SOLVE_BYTES_PER_VIEW_PIXEL,
@@ -42,13 +43,7 @@ fn read_tagged_json(path: &Path, tag: &str) -> Result<serde_json::Value> {
 
 /// [`read_tagged_json`] on text already read.
 fn parse_tagged_json(text: &str, path: &Path, tag: &str) -> Result<serde_json::Value> {
-    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| {
-        Error::input(
-            path,
-            format!("line {} column {}", e.line(), e.column()),
-            format!("invalid JSON: {e} (NaN and Infinity are not JSON numbers)"),
-        )
-    })?;
+    let value = parse_json(text, path)?;
     match value.get("format").and_then(|f| f.as_str()) {
         Some(t) if t == tag => Ok(value),
         Some(other) => Err(Error::input(
@@ -62,6 +57,17 @@ fn parse_tagged_json(text: &str, path: &Path, tag: &str) -> Result<serde_json::V
             format!("missing: add \"format\": \"{tag}\""),
         )),
     }
+}
+
+/// Parses JSON text; a syntax error names the line and column.
+fn parse_json(text: &str, path: &Path) -> Result<serde_json::Value> {
+    serde_json::from_str(text).map_err(|e| {
+        Error::input(
+            path,
+            format!("line {} column {}", e.line(), e.column()),
+            format!("invalid JSON: {e} (NaN and Infinity are not JSON numbers)"),
+        )
+    })
 }
 
 /// Deserialises `value`, naming the field path of the first mismatch (`views[2].joints[1]`)
@@ -352,6 +358,13 @@ pub enum MaskSource {
 /// [`load_run`] with a choice of mask source; views left for a segmenter have
 /// `needs_mask` set and must have an image.
 pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> {
+    let (json, dir) = run_paths(path);
+    let file = RunFile::read(&json)?;
+    load_run_file(json, dir, file, mask_source)
+}
+
+/// `run.json` of a run folder (or the file itself), and the folder its paths are relative to.
+fn run_paths(path: &Path) -> (PathBuf, PathBuf) {
     let json = if path.is_dir() {
         path.join("run.json")
     } else {
@@ -361,7 +374,44 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
         .parent()
         .map(Path::to_path_buf)
         .unwrap_or_else(|| PathBuf::from("."));
-    let file = RunFile::read(&json)?;
+    (json, dir)
+}
+
+/// Loads either run version as named cameras: an `easyhec-run/1` run is the one camera
+/// `camera`; an `easyhec-run/2` run gives each camera's part, checked as a run of its own,
+/// with errors naming the rig's fields.
+pub fn load_cameras_with(path: &Path, mask_source: MaskSource) -> Result<Vec<(String, LoadedRun)>> {
+    let (json, dir) = run_paths(path);
+    if rig::format_of(&json)? != rig::RIG_RUN_FORMAT {
+        let name = crate::config::cameras::SINGLE_CAMERA_NAME.to_string();
+        return Ok(vec![(name, load_run_with(path, mask_source)?)]);
+    }
+    let value = read_tagged_json(&json, rig::RIG_RUN_FORMAT)?;
+    let file = rig::RigRunFile::from_value(&json, value)?;
+    (0..file.cameras.len())
+        .map(|k| {
+            let name = file.cameras[k].name.clone();
+            load_run_file(json.clone(), dir.clone(), file.camera_run(k), mask_source)
+                .map(|run| (name.clone(), run))
+                .map_err(|e| match e {
+                    Error::Input {
+                        file,
+                        field,
+                        message,
+                    } => Error::input(file, rig::rig_field(&field, &name, k), message),
+                    other => other,
+                })
+        })
+        .collect()
+}
+
+/// The checks and loading of [`load_run_with`] on a parsed file.
+fn load_run_file(
+    json: PathBuf,
+    dir: PathBuf,
+    file: RunFile,
+    mask_source: MaskSource,
+) -> Result<LoadedRun> {
     let camera = file.check(&json, &dir)?;
     let source = RobotSource {
         urdf: resolve(&dir, &file.robot.urdf),

@@ -30,7 +30,7 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
         cx,
         cy,
         ..
-    } = &mut cfg.camera
+    } = &mut *cfg.camera
     {
         *width /= 2;
         *height /= 2;
@@ -62,7 +62,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
         cx,
         cy,
         ..
-    } = &mut cfg.camera
+    } = &mut *cfg.camera
     {
         *width *= 2;
         *height *= 2;
@@ -86,7 +86,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
     if let ArmConfig::Sim { seed, .. } = &mut cfg.arm {
         *seed = 3;
     }
-    if let CameraConfig::Sim { scene, .. } = &mut cfg.camera {
+    if let CameraConfig::Sim { scene, .. } = &mut *cfg.camera {
         scene.seed = 3;
     }
     cfg.calibration.joint_samples = defaults.calibration.joint_samples;

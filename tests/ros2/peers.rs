@@ -100,7 +100,7 @@ pub fn ros2_sim_cell(domain: u16) -> (easyhec::config::CellConfig, Vec<f64>) {
     };
     let start = start.clone();
     cfg.arm = toml::from_str("kind = \"ros2\"\nstale_after_s = 2.0").unwrap();
-    let CameraConfig::Sim { joints_from, .. } = &mut cfg.camera else {
+    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
         panic!("the shipped cell's camera is simulated")
     };
     *joints_from = Some(JointsFrom::Ros2 {

@@ -1,0 +1,312 @@
+//! `easyhec-run/2` and `easyhec-result/2`: a run and a result of several cameras that shared
+//! one arm motion (docs/formats.md). Each camera's part reads as an `easyhec-run/1` run or an
+//! `easyhec-result/1` result, so every single-camera check and tool applies to it.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::{
+    from_rows, from_value_at, read_tagged_json, CameraEntry, PerView, PoseEntry, ResultFile,
+    RobotEntry, RunFile, UncertaintyEntry, ViewEntry, RESULT_FORMAT, RUN_FORMAT,
+};
+use crate::error::{Error, Result};
+
+/// Rig run format tag.
+pub const RIG_RUN_FORMAT: &str = "easyhec-run/2";
+/// Rig result format tag.
+pub const RIG_RESULT_FORMAT: &str = "easyhec-result/2";
+
+/// `run.json` → `cameras[k]`: a camera's name, its `easyhec-run/1` camera entry, and its
+/// starting pose.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RigCameraEntry {
+    /// The camera's name (`[[camera]] name`).
+    pub name: String,
+    /// Intrinsics and mount, as in `easyhec-run/1`.
+    #[serde(flatten)]
+    pub camera: CameraEntry,
+    /// Optional starting pose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub initial_guess: Option<PoseEntry>,
+}
+
+/// One camera's files of a view.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FrameFiles {
+    /// 8-bit grey mask PNG, relative to the run folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask: Option<String>,
+    /// Colour frame, relative to the run folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<String>,
+}
+
+/// `run.json` → `views[i]`: the joints once, each camera's frame and mask by name.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RigViewEntry {
+    /// Joint positions in `robot.joints` order.
+    pub joints: Vec<f64>,
+    /// RFC 3339 time of the first camera's frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub captured_at: Option<String>,
+    /// Files per camera name.
+    pub frames: BTreeMap<String, FrameFiles>,
+}
+
+/// `run.json` of a rig.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RigRunFile {
+    /// Always [`RIG_RUN_FORMAT`].
+    pub format: String,
+    /// The robot.
+    pub robot: RobotEntry,
+    /// The cameras.
+    pub cameras: Vec<RigCameraEntry>,
+    /// The recorded views.
+    pub views: Vec<RigViewEntry>,
+}
+
+impl RigRunFile {
+    /// Parses a rig `run.json` value (format already read), checking the camera list.
+    pub fn from_value(path: &Path, value: serde_json::Value) -> Result<RigRunFile> {
+        let rig: RigRunFile = from_value_at(path, value)?;
+        rig.check_cameras(path)?;
+        Ok(rig)
+    }
+
+    /// Names that are safe as folders and keys, each once, at most
+    /// [`crate::config::cameras::MAX_CAMERAS`]; every view names exactly these cameras.
+    fn check_cameras(&self, path: &Path) -> Result<()> {
+        let max = crate::config::cameras::MAX_CAMERAS;
+        if self.cameras.is_empty() || self.cameras.len() > max {
+            return Err(Error::input(
+                path,
+                "cameras",
+                format!("lists {} cameras; allowed: 1 to {max}", self.cameras.len()),
+            ));
+        }
+        check_names(path, self.cameras.iter().map(|c| c.name.as_str()))?;
+        let mut listed: Vec<&String> = self.cameras.iter().map(|c| &c.name).collect();
+        listed.sort();
+        for (i, v) in self.views.iter().enumerate() {
+            // `frames` is a sorted map: its keys compare with the sorted names.
+            let named: Vec<&String> = v.frames.keys().collect();
+            if named != listed {
+                return Err(Error::input(
+                    path,
+                    format!("views[{i}].frames"),
+                    format!("names {named:?}; allowed: exactly the cameras {listed:?}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Camera `k`'s part as an `easyhec-run/1` file: paths stay relative to the same folder.
+    pub fn camera_run(&self, k: usize) -> RunFile {
+        let cam = &self.cameras[k];
+        RunFile {
+            format: RUN_FORMAT.into(),
+            robot: self.robot.clone(),
+            camera: cam.camera.clone(),
+            initial_guess: cam.initial_guess.clone(),
+            views: self
+                .views
+                .iter()
+                .map(|v| {
+                    let files = v.frames.get(&cam.name);
+                    ViewEntry {
+                        joints: v.joints.clone(),
+                        mask: files.and_then(|f| f.mask.clone()),
+                        image: files.and_then(|f| f.image.clone()),
+                        captured_at: v.captured_at.clone(),
+                    }
+                })
+                .collect(),
+        }
+    }
+}
+
+/// A field of camera `name`'s part (`views[2].mask`, `camera.fx`) as the rig file spells it
+/// (`views[2].frames.left.mask`, `cameras[1].fx`), so an error names the rig's own field.
+pub fn rig_field(field: &str, name: &str, k: usize) -> String {
+    if let Some(rest) = field.strip_prefix("camera.") {
+        return format!("cameras[{k}].{rest}");
+    }
+    if field.starts_with("initial_guess") {
+        return format!("cameras[{k}].{field}");
+    }
+    if let Some((view, tail)) = field.split_once("].") {
+        if view.starts_with("views[") && (tail.starts_with("mask") || tail.starts_with("image")) {
+            return format!("{view}].frames.{name}.{tail}");
+        }
+    }
+    field.to_string()
+}
+
+/// `result.json` → `cameras[k]`: one camera's transform and its fit.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct CameraResult {
+    /// The camera's name.
+    pub name: String,
+    /// Base frame → the camera's OpenCV optical frame.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// Inverse of `camera_from_base`.
+    pub base_from_camera: [[f64; 4]; 4],
+    /// Frame `camera_from_base` refers to.
+    pub base_link: String,
+    /// Indices into the run's views.
+    pub views_used: Vec<usize>,
+    /// Per-view agreement.
+    pub per_view: Vec<PerView>,
+    /// 1-sigma about the camera axes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<UncertaintyEntry>,
+    /// Why this camera stopped asking for views.
+    #[serde(default)]
+    pub stop_reason: String,
+}
+
+/// `easyhec-result/2`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct RigResultFile {
+    /// Always [`RIG_RESULT_FORMAT`].
+    pub format: String,
+    /// One entry per camera, in the config's order.
+    pub cameras: Vec<CameraResult>,
+    /// Why the calibration stopped.
+    pub stop_reason: String,
+    /// Wall-clock timings, seconds.
+    pub timings_s: BTreeMap<String, f64>,
+}
+
+impl CameraResult {
+    /// The entry of camera `name` from its single-camera result.
+    pub fn of(name: &str, r: &ResultFile) -> CameraResult {
+        CameraResult {
+            name: name.into(),
+            camera_from_base: r.camera_from_base,
+            base_from_camera: r.base_from_camera,
+            base_link: r.base_link.clone(),
+            views_used: r.views_used.clone(),
+            per_view: r.per_view.clone(),
+            uncertainty: r.uncertainty.clone(),
+            stop_reason: r.stop_reason.clone(),
+        }
+    }
+
+    /// This camera as an `easyhec-result/1` (what export and the tf tools read).
+    pub fn as_result(&self, timings_s: &BTreeMap<String, f64>) -> ResultFile {
+        ResultFile {
+            format: RESULT_FORMAT.into(),
+            camera_from_base: self.camera_from_base,
+            base_from_camera: self.base_from_camera,
+            base_link: self.base_link.clone(),
+            views_used: self.views_used.clone(),
+            per_view: self.per_view.clone(),
+            uncertainty: self.uncertainty.clone(),
+            stop_reason: self.stop_reason.clone(),
+            timings_s: timings_s.clone(),
+        }
+    }
+}
+
+impl RigResultFile {
+    /// Reads a rig result, checking names, every transform and every uncertainty.
+    pub fn read(path: &Path) -> Result<RigResultFile> {
+        let value = read_tagged_json(path, RIG_RESULT_FORMAT)?;
+        let r: RigResultFile = from_value_at(path, value)?;
+        check_names(path, r.cameras.iter().map(|c| c.name.as_str()))?;
+        for (k, c) in r.cameras.iter().enumerate() {
+            from_rows(&c.camera_from_base)
+                .map_err(|m| Error::input(path, format!("cameras[{k}].camera_from_base"), m))?;
+            if let Some((field, problem)) =
+                c.uncertainty.as_ref().and_then(UncertaintyEntry::problem)
+            {
+                return Err(Error::input(path, format!("cameras[{k}].{field}"), problem));
+            }
+        }
+        if r.cameras.is_empty() {
+            return Err(Error::input(
+                path,
+                "cameras",
+                "is empty; allowed: 1 to 8 cameras",
+            ));
+        }
+        Ok(r)
+    }
+}
+
+/// Every `cameras[k].name` safe as a folder and a key, and listed once.
+fn check_names<'n>(path: &Path, names: impl Iterator<Item = &'n str>) -> Result<()> {
+    let mut seen: Vec<&str> = Vec::new();
+    for (k, name) in names.enumerate() {
+        let problem = crate::config::cameras::name_problem(name)
+            .or_else(|| seen.contains(&name).then(|| "each name once".to_string()));
+        if let Some(problem) = problem {
+            return Err(Error::input(
+                path,
+                format!("cameras[{k}].name"),
+                format!("is {name:?}; allowed: {problem}"),
+            ));
+        }
+        seen.push(name);
+    }
+    Ok(())
+}
+
+/// The format tag of a JSON file (`run.json` or `result.json`), so a reader can dispatch.
+pub fn format_of(path: &Path) -> Result<String> {
+    let text = crate::io::read_text_input(path)?;
+    let value = super::parse_json(&text, path)?;
+    value
+        .get("format")
+        .and_then(|f| f.as_str())
+        .map(str::to_string)
+        .ok_or_else(|| Error::input(path, "format", "missing"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rig_json(names: [&str; 2], view_names: [&str; 2]) -> serde_json::Value {
+        let camera = |n: &str| serde_json::json!({"name": n, "width": 64, "height": 48, "fx": 60.0, "fy": 60.0, "cx": 31.5, "cy": 23.5});
+        let files = serde_json::json!({"mask": "views/a/000.mask.png"});
+        serde_json::json!({
+            "format": RIG_RUN_FORMAT,
+            "robot": {"urdf": "r.urdf", "joints": ["j1"]},
+            "cameras": [camera(names[0]), camera(names[1])],
+            "views": [{"joints": [0.0], "frames": {view_names[0]: files.clone(), view_names[1]: files}}]
+        })
+    }
+
+    #[test]
+    fn a_rig_run_names_its_cameras_once_and_every_view_names_them_all() {
+        let path = Path::new("run.json");
+        assert!(RigRunFile::from_value(path, rig_json(["a", "b"], ["b", "a"])).is_ok());
+        for (value, field) in [
+            (rig_json(["a", "a"], ["a", "b"]), "cameras[1].name"),
+            (rig_json(["a", "B"], ["a", "B"]), "cameras[1].name"),
+            (rig_json(["a", "b"], ["a", "c"]), "views[0].frames"),
+        ] {
+            let e = RigRunFile::from_value(path, value).unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_camera_parts_field_is_named_as_the_rig_spells_it() {
+        assert_eq!(
+            rig_field("views[2].mask", "left", 0),
+            "views[2].frames.left.mask"
+        );
+        assert_eq!(rig_field("camera.fx", "left", 1), "cameras[1].fx");
+        assert_eq!(
+            rig_field("views[0].joints[1]", "left", 0),
+            "views[0].joints[1]"
+        );
+    }
+}

@@ -1,0 +1,190 @@
+//! Several cameras in one cell (`[[camera]]`): one arm motion serves the three fixed cameras of
+//! the simulated xArm6 rig, each camera's transform reaches the truth, every commanded pose
+//! passes the safety checker, the run and result are the rig formats (`easyhec-run/2`,
+//! `easyhec-result/2`) and each camera's part reads back as a run of its own; configs a rig
+//! cannot serve are refused before anything moves.
+
+mod common;
+
+use std::path::PathBuf;
+
+use easyhec::calibrate::{calibrate, RunOptions};
+use easyhec::cell::Cell;
+use easyhec::config::read_config;
+use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::run::rig::{RigResultFile, RIG_RESULT_FORMAT};
+use easyhec::run::{load_cameras_with, MaskSource};
+
+const RIG: &str = "sim-xarm6-three-cameras.toml";
+
+fn config_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(RIG)
+}
+
+#[test]
+fn three_cameras_reach_the_truth_from_one_motion() {
+    let path = config_path();
+    let mut cfg = read_config(&path).unwrap();
+    cfg.calibration.max_views = 4;
+    cfg.calibration.min_views = 4;
+    cfg.calibration.joint_samples = 1000;
+    cfg.calibration.candidates = 24;
+    let cell = Cell::build(cfg, &path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let outcome = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(calibrate(&cell, &out, &RunOptions::default()))
+        .unwrap();
+    let names: Vec<&str> = outcome.cameras.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["front", "side", "high"]);
+    for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
+        let truth = unit.sim.camera_from_base.unwrap();
+        let est = cam.result.camera_from_base();
+        let (r, t) = (
+            rotation_error_deg(&est, &truth),
+            translation_error_mm(&est, &truth),
+        );
+        assert!(
+            r < 0.2 && t < 1.5,
+            "{}: off by {r:.4} deg {t:.3} mm",
+            cam.name
+        );
+        assert_eq!(cam.result.views_used.len(), 4, "{}", cam.name);
+    }
+    // One motion served all three: 3 moves for 4 views, each one checked.
+    let sim = cell.sim.arm.as_ref().unwrap();
+    let commands = sim.commands();
+    assert_eq!(commands.len(), 3);
+    for (i, c) in commands.iter().enumerate() {
+        assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
+        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
+    }
+
+    // The result names every camera, and each part reads as a run of its own.
+    let result = RigResultFile::read(&out.join("result.json")).unwrap();
+    assert_eq!(result.format, RIG_RESULT_FORMAT);
+    assert_eq!(result.cameras.len(), 3);
+    for (c, cam) in result.cameras.iter().zip(&outcome.cameras) {
+        assert_eq!(c.name, cam.name);
+        assert_eq!(c.camera_from_base, cam.result.camera_from_base);
+        assert!(c.uncertainty.is_some(), "{}", c.name);
+    }
+    let parts = load_cameras_with(&out, MaskSource::Recorded).unwrap();
+    assert_eq!(parts.len(), 3);
+    for ((name, run), unit) in parts.iter().zip(cell.cameras()) {
+        assert_eq!(name, unit.name);
+        assert_eq!(run.views.len(), 4, "{name}");
+        assert_eq!(run.camera.width, unit.device.intrinsics().width, "{name}");
+        assert!(run
+            .views
+            .iter()
+            .all(|v| v.observed.data.iter().any(|&m| m != 0)));
+    }
+    // The side camera's lens distortion is recorded with its part.
+    assert!(parts[1].1.camera.distortion.is_some());
+
+    // `easyhec solve` reads the rig run and finds each camera's transform again.
+    let resolved = dir.path().join("resolved.json");
+    let solved = common::solve_run(&out, &["--out", resolved.to_str().unwrap()]);
+    assert!(
+        solved.status.success(),
+        "{}",
+        String::from_utf8_lossy(&solved.stderr)
+    );
+    let again = RigResultFile::read(&resolved).unwrap();
+    for (a, b) in again.cameras.iter().zip(&result.cameras) {
+        assert_eq!(a.name, b.name);
+        let (ea, eb) = (
+            easyhec::geometry::from_rows(&a.camera_from_base).unwrap(),
+            easyhec::geometry::from_rows(&b.camera_from_base).unwrap(),
+        );
+        let (r, t) = (rotation_error_deg(&ea, &eb), translation_error_mm(&ea, &eb));
+        assert!(
+            r < 0.05 && t < 0.5,
+            "{}: re-solve moved {r:.4} deg {t:.3} mm",
+            a.name
+        );
+    }
+
+    // `easyhec export` writes every camera, each under its own frame.
+    let exported = dir.path().join("export");
+    let status = std::process::Command::new(common::easyhec_bin())
+        .args([
+            "export",
+            resolved.to_str().unwrap(),
+            "--format",
+            "urdf",
+            "--out",
+        ])
+        .arg(&exported)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    for name in ["front", "side", "high"] {
+        let text = std::fs::read_to_string(exported.join(format!("{name}.urdf"))).unwrap();
+        assert!(
+            text.contains(&format!("{name}_easyhec_camera_optical_frame")),
+            "{text}"
+        );
+    }
+}
+
+#[test]
+fn configs_a_rig_cannot_serve_are_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = common::shipped_config_text(RIG);
+    let cases = vec![
+        (
+            base.replacen("name = \"side\"", "name = \"front\"", 1),
+            "camera[1].name",
+        ),
+        (
+            base.replacen("name = \"high\"", "name = \"../high\"", 1),
+            "camera[2].name",
+        ),
+        (
+            base.replacen(
+                "name = \"side\"",
+                "name = \"side\"\nmount = { link = \"link6\" }",
+                1,
+            ),
+            "camera[1].mount",
+        ),
+        (
+            base.replacen("max_views = 5", "max_views = 5\ninitial_guess = { eye = [1.0, 0.0, 1.0], look_at = [0.0, 0.0, 0.3] }", 1),
+            "calibration.initial_guess",
+        ),
+        (base.replacen("fx = 700.0", "fx = -700.0", 1), "camera[1].fx"),
+        (
+            base.replacen("name = \"front\"\n", "", 1),
+            "camera[0].name",
+        ),
+    ];
+    common::assert_configs_refused(dir.path(), &base, &cases);
+}
+
+#[test]
+fn the_daemon_refuses_a_list_of_cameras_it_cannot_serve_yet() {
+    let path = config_path();
+    let cell = Cell::open(&path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let e = match easyhec::daemon::Daemon::open(cell, dir.path(), "token".into()) {
+        Ok(_) => panic!("a three-camera daemon was started"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains(RIG) && e.contains(": camera: lists 3 cameras") && e.contains("easyhec daemon"),
+        "{e}"
+    );
+    // Nothing was written into the data folder.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
