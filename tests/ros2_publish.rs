@@ -10,7 +10,7 @@ mod peers;
 
 use std::path::Path;
 
-use peers::{can_run_peers, in_private_network, max_difference, received_edge};
+use peers::{can_run_peers, in_private_network, max_difference, received_edge, received_edges};
 
 use easyhec::geometry::{exp_se3, Twist};
 use easyhec::run::ResultFile;
@@ -165,4 +165,57 @@ cat refused.log
         "{log}"
     );
     assert!(!log.contains("on /tf_static (domain"), "{log}");
+}
+
+/// A result of several cameras (`easyhec-result/2`) goes out as one message with an edge per
+/// camera, each to the camera's own child frame and with its own numbers.
+#[test]
+fn every_camera_of_a_rig_result_is_published_to_its_own_frame() {
+    use easyhec::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
+    if !can_run_peers() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let poses = [
+        exp_se3(&Twist::new(0.31, -0.27, 1.13, 0.52, -1.21, 2.03)),
+        exp_se3(&Twist::new(-0.4, 0.2, 1.4, 1.1, 0.3, -0.7)),
+    ];
+    let rig = RigResultFile {
+        format: RIG_RESULT_FORMAT.into(),
+        cameras: ["front", "side"]
+            .iter()
+            .zip(&poses)
+            .map(|(name, p)| CameraResult::of(name, &ResultFile::new(p, "link_base")))
+            .collect(),
+        stop_reason: String::new(),
+        timings_s: Default::default(),
+    };
+    easyhec::io::write_json_atomic(&dir.path().join("result.json"), &rig).unwrap();
+    let (ok, log) = in_private_network(
+        dir.path(),
+        r#"
+"$EASYHEC" publish result.json --child-frame-id '{name}_optical' --domain-id 18 --listen-s 1 2> publish.log &
+pid=$!
+wait_for publish.log "on /tf_static" || { cat publish.log; exit 3; }
+sleep 2
+timeout 60 python3 "$PEER" listen 18 30 > got.json
+status=$?
+kill -TERM $pid
+wait $pid
+cat publish.log
+exit $status
+"#,
+    );
+    assert!(ok, "{log}");
+    let mut edges = received_edges(dir.path());
+    edges.sort_by(|a, b| a.1.cmp(&b.1));
+    assert_eq!(edges.len(), 2, "{log}");
+    for ((parent, child, got), (name, pose)) in
+        edges.iter().zip(["front", "side"].iter().zip(&poses))
+    {
+        assert_eq!(parent, "link_base");
+        assert_eq!(child, &format!("{name}_optical"));
+        let diff = max_difference(got, &pose.inverse());
+        assert!(diff < 1e-9, "{name}: {diff}");
+    }
 }

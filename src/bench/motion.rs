@@ -53,6 +53,10 @@ impl MotionBench {
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
         let base = read_config(&self.config)?;
         let sim_base = read_config(&self.cells_from)?;
+        base.camera.require_one(&self.config, "bench motion")?;
+        sim_base
+            .camera
+            .require_one(&self.cells_from, "bench motion")?;
         let mut pairs: Vec<(MotionTrial, MotionTrial)> = Vec::new();
         let mut failed: Vec<u64> = Vec::new();
         for seed in self.first_seed..self.first_seed + self.cells {

@@ -374,15 +374,22 @@ impl<'a> Session<'a> {
             if !fits || self.views() < self.settings.min_views {
                 return None;
             }
-            worst = worst.max(report.uncertainty.camera_centre_95_mm);
+            let bound = report.uncertainty.camera_centre_95_mm;
+            // A NaN bound promises nothing: it never stops the loop.
+            if bound.is_nan() || bound > target {
+                return None;
+            }
+            worst = worst.max(bound);
         }
-        (worst <= target).then(|| {
-            let which = if self.is_rig() { " for every camera" } else { "" };
-            format!(
-                "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
-                self.views()
-            )
-        })
+        let which = if self.is_rig() {
+            " for every camera"
+        } else {
+            ""
+        };
+        Some(format!(
+            "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
+            self.views()
+        ))
     }
 
     /// The variance rule of a single camera: the best disagreement settled, enough views,
@@ -633,9 +640,14 @@ impl<'a> Session<'a> {
             let frame = t.unit.device.grab().await?;
             let camera = &t.camera;
             if frame.width != camera.width || frame.height != camera.height {
+                let which = if self.is_rig() {
+                    format!("camera '{}'", t.unit.name)
+                } else {
+                    "camera".into()
+                };
                 return Err(Error::Hardware(format!(
-                    "camera '{}' returned a {}x{} frame; its intrinsics say {}x{}",
-                    t.unit.name, frame.width, frame.height, camera.width, camera.height
+                    "{which} returned a {}x{} frame; its intrinsics say {}x{}",
+                    frame.width, frame.height, camera.width, camera.height
                 )));
             }
             frames.push(frame);

@@ -136,15 +136,16 @@ impl Cell {
         // Every value that needs only the file, before anything is read or opened.
         config.validate(path)?;
         let first = config.for_camera(0);
+        let rekey = |e| crate::config::cameras::rekey(e, &config.camera, 0);
         // A bad calibration file fails here, before any hardware is opened.
-        let calibration = first.camera.calibration(path)?;
+        let calibration = first.camera.calibration(path).map_err(rekey)?;
         // So does a bad segmentation model.
-        let segmenter = crate::segment::build(&first.segmenter, path)?;
+        let segmenter = crate::segment::build(&first.segmenter, path).map_err(rekey)?;
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
-        let seen = seen_robot(&config, &robot, path)?;
+        let seen = seen_robot(&config, &robot, path).map_err(rekey)?;
         let arm = build_arm(&config, &robot, path)?;
-        let feed = ros2::joint_feed(&first, &robot, path)?;
-        let camera = build_camera(&first, calibration, &robot, &arm, feed, path)?;
+        let feed = ros2::joint_feed(&first, &robot, path).map_err(rekey)?;
+        let camera = build_camera(&first, calibration, &robot, &arm, feed, path).map_err(rekey)?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -248,7 +249,8 @@ fn seen_robot(
         return Ok(robot.clone());
     };
     let seen = robot.seen_from_link(link, path, "camera.mount.link")?;
-    if config.calibration.initial_guess.is_none() {
+    let own_guess = config.camera.cameras()[0].initial_guess.is_some();
+    if config.calibration.initial_guess.is_none() && !own_guess {
         return Err(crate::error::Error::input(
             path,
             "calibration.initial_guess",

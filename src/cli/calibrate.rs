@@ -98,20 +98,26 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         }
         return Ok(());
     }
-    let iou = outcome.report.mean_iou();
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
+    let rig = !cell.more_cameras.is_empty();
+    // A rig's fit and bounds are per camera (`report_cameras`); the run's line has its views,
+    // times and why it stopped.
+    let fit = if rig {
+        String::new()
+    } else {
+        format!("; mean IoU {:.4}", outcome.report.mean_iou())
+    };
     tracing::info!(
-        "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}; mean IoU {:.4} -> {}",
+        "calibrated from {} views in {:.1} s (solve {:.1} s, explore {:.1} s, motion {:.1} s): {}{fit} -> {}",
         r.views_used.len(),
         t("total"),
         t("solve"),
         t("explore"),
         t("motion"),
         r.stop_reason,
-        iou,
         outcome.run_dir.join("result.json").display()
     );
-    if let Some(u) = &r.uncertainty {
+    if let Some(u) = r.uncertainty.as_ref().filter(|_| !rig) {
         tracing::info!(
             "1-sigma: rotation [{:.4}, {:.4}, {:.4}] deg, translation [{:.3}, {:.3}, {:.3}] mm",
             u.rotation_deg[0],

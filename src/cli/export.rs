@@ -14,7 +14,7 @@ use super::frames::FrameArgs;
 
 #[derive(Args)]
 pub struct ExportArgs {
-    /// easyhec-result/1 file.
+    /// easyhec-result/1 file, or easyhec-result/2: one file per camera into the --out folder.
     pub result: PathBuf,
     /// The form to write.
     #[arg(long, value_enum)]
@@ -28,7 +28,7 @@ pub struct ExportArgs {
 
 /// Writes a result in another tool's form.
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
-    if format_of(&a.result)? == RIG_RESULT_FORMAT {
+    if format_of(&a.result)?.as_deref() == Some(RIG_RESULT_FORMAT) {
         return export_rig(&a);
     }
     let format = a.format;
@@ -46,8 +46,7 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
 }
 
 /// Every camera of an `easyhec-result/2`, one file per camera in the `--out` folder
-/// (`<name>.<ext>`), each camera under its own child frame: `--child-frame-id` with `{name}`
-/// replaced by the camera's name, or, without `{name}`, prefixed by `<name>_`.
+/// (`<name>.<ext>`), each camera under its own child frame (`FrameArgs::rig_edges`).
 fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
     let rig = RigResultFile::read(&a.result)?;
     let Some(dir) = &a.out else {
@@ -59,7 +58,8 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
         .into());
     };
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    for (k, cam) in rig.cameras.iter().enumerate() {
+    let edges = a.frames.rig_edges(&rig)?;
+    for ((k, cam), edge) in rig.cameras.iter().enumerate().zip(&edges) {
         let result = cam.as_result(&rig.timings_s);
         check_frame_name(&result.base_link).map_err(|m| {
             Error::input(
@@ -68,25 +68,13 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
                 format!("is {m}"),
             )
         })?;
-        let mut frames = a.frames.clone();
-        frames.child_frame_id = camera_frame(&a.frames.child_frame_id, &cam.name);
-        let edge = frames.edge(&result)?;
-        let text = export(&result, a.format, &edge)?;
+        let text = export(&result, a.format, edge)?;
         let path = dir.join(format!("{}.{}", cam.name, extension(a.format)));
         easyhec::io::write_atomic(&path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         println!("{}: {} -> {}", cam.name, edge.child, path.display());
     }
     Ok(())
-}
-
-/// A rig camera's child frame from the `--child-frame-id` pattern.
-fn camera_frame(pattern: &str, name: &str) -> String {
-    if pattern.contains("{name}") {
-        pattern.replace("{name}", name)
-    } else {
-        format!("{name}_{pattern}")
-    }
 }
 
 /// The file extension of each export form.

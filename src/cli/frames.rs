@@ -4,6 +4,7 @@
 use clap::Args;
 use easyhec::interop::tf_edge::{parse_transform, DEFAULT_CHILD_FRAME};
 use easyhec::interop::TfEdge;
+use easyhec::run::rig::RigResultFile;
 use easyhec::run::ResultFile;
 
 /// How errors name the two frames.
@@ -41,5 +42,37 @@ impl FrameArgs {
             optical_from_child.as_ref(),
             FLAGS,
         )
+    }
+}
+
+impl FrameArgs {
+    /// One edge per camera of a rig result, each to the camera's own child frame
+    /// ([`camera_frame`]). A driver's `--optical-from-child` belongs to one camera, so it is
+    /// refused here: publish or export that camera's frame chain by itself.
+    pub fn rig_edges(&self, rig: &RigResultFile) -> easyhec::error::Result<Vec<TfEdge>> {
+        if self.optical_from_child.is_some() {
+            return Err(easyhec::error::Error::Usage(format!(
+                "--optical-from-child: the result holds {} cameras, and a driver's offset belongs to one; allowed: only for a result of one camera",
+                rig.cameras.len()
+            )));
+        }
+        rig.cameras
+            .iter()
+            .map(|cam| {
+                let mut frames = self.clone();
+                frames.child_frame_id = camera_frame(&self.child_frame_id, &cam.name);
+                frames.edge(&cam.as_result(&rig.timings_s))
+            })
+            .collect()
+    }
+}
+
+/// A rig camera's child frame from the `--child-frame-id` pattern: `{name}` replaced by the
+/// camera's name, or, without `{name}`, the name and `_` put in front.
+pub fn camera_frame(pattern: &str, name: &str) -> String {
+    if pattern.contains("{name}") {
+        pattern.replace("{name}", name)
+    } else {
+        format!("{name}_{pattern}")
     }
 }

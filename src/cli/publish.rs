@@ -9,7 +9,8 @@ use super::frames::FrameArgs;
 
 #[derive(Args)]
 pub struct PublishArgs {
-    /// easyhec-result/1 file.
+    /// easyhec-result/1 file, or an easyhec-result/2 file: every camera is published, each
+    /// to its own child frame (--child-frame-id with {name}, else `<name>_` in front).
     pub result: PathBuf,
     #[command(flatten)]
     pub frames: FrameArgs,
@@ -49,7 +50,21 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
-    let result = easyhec::run::ResultFile::read(&a.result)?;
+    let rig = easyhec::run::rig::format_of(&a.result)?.as_deref()
+        == Some(easyhec::run::rig::RIG_RESULT_FORMAT);
+    if rig && a.optical_frame_id.is_some() {
+        return Err(Error::Usage(
+            "--optical-frame-id: the result holds several cameras, and a driver's frames belong to one; allowed: only for a result of one camera".into(),
+        )
+        .into());
+    }
+    let (result, rig_edges) = if rig {
+        let rig = easyhec::run::rig::RigResultFile::read(&a.result)?;
+        let edges = a.frames.rig_edges(&rig)?;
+        (rig.cameras[0].as_result(&rig.timings_s), Some(edges))
+    } else {
+        (easyhec::run::ResultFile::read(&a.result)?, None)
+    };
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
     if let Some(optical) = &a.optical_frame_id {
@@ -79,9 +94,10 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
     let (_context, mut node) = join(&place)?;
     let mut listener = TfListener::new(&mut node, &place.namespace)?;
     let tree = listener.gather(std::time::Duration::from_secs_f64(a.listen_s), None)?;
-    let edge = match &a.optical_frame_id {
-        None => a.frames.edge(&result)?,
-        Some(optical) => {
+    let edges = match (rig_edges, &a.optical_frame_id) {
+        (Some(edges), _) => edges,
+        (None, None) => vec![a.frames.edge(&result)?],
+        (None, Some(optical)) => {
             let child = &a.frames.child_frame_id;
             let child_from_optical = tree.static_chain(child, optical).ok_or_else(|| {
                 Error::Usage(format!(
@@ -90,22 +106,27 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
                     a.listen_s
                 ))
             })?;
-            easyhec::interop::TfEdge::from_result(
+            vec![easyhec::interop::TfEdge::from_result(
                 &result,
                 a.frames.frame_id.as_deref(),
                 child,
                 Some(&child_from_optical.inverse()),
                 FLAGS,
-            )?
+            )?]
         }
     };
-    tree.check_can_add(&edge)?;
+    for edge in &edges {
+        tree.check_can_add(edge)?;
+    }
     let publisher = StaticTfPublisher::new(&mut node, &place.namespace)?;
-    publisher.send(std::slice::from_ref(&edge))?;
+    publisher.send(&edges)?;
+    let names: Vec<String> = edges
+        .iter()
+        .map(|e| format!("{} -> {}", e.parent, e.child))
+        .collect();
     tracing::info!(
-        "easyhec publish: {} -> {} on /tf_static (domain {}, {} other frames seen); stop with Ctrl-C",
-        edge.parent,
-        edge.child,
+        "easyhec publish: {} on /tf_static (domain {}, {} other frames seen); stop with Ctrl-C",
+        names.join(", "),
         place.domain_id,
         tree.len()
     );

@@ -49,10 +49,9 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
     }
     easyhec::config::ros2::check_frame_name(&a.frame_id)
         .map_err(|m| Error::Usage(format!("--frame-id is {m}")))?;
-    let cell = easyhec::cell::Cell::open(&a.config)?;
-    cell.config
-        .camera
-        .require_one(&a.config, "easyhec sim-camera")?;
+    let config = easyhec::config::read_config(&a.config)?;
+    config.camera.require_one(&a.config, "easyhec sim-camera")?;
+    let cell = easyhec::cell::Cell::build(config, &a.config)?;
     if cell.sim.camera.is_none() {
         return Err(Error::input(
             &a.config,

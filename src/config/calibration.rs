@@ -163,7 +163,22 @@ impl InitialGuess {
     /// As `camera_from_base`.
     pub fn camera_from_base(&self) -> std::result::Result<Isometry3<f64>, String> {
         match self {
-            InitialGuess::LookAt(l) => Ok(l.camera_from_base()),
+            InitialGuess::LookAt(l) => {
+                let values = l.eye.iter().chain(&l.look_at).chain([&l.roll_deg]);
+                if values.into_iter().any(|v| !v.is_finite()) {
+                    return Err("eye, look_at and roll_deg must be finite numbers".into());
+                }
+                let apart = (0..3)
+                    .map(|k| (l.eye[k] - l.look_at[k]).powi(2))
+                    .sum::<f64>();
+                if apart.sqrt() < 1e-3 {
+                    return Err(format!(
+                        "eye {:?} and look_at {:?} are less than 1 mm apart; allowed: a point the camera looks at, away from the camera",
+                        l.eye, l.look_at
+                    ));
+                }
+                Ok(l.camera_from_base())
+            }
             InitialGuess::Matrix { camera_from_base } => {
                 crate::geometry::from_rows(camera_from_base)
             }

@@ -79,14 +79,15 @@ impl CameraSet {
         self.listed
     }
 
-    /// Refuses a rig where `what` drives a single camera, naming the key.
+    /// Refuses `[[camera]]` tables where `what` serves a single `[camera]` table, naming the
+    /// key: even one listed camera records `easyhec-run/2`, which such code does not read.
     pub fn require_one(&self, path: &Path, what: &str) -> Result<()> {
-        if self.cameras.len() > 1 {
+        if self.listed {
             return Err(Error::input(
                 path,
                 "camera",
                 format!(
-                    "lists {} cameras; {what} serves one camera: use a config with a single [camera] table for it",
+                    "lists {} camera(s) as [[camera]] tables; {what} serves one camera: use a config with a single [camera] table for it",
                     self.cameras.len()
                 ),
             ));
@@ -123,6 +124,21 @@ impl CameraSet {
                     ),
                 ));
             }
+            if let Some(Err(m)) = cam.initial_guess.as_ref().map(|g| g.camera_from_base()) {
+                return Err(Error::input(path, format!("camera[{i}].initial_guess"), m));
+            }
+            if let Some((key, source)) = source_of(&cam.config) {
+                let earlier = self.cameras[..i]
+                    .iter()
+                    .position(|c| source_of(&c.config).is_some_and(|(_, s)| s == source));
+                if let Some(first) = earlier {
+                    return Err(Error::input(
+                        path,
+                        format!("camera[{i}].{key}"),
+                        format!("is {source:?}, as camera[{first}]'s; allowed: a different device or topic per camera (two tables would read one stream)"),
+                    ));
+                }
+            }
             if n > 1 && !cam.config.mount().is_fixed() {
                 return Err(Error::input(
                     path,
@@ -147,6 +163,25 @@ impl CameraSet {
     /// Mutable access to every camera (benchmarks seed each one).
     pub fn cameras_mut(&mut self) -> &mut [NamedCamera] {
         &mut self.cameras
+    }
+}
+
+/// Where a camera's frames come from, as `(key, value)`, for the kinds that name one: two
+/// tables with the same source would calibrate one stream twice.
+fn source_of(config: &CameraConfig) -> Option<(&'static str, String)> {
+    match config {
+        CameraConfig::V4l2 { device, .. } => Some(("device", device.clone())),
+        CameraConfig::Aravis {
+            device_id: Some(id),
+            ..
+        } => Some(("device_id", id.clone())),
+        CameraConfig::Ros2 { image_topic, .. } => Some((
+            "image_topic",
+            image_topic
+                .clone()
+                .unwrap_or_else(|| "/camera/color/image_raw".into()),
+        )),
+        _ => None,
     }
 }
 

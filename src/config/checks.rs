@@ -99,6 +99,22 @@ impl CellConfig {
             }
         }
         check_segmenter(&c, &self.segmenter)?;
+        for (i, cam) in self.camera.cameras().iter().enumerate() {
+            let own = cam.segmenter.is_some();
+            let seg = cam.segmenter.as_ref().unwrap_or(&self.segmenter);
+            if self.camera.cameras().len() > 1 && matches!(seg, SegmenterConfig::Builtin { .. }) {
+                let key = if own {
+                    format!("camera[{i}].segmenter.kind")
+                } else {
+                    "segmenter.kind".to_string()
+                };
+                return Err(Error::input(
+                    path,
+                    key,
+                    format!("\"builtin\" for camera '{}': it reads the whole run and serves one camera; allowed in a list of cameras: per-frame segmenters (\"onnx\", \"sim-truth\")", cam.name),
+                ));
+            }
+        }
         if self.camera.cameras().len() > 1 && self.calibration.initial_guess.is_some() {
             return Err(Error::input(
                 path,

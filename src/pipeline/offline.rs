@@ -135,23 +135,26 @@ pub fn is_rig_run(run: &Path) -> Result<bool> {
     } else {
         run.to_path_buf()
     };
-    Ok(crate::run::rig::format_of(&json)? == crate::run::rig::RIG_RUN_FORMAT)
+    Ok(crate::run::rig::format_of(&json)?.as_deref() == Some(crate::run::rig::RIG_RUN_FORMAT))
 }
 
 /// Solves every camera of an `easyhec-run/2` run as [`solve_run`] solves one, and writes one
-/// `easyhec-result/2`. Overlays and masks go to a folder per camera (`DIR/<name>/`). Nothing
-/// is written unless every camera's solve passes.
+/// `easyhec-result/2`. Overlays and masks go to a folder per camera (`DIR/<name>/`), as each
+/// camera is solved; the result is written only when every camera's solve passes.
 pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<RigOfflineOutcome> {
     use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
     let started = Instant::now();
     let cameras = crate::run::load_cameras_with(&req.run, mask_source(req))?;
+    let views = cameras
+        .iter()
+        .map(|(_, run)| requested_views(req, run.views.len()))
+        .collect::<Result<Vec<_>>>()?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let mut entries = Vec::with_capacity(cameras.len());
     let mut solved_cameras = Vec::with_capacity(cameras.len());
     let mut run_dir = PathBuf::new();
-    for (name, run) in cameras {
-        let k = requested_views(req, run.views.len())?;
+    for ((name, run), k) in cameras.into_iter().zip(views) {
         let per = |d: &Option<PathBuf>| d.as_ref().map(|d| d.join(&name));
         let folders = (per(&req.overlays), per(&req.masks_out));
         let mut camera_note = |line: &str| note(&format!("{name}: {line}"));

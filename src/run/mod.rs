@@ -382,7 +382,7 @@ fn run_paths(path: &Path) -> (PathBuf, PathBuf) {
 /// with errors naming the rig's fields.
 pub fn load_cameras_with(path: &Path, mask_source: MaskSource) -> Result<Vec<(String, LoadedRun)>> {
     let (json, dir) = run_paths(path);
-    if rig::format_of(&json)? != rig::RIG_RUN_FORMAT {
+    if rig::format_of(&json)?.as_deref() != Some(rig::RIG_RUN_FORMAT) {
         let name = crate::config::cameras::SINGLE_CAMERA_NAME.to_string();
         return Ok(vec![(name, load_run_with(path, mask_source)?)]);
     }

@@ -88,6 +88,7 @@ impl RigRunFile {
             ));
         }
         check_names(path, self.cameras.iter().map(|c| c.name.as_str()))?;
+        self.check_memory(path)?;
         let mut listed: Vec<&String> = self.cameras.iter().map(|c| &c.name).collect();
         listed.sort();
         for (i, v) in self.views.iter().enumerate() {
@@ -100,8 +101,36 @@ impl RigRunFile {
                     format!("names {named:?}; allowed: exactly the cameras {listed:?}"),
                 ));
             }
+            check_distinct_files(path, i, v)?;
         }
         Ok(())
+    }
+
+    /// Every camera's masks are held at once when a rig is solved: the memory estimate of
+    /// `easyhec-run/1` (`run::check_run_file`) summed over the cameras.
+    fn check_memory(&self, path: &Path) -> Result<()> {
+        let pixels: u64 = self
+            .cameras
+            .iter()
+            .map(|c| u64::from(c.camera.width) * u64::from(c.camera.height))
+            .fold(0, u64::saturating_add);
+        let need = pixels
+            .saturating_mul(self.views.len() as u64)
+            .saturating_mul(super::SOLVE_BYTES_PER_VIEW_PIXEL);
+        match super::available_memory_bytes() {
+            Some(available) if need > available => Err(Error::input(
+                path,
+                "views",
+                format!(
+                    "{} views of {} cameras need about {:.1} GB to solve; this machine has {:.1} GB available: use fewer views or smaller images",
+                    self.views.len(),
+                    self.cameras.len(),
+                    need as f64 / 1e9,
+                    available as f64 / 1e9
+                ),
+            )),
+            _ => Ok(()),
+        }
     }
 
     /// Camera `k`'s part as an `easyhec-run/1` file: paths stay relative to the same folder.
@@ -239,6 +268,25 @@ impl RigResultFile {
     }
 }
 
+/// No two cameras of view `i` name the same file: each camera's frame is its own.
+fn check_distinct_files(path: &Path, i: usize, view: &RigViewEntry) -> Result<()> {
+    let mut seen: Vec<&String> = Vec::new();
+    for (name, files) in &view.frames {
+        for (kind, file) in [("mask", &files.mask), ("image", &files.image)] {
+            let Some(file) = file else { continue };
+            if seen.contains(&file) {
+                return Err(Error::input(
+                    path,
+                    format!("views[{i}].frames.{name}.{kind}"),
+                    format!("'{file}' is named twice in this view; allowed: one file per camera and kind"),
+                ));
+            }
+            seen.push(file);
+        }
+    }
+    Ok(())
+}
+
 /// Every `cameras[k].name` safe as a folder and a key, and listed once.
 fn check_names<'n>(path: &Path, names: impl Iterator<Item = &'n str>) -> Result<()> {
     let mut seen: Vec<&str> = Vec::new();
@@ -257,15 +305,15 @@ fn check_names<'n>(path: &Path, names: impl Iterator<Item = &'n str>) -> Result<
     Ok(())
 }
 
-/// The format tag of a JSON file (`run.json` or `result.json`), so a reader can dispatch.
-pub fn format_of(path: &Path) -> Result<String> {
+/// The format tag of a JSON file (`run.json` or `result.json`), so a reader can dispatch;
+/// `None` when there is no string tag (the version's own reader then says what to add).
+pub fn format_of(path: &Path) -> Result<Option<String>> {
     let text = crate::io::read_text_input(path)?;
     let value = super::parse_json(&text, path)?;
-    value
+    Ok(value
         .get("format")
         .and_then(|f| f.as_str())
-        .map(str::to_string)
-        .ok_or_else(|| Error::input(path, "format", "missing"))
+        .map(str::to_string))
 }
 
 #[cfg(test)]

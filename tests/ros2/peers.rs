@@ -60,25 +60,41 @@ pub fn in_private_network(dir: &Path, body: &str) -> (bool, String) {
 
 /// The one edge the peer received for `child`: (parent, parent_from_child).
 pub fn received_edge(dir: &Path, child: &str) -> (String, Isometry3<f64>) {
+    let edges = received_edges(dir);
+    assert_eq!(edges.len(), 1, "{edges:?}");
+    let (parent, got_child, pose) = edges.into_iter().next().unwrap();
+    assert_eq!(got_child, child);
+    (parent, pose)
+}
+
+/// Every edge of the `TFMessage` the peer wrote to `got.json`: (parent, child, transform),
+/// each stamped with a real time.
+pub fn received_edges(dir: &Path) -> Vec<(String, String, Isometry3<f64>)> {
     let text = std::fs::read_to_string(dir.join("got.json")).unwrap();
     let message: serde_json::Value = serde_json::from_str(text.trim()).unwrap();
     let edges = message["transforms"].as_array().unwrap();
-    assert_eq!(edges.len(), 1, "{text}");
-    let e = &edges[0];
-    assert_eq!(e["child_frame_id"], child);
-    let (t, r) = (&e["transform"]["translation"], &e["transform"]["rotation"]);
     let n = |v: &serde_json::Value| v.as_f64().unwrap();
-    let pose = Isometry3::from_parts(
-        Translation3::new(n(&t["x"]), n(&t["y"]), n(&t["z"])),
-        UnitQuaternion::new_unchecked(Quaternion::new(
-            n(&r["w"]),
-            n(&r["x"]),
-            n(&r["y"]),
-            n(&r["z"]),
-        )),
-    );
-    assert!(e["header"]["stamp"]["sec"].as_i64().unwrap() > 1_600_000_000);
-    (e["header"]["frame_id"].as_str().unwrap().to_string(), pose)
+    edges
+        .iter()
+        .map(|e| {
+            let (t, r) = (&e["transform"]["translation"], &e["transform"]["rotation"]);
+            let pose = Isometry3::from_parts(
+                Translation3::new(n(&t["x"]), n(&t["y"]), n(&t["z"])),
+                UnitQuaternion::new_unchecked(Quaternion::new(
+                    n(&r["w"]),
+                    n(&r["x"]),
+                    n(&r["y"]),
+                    n(&r["z"]),
+                )),
+            );
+            assert!(e["header"]["stamp"]["sec"].as_i64().unwrap() > 1_600_000_000);
+            (
+                e["header"]["frame_id"].as_str().unwrap().to_string(),
+                e["child_frame_id"].as_str().unwrap().to_string(),
+                pose,
+            )
+        })
+        .collect()
 }
 
 /// Largest difference between two transforms' matrix entries.
