@@ -322,12 +322,12 @@ mod tests {
 
     fn rig_json(names: [&str; 2], view_names: [&str; 2]) -> serde_json::Value {
         let camera = |n: &str| serde_json::json!({"name": n, "width": 64, "height": 48, "fx": 60.0, "fy": 60.0, "cx": 31.5, "cy": 23.5});
-        let files = serde_json::json!({"mask": "views/a/000.mask.png"});
+        let files = |n: &str| serde_json::json!({"mask": format!("views/{n}/000.mask.png")});
         serde_json::json!({
             "format": RIG_RUN_FORMAT,
             "robot": {"urdf": "r.urdf", "joints": ["j1"]},
             "cameras": [camera(names[0]), camera(names[1])],
-            "views": [{"joints": [0.0], "frames": {view_names[0]: files.clone(), view_names[1]: files}}]
+            "views": [{"joints": [0.0], "frames": {view_names[0]: files(view_names[0]), view_names[1]: files(view_names[1])}}]
         })
     }
 
@@ -339,6 +339,14 @@ mod tests {
             (rig_json(["a", "a"], ["a", "b"]), "cameras[1].name"),
             (rig_json(["a", "B"], ["a", "B"]), "cameras[1].name"),
             (rig_json(["a", "b"], ["a", "c"]), "views[0].frames"),
+            (
+                {
+                    let mut v = rig_json(["a", "b"], ["a", "b"]);
+                    v["views"][0]["frames"]["b"]["mask"] = "views/a/000.mask.png".into();
+                    v
+                },
+                "views[0].frames.b.mask",
+            ),
         ] {
             let e = RigRunFile::from_value(path, value).unwrap_err().to_string();
             assert!(e.contains(field), "{e}");
