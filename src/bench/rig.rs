@@ -226,15 +226,7 @@ fn commanded_motion_s(cell: &Cell) -> f64 {
     arm.commands()
         .iter()
         .filter(|c| c.accepted && c.speed_rad_s > 0.0)
-        .map(|c| {
-            let farthest = c
-                .from
-                .iter()
-                .zip(&c.target)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
-            farthest / c.speed_rad_s
-        })
+        .map(|c| crate::calibrate::motion_cost::travel_s(&c.from, &c.target, c.speed_rad_s))
         .sum()
 }
 

@@ -27,13 +27,7 @@ pub struct MotionCost {
 impl MotionCost {
     /// Wall seconds of a move to `q` plus the view's overhead.
     pub fn seconds_to(&self, q: &[f64]) -> f64 {
-        let farthest = self
-            .from
-            .iter()
-            .zip(q)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        self.overhead_s + self.time_scale * farthest / self.speed_rad_s
+        self.overhead_s + self.time_scale * travel_s(&self.from, q, self.speed_rad_s)
     }
 
     /// `gain` (a cost reduction, higher is better) per second of reaching `q`. A negative gain
@@ -47,6 +41,17 @@ impl MotionCost {
             gain * s
         }
     }
+}
+
+/// Seconds of a commanded move from `from` to `to`: the farthest joint's travel at
+/// `speed_rad_s`, the way `SafeArm` sends a move.
+pub fn travel_s(from: &[f64], to: &[f64], speed_rad_s: f64) -> f64 {
+    let farthest = from
+        .iter()
+        .zip(to)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    farthest / speed_rad_s
 }
 
 /// Wall seconds per second of commanded motion for the arm `config` drives.

@@ -130,11 +130,7 @@ pub struct RigOfflineOutcome {
 
 /// Whether `run` (a folder or its `run.json`) is an `easyhec-run/2` run of several cameras.
 pub fn is_rig_run(run: &Path) -> Result<bool> {
-    let json = if run.is_dir() {
-        run.join("run.json")
-    } else {
-        run.to_path_buf()
-    };
+    let (json, _) = crate::run::run_paths(run);
     Ok(crate::run::rig::format_of(&json)?.as_deref() == Some(crate::run::rig::RIG_RUN_FORMAT))
 }
 

@@ -364,7 +364,7 @@ pub fn load_run_with(path: &Path, mask_source: MaskSource) -> Result<LoadedRun> 
 }
 
 /// `run.json` of a run folder (or the file itself), and the folder its paths are relative to.
-fn run_paths(path: &Path) -> (PathBuf, PathBuf) {
+pub(crate) fn run_paths(path: &Path) -> (PathBuf, PathBuf) {
     let json = if path.is_dir() {
         path.join("run.json")
     } else {
