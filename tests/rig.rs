@@ -199,9 +199,10 @@ fn configs_a_rig_cannot_serve_are_refused_naming_the_key() {
 }
 
 #[test]
-fn the_daemon_refuses_camera_lists_it_cannot_serve_yet() {
-    // Three cameras, and one camera written as a [[camera]] table: both record the rig
-    // formats, which the daemon does not read.
+fn the_daemon_serves_camera_lists_but_refuses_their_tf_broadcast() {
+    // One camera written as a [[camera]] table is a list too: the daemon keeps its active
+    // calibration by name. Its own /tf_static broadcast carries one camera, so a list with
+    // `[ros2] publish_tf` is refused before the data folder is touched.
     let dir = tempfile::tempdir().unwrap();
     let three = common::shipped_config_text(RIG);
     let cut = three.find("[[camera]]\nname = \"side\"").unwrap();
@@ -209,21 +210,25 @@ fn the_daemon_refuses_camera_lists_it_cannot_serve_yet() {
     let one = format!("{}{}", &three[..cut], &three[rest..]);
     for (i, (text, n)) in [(three.clone(), 3), (one, 1)].into_iter().enumerate() {
         let path = dir.path().join(format!("rig{i}.toml"));
-        std::fs::write(&path, text).unwrap();
+        std::fs::write(&path, &text).unwrap();
         let cell = Cell::open(&path).unwrap();
         assert_eq!(cell.cameras().len(), n);
         let data = dir.path().join(format!("data{i}"));
+        assert!(easyhec::daemon::Daemon::open(cell, &data, "token".into()).is_ok());
+
+        let path = dir.path().join(format!("rig{i}-ros2.toml"));
+        std::fs::write(&path, format!("{text}\n[ros2]\n")).unwrap();
+        let cell = Cell::open(&path).unwrap();
+        let data = dir.path().join(format!("data{i}-ros2"));
         std::fs::create_dir(&data).unwrap();
         let e = match easyhec::daemon::Daemon::open(cell, &data, "token".into()) {
-            Ok(_) => panic!("a daemon was started on {n} listed camera(s)"),
+            Ok(_) => panic!("a daemon broadcast tf for {n} listed camera(s)"),
             Err(e) => e.to_string(),
         };
         assert!(
-            e.contains(&format!("rig{i}.toml: camera: lists {n} camera(s)"))
-                && e.contains("easyhec daemon"),
+            e.contains(&format!("rig{i}-ros2.toml: ros2.publish_tf")),
             "{e}"
         );
-        // Nothing was written into the data folder.
         assert_eq!(std::fs::read_dir(&data).unwrap().count(), 0);
     }
 }

@@ -176,6 +176,12 @@ pub struct RunOptions {
     pub initial_guess: Option<Isometry3<f64>>,
     /// `[calibration] max_views` for this run only (at least 1).
     pub max_views: Option<usize>,
+    /// For a list of cameras: calibrate only these, by name; the others neither grab nor
+    /// ask for views. A bumped camera is recalibrated so, leaving the others' results alone.
+    pub only_cameras: Option<Vec<String>>,
+    /// Starting poses by camera name, before the camera's own and the run's guesses (a
+    /// rig's recalibration warm-started from each camera's previous result).
+    pub camera_guesses: std::collections::BTreeMap<String, Isometry3<f64>>,
 }
 
 impl RunOptions {

@@ -95,10 +95,16 @@ impl<'a> Session<'a> {
         let started = Instant::now();
         let settings = run_settings(cell, opts)?;
         let guess = initial_guess(cell, opts, &settings)?;
+        check_only_cameras(cell, opts.only_cameras.as_deref())?;
         let tracks = cell
             .cameras()
             .into_iter()
             .enumerate()
+            .filter(|(_, unit)| {
+                opts.only_cameras
+                    .as_ref()
+                    .is_none_or(|names| names.iter().any(|n| n == unit.name))
+            })
             .map(|(i, unit)| {
                 let own = unit
                     .initial_guess
@@ -111,7 +117,8 @@ impl<'a> Session<'a> {
                             m,
                         )
                     })?;
-                track(cell, unit, own.or(guess))
+                let warm = opts.camera_guesses.get(unit.name).copied();
+                track(cell, unit, warm.or(own).or(guess))
             })
             .collect::<Result<Vec<_>>>()?;
         let recorded = tracks
@@ -859,6 +866,30 @@ fn camera_result(
     result.stop_reason = stop_reason;
     result.timings_s = timings_s.clone();
     result
+}
+
+/// `only_cameras` names cameras of the cell, each once, and at least one.
+fn check_only_cameras(cell: &Cell, names: Option<&[String]>) -> Result<()> {
+    let Some(names) = names else {
+        return Ok(());
+    };
+    let known: Vec<&str> = cell.cameras().iter().map(|c| c.name).collect();
+    if names.is_empty() {
+        return Err(Error::Usage(format!(
+            "cameras: empty; allowed: one or more of {known:?}"
+        )));
+    }
+    for (i, n) in names.iter().enumerate() {
+        if !known.contains(&n.as_str()) {
+            return Err(Error::Usage(format!(
+                "cameras[{i}]: {n:?} is no camera of this cell; allowed: {known:?}"
+            )));
+        }
+        if names[..i].contains(n) {
+            return Err(Error::Usage(format!("cameras[{i}]: {n:?} is named twice")));
+        }
+    }
+    Ok(())
 }
 
 /// A camera of the cell as a track: its intrinsics, its starting pose, and the frames a

@@ -23,8 +23,6 @@ pub struct DaemonArgs {
 /// Serves the cell until ctrl-c or SIGTERM.
 pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
     let config = easyhec::config::read_config(&a.config)?;
-    // Refused before any hardware is opened.
-    config.camera.require_one(&a.config, "easyhec daemon")?;
     let cell = easyhec::cell::Cell::build(config, &a.config)?;
     let token = resolve_token(&cell)?;
     let listen = a

@@ -71,8 +71,11 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
         check_frame_name(optical)
             .map_err(|m| Error::Usage(format!("--optical-frame-id is {m}")))?;
     }
-    // The flags alone must describe a valid edge before anything joins the graph.
-    a.frames.edge(&result)?;
+    // The flags alone must describe a valid edge before anything joins the graph (a rig's
+    // edges were built, and so checked, above; its `{name}` pattern is no frame by itself).
+    if rig_edges.is_none() {
+        a.frames.edge(&result)?;
+    }
     let place = GraphPlace {
         domain_id: match a.domain_id {
             Some(d) => d,

@@ -21,21 +21,39 @@ use super::reconcile::check_result_pose;
 use super::store::{ActiveFile, CalibrationRecord, State, Store};
 use super::validate::{inside, resolved_inside};
 use super::{now, Daemon, Refusal};
+use crate::run::rig::RigResultFile;
 use crate::run::ResultFile;
 
 impl Daemon {
-    /// Makes calibration `id` active, when [`activatable`] allows it.
-    pub fn activate(&self, id: &str) -> Result<ActiveFile, Refusal> {
+    /// Makes calibration `id` active, when [`activatable`] allows it: for a list of cameras,
+    /// every camera it calibrated, each checked before any becomes active.
+    pub fn activate(&self, id: &str) -> Result<Vec<ActiveFile>, Refusal> {
         let record = self
             .status(id)
             .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
-        let result = activatable(&self.store, &record)?;
-        if let Some(why) = self.frame_mismatch(&result.base_link) {
-            return Err(refuse(&record, "result.json base_link", why));
+        let results = if self.cell.config.camera.is_listed() {
+            let names: Vec<&str> = self.cell.cameras().iter().map(|c| c.name).collect();
+            activatable_cameras(&self.store, &record, &names)?
+                .into_iter()
+                .map(|(name, r)| (Some(name), r))
+                .collect()
+        } else {
+            vec![(None, activatable(&self.store, &record)?)]
+        };
+        for (_, result) in &results {
+            if let Some(why) = self.frame_mismatch(&result.base_link) {
+                return Err(refuse(&record, "result.json base_link", why));
+            }
         }
-        let active = self.store.activate(id, result, &now())?;
-        self.announce_active(&active);
-        Ok(active)
+        let mut activated = Vec::new();
+        for (camera, result) in results {
+            let active = self
+                .store
+                .activate_camera(camera.as_deref(), id, result, &now())?;
+            self.announce_active(&active);
+            activated.push(active);
+        }
+        Ok(activated)
     }
 }
 
@@ -47,6 +65,39 @@ pub fn activatable(store: &Store, r: &CalibrationRecord) -> Result<ResultFile, R
     check_result_pose(&result).map_err(|(f, m)| refuse(r, &format!("result.json {f}"), m))?;
     check_not_partial(store, r, &result)?;
     Ok(result)
+}
+
+/// Each camera's result of a calibration of a list of cameras (`easyhec-result/2`), when
+/// [`activatable`]'s rules allow it and every camera is one of `names`.
+pub fn activatable_cameras(
+    store: &Store,
+    r: &CalibrationRecord,
+    names: &[&str],
+) -> Result<Vec<(String, ResultFile)>, Refusal> {
+    check_state(r)?;
+    let path = result_path(store, r)?;
+    let rig = RigResultFile::read(&path).map_err(|e| refuse(r, "result.json", e))?;
+    let mut out = Vec::new();
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        if !names.contains(&cam.name.as_str()) {
+            return Err(refuse(
+                r,
+                &format!("result.json cameras[{i}].name"),
+                format!(
+                    "{:?} is no camera of this cell; allowed: {names:?}",
+                    cam.name
+                ),
+            ));
+        }
+        let mut result = cam.as_result(&rig.timings_s);
+        check_result_pose(&result)
+            .map_err(|(f, m)| refuse(r, &format!("result.json cameras[{i}].{f}"), m))?;
+        result.stop_reason = rig.stop_reason.clone();
+        check_not_partial(store, r, &result)?;
+        result.stop_reason = cam.stop_reason.clone();
+        out.push((cam.name.clone(), result));
+    }
+    Ok(out)
 }
 
 /// A 409 naming the calibration and the field.

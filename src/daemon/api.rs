@@ -24,9 +24,12 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::openapi::{
-    self, ActiveCalibration, Cancelling, Checks, ErrorBody, Health, History, Png, Started,
+    self, ActiveCalibration, CameraState, Cameras, Cancelling, Checks, ErrorBody, Health, History,
+    Png, Started,
 };
-use super::store::{ActiveFile, CalibrationRecord, CheckRecord, State as RunState};
+use super::store::{
+    ActiveFile, CalibrationRecord, CheckRecord, RigActiveFile, State as RunState, RIG_ACTIVE_FORMAT,
+};
 use super::validate::{id_number, id_problem, inside};
 use super::{bump, overlays, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
 use crate::geometry::from_rows;
@@ -116,6 +119,7 @@ fn guarded_routes() -> OpenApiRouter<Shared> {
         .routes(routes!(cancel))
         .routes(routes!(activate))
         .routes(routes!(active))
+        .routes(routes!(cameras))
         .routes(routes!(run_check, checks))
         .routes(routes!(metrics))
 }
@@ -825,15 +829,22 @@ async fn cancel(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
 #[utoipa::path(post, path = "/api/v1/calibrations/{id}/activate", tag = "calibrations",
     params(("id" = String, Path, description = "A calibration id, `cal-NNNN`")),
     responses(
-        (status = 200, description = "Now active", body = ActiveFile),
+        (status = 200, description = "Now active (a cell with a list of cameras answers RigActiveFile: every camera this calibration solved)", body = ActiveFile),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
         (status = 404, description = "No such calibration", body = ErrorBody),
         (status = 409, description = "It cannot be activated (the error says why)", body = ErrorBody)),
     security(("bearer" = [])))]
 async fn activate(State(d): State<Shared>, Path(id): Path<String>) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
-    let a = d.activate(&id)?;
-    Ok(Json(a).into_response())
+    let mut a = d.activate(&id)?;
+    if d.cell().config.camera.is_listed() {
+        return Ok(Json(RigActiveFile {
+            format: RIG_ACTIVE_FORMAT.into(),
+            cameras: a,
+        })
+        .into_response());
+    }
+    Ok(Json(a.remove(0)).into_response())
 }
 
 /// The active calibration, whether it is stale, and its last bump check.
@@ -844,41 +855,78 @@ async fn activate(State(d): State<Shared>, Path(id): Path<String>) -> Result<Res
         (status = 404, description = "None is active yet", body = ErrorBody)),
     security((), ("bearer" = [])))]
 async fn active(State(d): State<Shared>) -> Result<Response, Refusal> {
+    if d.cell().config.camera.is_listed() {
+        return Err(Refusal::Conflict(
+            "this cell lists cameras, each with its own active calibration: GET /api/v1/cameras"
+                .into(),
+        ));
+    }
     let a = d.store().active().ok_or_else(|| {
         Refusal::NotFound(
             "no active calibration yet: start one with POST /api/v1/calibrations".into(),
         )
     })?;
+    Ok(Json(active_calibration(&d, a)).into_response())
+}
+
+/// An active entry with its latest bump check.
+fn active_calibration(d: &Daemon, a: ActiveFile) -> ActiveCalibration {
     let last_check = d
         .store()
         .checks()
         .into_iter()
         .rev()
-        .find(|c| c.calibration_id == a.id);
-    Ok(Json(ActiveCalibration {
+        .find(|c| c.calibration_id == a.id && c.camera == a.camera);
+    ActiveCalibration {
         id: a.id,
         activated_at: a.activated_at,
         stale: a.stale,
         stale_since: a.stale_since,
         last_check,
         result: a.result,
-    })
-    .into_response())
+    }
+}
+
+/// Every camera of the cell with its active calibration (each camera of a list is
+/// calibrated, checked and marked stale by itself).
+#[utoipa::path(get, path = "/api/v1/cameras", tag = "calibrations",
+    responses(
+        (status = 200, description = "Each camera and its active calibration", body = Cameras),
+        (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody)),
+    security((), ("bearer" = [])))]
+async fn cameras(State(d): State<Shared>) -> Json<Cameras> {
+    let listed = d.cell().config.camera.is_listed();
+    let cameras = d
+        .cell()
+        .cameras()
+        .iter()
+        .map(|c| {
+            let key = listed.then_some(c.name);
+            CameraState {
+                camera: c.name.to_string(),
+                active: d.store().active_of(key).map(|a| active_calibration(&d, a)),
+            }
+        })
+        .collect();
+    Json(Cameras { cameras })
 }
 
 /// Runs a bump check now: moves to the check pose, captures, compares with the active
 /// calibration's silhouette.
 #[utoipa::path(post, path = "/api/v1/checks", tag = "checks",
     responses(
-        (status = 200, description = "The check's outcome", body = CheckRecord),
+        (status = 200, description = "The check's outcome (a cell with a list of cameras answers Checks: one record per camera with an active calibration)", body = CheckRecord),
         (status = 401, description = "Missing or wrong token", body = ErrorBody),
         (status = 409, description = "No active calibration, or the arm is leased", body = ErrorBody),
         (status = 500, description = "Capture, motion or segmentation failed", body = ErrorBody),
         (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
     security(("bearer" = [])))]
 async fn run_check(State(d): State<Shared>) -> Result<Response, Refusal> {
-    let c = bump::check(&d, "api").await?;
-    Ok(Json(c).into_response())
+    let mut c = bump::check(&d, "api").await?;
+    if d.cell().config.camera.is_listed() {
+        return Ok(Json(Checks { checks: c }).into_response());
+    }
+    Ok(Json(c.remove(0)).into_response())
 }
 
 /// The last 50 bump checks, newest first.
@@ -971,22 +1019,21 @@ fn calibration_metrics(d: &Daemon, s: &mut String) {
         "Views captured by calibrations.",
         &one(count(&m.views)),
     );
-    let active = d.store().active();
+    // A list of cameras counts as active when any camera is, and stale when any camera is.
+    let active = d.store().active_all();
     metric(
         s,
         "easyhec_active_calibration",
         "gauge",
         "1 when a calibration is active.",
-        &one(f64::from(u8::from(active.is_some()))),
+        &one(f64::from(u8::from(!active.is_empty()))),
     );
     metric(
         s,
         "easyhec_calibration_stale",
         "gauge",
         "1 when a bump check found the active calibration no longer fits.",
-        &one(f64::from(u8::from(
-            active.as_ref().is_some_and(|a| a.stale),
-        ))),
+        &one(f64::from(u8::from(active.iter().any(|a| a.stale)))),
     );
     let interrupted = d
         .store()

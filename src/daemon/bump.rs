@@ -18,9 +18,9 @@ use easyhec_drivers::{ArmStatus, Frame};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 
 use super::store::CheckRecord;
-use super::{now, Busy, Daemon, Refusal, StartOptions};
+use super::{now, ActivePose, Busy, Daemon, Refusal, StartOptions, WarmStart};
 use crate::camera::{Intrinsics, LensWarp};
-use crate::cell::Cell;
+use crate::cell::{CameraRef, Cell};
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
@@ -60,22 +60,26 @@ pub fn agreement(observed: &Mask, rendered: &Mask) -> Agreement {
     Agreement { iou, boundary_px }
 }
 
-/// Runs one bump check under the arm lease. `trigger` is `api` or `schedule`.
+/// Runs one bump check under the arm lease: every camera with an active calibration is
+/// compared at one arm pose. `trigger` is `api` or `schedule`. Each stale camera is marked;
+/// with `recalibrate_on_bump` one recalibration starts for the stale cameras only, each
+/// warm-started from its stale pose, so the other cameras keep their results.
 pub async fn check(
     daemon: &Arc<Daemon>,
     trigger: &str,
-) -> std::result::Result<CheckRecord, Refusal> {
-    let Some((id, pose)) = daemon.active_pose() else {
+) -> std::result::Result<Vec<CheckRecord>, Refusal> {
+    let actives = daemon.active_poses();
+    if actives.is_empty() {
         return Err(Refusal::Conflict(
             "no active calibration to check: run one first (POST /api/v1/calibrations)".into(),
         ));
-    };
+    }
     daemon.lease(Busy::Check)?;
-    let measured = measure(daemon, &id, &pose).await;
+    let measured = measure(daemon, &actives).await;
     daemon.release(&Busy::Check);
     let m = &daemon.metrics;
     m.checks.fetch_add(1, Ordering::Relaxed);
-    let (joints, moved, a, explained_px) = match measured {
+    let (joints, moved, agreements) = match measured {
         Ok(v) => v,
         Err(e) => {
             m.check_errors.fetch_add(1, Ordering::Relaxed);
@@ -84,46 +88,93 @@ pub async fn check(
         }
     };
     let s = daemon.settings();
-    let max_boundary_px = s.bump_max_boundary_px + explained_px;
-    let stale = a.iou < s.bump_min_iou || a.boundary_px > max_boundary_px;
-    m.last_iou.store(a.iou.to_bits(), Ordering::Relaxed);
-    m.last_boundary_px
-        .store(a.boundary_px.to_bits(), Ordering::Relaxed);
-    let mut record = CheckRecord {
-        at: now(),
-        trigger: trigger.to_string(),
-        calibration_id: id.clone(),
-        joints,
-        moved_to_check_pose: moved,
-        iou: a.iou,
-        boundary_px: a.boundary_px,
-        min_iou: s.bump_min_iou,
-        max_boundary_px,
-        explained_px,
-        stale,
-        recalibration: None,
-    };
-    daemon.store().push_check(&record)?;
-    if !stale {
-        return Ok(record);
-    }
-    m.bumps.fetch_add(1, Ordering::Relaxed);
-    tracing::warn!(
-        "easyhec daemon: bump detected: calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {:.2} px)",
-        a.iou, s.bump_min_iou, a.boundary_px, max_boundary_px
-    );
-    daemon.store().mark_stale(&id, &record.at)?;
-    if s.recalibrate_on_bump {
-        match daemon.start(StartOptions::default(), "bump", Some((id.clone(), pose))) {
-            Ok(new_id) => {
-                tracing::info!("easyhec daemon: recalibrating as {new_id}, warm-started from {id}");
-                record.recalibration = Some(new_id);
-                daemon.store().update_last_check(&record)?;
+    let at = now();
+    let mut records: Vec<CheckRecord> = actives
+        .iter()
+        .zip(&agreements)
+        .map(|((camera, id, _), (a, explained_px))| {
+            let max_boundary_px = s.bump_max_boundary_px + explained_px;
+            CheckRecord {
+                at: at.clone(),
+                trigger: trigger.to_string(),
+                calibration_id: id.clone(),
+                joints: joints.clone(),
+                moved_to_check_pose: moved,
+                iou: a.iou,
+                boundary_px: a.boundary_px,
+                min_iou: s.bump_min_iou,
+                max_boundary_px,
+                explained_px: *explained_px,
+                stale: a.iou < s.bump_min_iou || a.boundary_px > max_boundary_px,
+                recalibration: None,
+                camera: camera.clone(),
             }
-            Err(e) => tracing::error!("easyhec daemon: cannot start the recalibration: {e:?}"),
+        })
+        .collect();
+    if let Some(last) = records.last() {
+        m.last_iou.store(last.iou.to_bits(), Ordering::Relaxed);
+        m.last_boundary_px
+            .store(last.boundary_px.to_bits(), Ordering::Relaxed);
+    }
+    let stale: Vec<&ActivePose> = actives
+        .iter()
+        .zip(&records)
+        .filter(|(_, r)| r.stale)
+        .map(|(a, _)| a)
+        .collect();
+    for (camera, id, _) in &stale {
+        m.bumps.fetch_add(1, Ordering::Relaxed);
+        let r = records
+            .iter()
+            .find(|r| &r.camera == camera)
+            .expect("one record per active camera");
+        tracing::warn!(
+            "easyhec daemon: bump detected: {}calibration {id} is stale (IoU {:.4} < {} or boundary {:.2} px > {:.2} px)",
+            camera.as_deref().map(|c| format!("camera '{c}': ")).unwrap_or_default(),
+            r.iou, s.bump_min_iou, r.boundary_px, r.max_boundary_px
+        );
+        daemon
+            .store()
+            .mark_stale_camera(camera.as_deref(), id, &at)?;
+    }
+    if s.recalibrate_on_bump && !stale.is_empty() {
+        if let Some(new_id) = recalibrate(daemon, &stale) {
+            for r in records.iter_mut().filter(|r| r.stale) {
+                r.recalibration = Some(new_id.clone());
+            }
         }
     }
-    Ok(record)
+    for r in &records {
+        daemon.store().push_check(r)?;
+    }
+    Ok(records)
+}
+
+/// Starts one recalibration of the stale cameras, each warm-started from its stale pose (a
+/// knocked camera moves by centimetres and degrees, well inside the solver's basin).
+fn recalibrate(daemon: &Arc<Daemon>, stale: &[&ActivePose]) -> Option<String> {
+    let listed = daemon.cell().config.camera.is_listed();
+    let opts = StartOptions {
+        cameras: listed.then(|| stale.iter().filter_map(|(c, _, _)| c.clone()).collect()),
+        ..StartOptions::default()
+    };
+    let warm = WarmStart {
+        from: stale[0].1.clone(),
+        poses: stale.iter().map(|(c, _, p)| (c.clone(), *p)).collect(),
+    };
+    match daemon.start(opts, "bump", Some(warm)) {
+        Ok(new_id) => {
+            tracing::info!(
+                "easyhec daemon: recalibrating as {new_id}, warm-started from {}",
+                stale[0].1
+            );
+            Some(new_id)
+        }
+        Err(e) => {
+            tracing::error!("easyhec daemon: cannot start the recalibration: {e:?}");
+            None
+        }
+    }
 }
 
 /// Frames and joints of calibration `id`'s recorded views: a context-aware segmenter
@@ -156,15 +207,22 @@ fn recorded_views(
 /// A check compares silhouettes, so the camera must see the robot where the arm stands.
 /// A fixed camera always does; a wrist camera only from some poses, and a check elsewhere
 /// would read the robot's absence as a bump.
-fn check_robot_in_view(cell: &Cell, joints: &[f64], pose: &Isometry3<f64>) -> Result<()> {
+fn check_robot_in_view(
+    cell: &Cell,
+    unit: CameraRef<'_>,
+    joints: &[f64],
+    pose: &Isometry3<f64>,
+) -> Result<()> {
     use crate::calibrate::VisibilityRule;
+    // Only a camera on a link can lose sight of the robot, and only a single [camera] may
+    // be mounted on one.
     let rule = VisibilityRule::of(cell);
     if matches!(rule, VisibilityRule::InImage(_)) {
         return Ok(());
     }
-    let camera = cell.camera.intrinsics().undistorted();
+    let camera = unit.device.intrinsics().undistorted();
     let low = camera.downsampled(cell.config.calibration.score_downsample);
-    let posed = PosedRobot::new(&cell.seen, joints).decimated(0.01);
+    let posed = PosedRobot::new(unit.seen, joints).decimated(0.01);
     match rule.shows(&posed, &camera, &low, pose) {
         Some(_) => Ok(()),
         None => Err(Error::Hardware(
@@ -173,91 +231,148 @@ fn check_robot_in_view(cell: &Cell, joints: &[f64], pose: &Isometry3<f64>) -> Re
     }
 }
 
-/// Moves to `check_pose` if configured, captures, segments and compares.
+/// Moves to `check_pose` if configured, then captures, segments and compares with each
+/// active camera: the joints, whether the arm moved, and per camera the agreement and the
+/// outline distance its uncertainty explains.
 async fn measure(
     daemon: &Arc<Daemon>,
-    id: &str,
-    pose: &Isometry3<f64>,
-) -> Result<(Vec<f64>, bool, Agreement, f64)> {
+    actives: &[ActivePose],
+) -> Result<(Vec<f64>, bool, Vec<(Agreement, f64)>)> {
     let cell = daemon.cell().clone();
-    let covariance = daemon
-        .store()
-        .active()
-        .and_then(|a| a.result.uncertainty)
-        .and_then(|u| u.covariance)
-        .map(|rows| Matrix6::from_fn(|r, c| rows[r][c]));
-    match cell.arm.status().await? {
-        ArmStatus::Fault(f) => {
-            return Err(Error::Hardware(format!(
-                "the arm reports a fault ({f}): clear it before checking"
-            )))
-        }
-        ArmStatus::Moving => return Err(Error::Hardware("the arm is moving".into())),
-        _ => {}
-    }
-    let mut moved = false;
-    if let Some(target) = &daemon.settings().check_pose {
-        let from = cell.arm.read_joints().await?;
-        let far = from
-            .iter()
-            .zip(target)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        if far > 1e-3 {
-            let speed = cell.config.calibration.speed_rad_s;
-            let mv = cell.checker.check_move(&from, target, speed).map_err(|v| {
-                Error::Hardware(format!("check_pose refused by the safety checker: {v}"))
-            })?;
-            cell.arm
-                .execute(&mv)
-                .await?
-                .wait()
-                .await
-                .map_err(|e| Error::driver("moving to check_pose", e))?;
-            moved = true;
-        }
-    }
+    check_arm_idle(&cell).await?;
+    let moved = move_to_check_pose(daemon, &cell).await?;
     let joints = cell.arm.read_joints().await?;
-    check_robot_in_view(&cell, &joints, pose)?;
-    let frame = cell.camera.grab().await?;
-    let pose = *pose;
-    let q = joints.clone();
-    let (daemon, id) = (daemon.clone(), id.to_string());
-    let agreement = tokio::task::spawn_blocking(move || -> Result<(Agreement, f64)> {
-        let camera = cell.camera.intrinsics().clone();
+    let mut out = Vec::with_capacity(actives.len());
+    for (camera, id, pose) in actives {
+        let k = camera_index(&cell, camera.as_deref())?;
+        let unit = cell.cameras()[k];
+        check_robot_in_view(&cell, unit, &joints, pose)?;
+        let frame = unit.device.grab().await?;
+        let covariance = daemon
+            .store()
+            .active_of(camera.as_deref())
+            .and_then(|a| a.result.uncertainty)
+            .and_then(|u| u.covariance)
+            .map(|rows| Matrix6::from_fn(|r, c| rows[r][c]));
+        let job = CameraCheck {
+            daemon: daemon.clone(),
+            id: id.clone(),
+            index: k,
+            pose: *pose,
+            joints: joints.clone(),
+            covariance,
+        };
+        let measured = tokio::task::spawn_blocking(move || job.compare(frame))
+            .await
+            .map_err(|e| Error::Hardware(format!("check task: {e}")))??;
+        out.push(measured);
+    }
+    Ok((joints, moved, out))
+}
+
+/// A fault or a moving arm ends the check before anything moves.
+async fn check_arm_idle(cell: &Cell) -> Result<()> {
+    match cell.arm.status().await? {
+        ArmStatus::Fault(f) => Err(Error::Hardware(format!(
+            "the arm reports a fault ({f}): clear it before checking"
+        ))),
+        ArmStatus::Moving => Err(Error::Hardware("the arm is moving".into())),
+        _ => Ok(()),
+    }
+}
+
+/// Moves to `[daemon] check_pose` through the safety checker, when it is set and the arm
+/// stands elsewhere; `true` when it moved.
+async fn move_to_check_pose(daemon: &Daemon, cell: &Cell) -> Result<bool> {
+    let Some(target) = &daemon.settings().check_pose else {
+        return Ok(false);
+    };
+    let from = cell.arm.read_joints().await?;
+    let far = from
+        .iter()
+        .zip(target)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    if far <= 1e-3 {
+        return Ok(false);
+    }
+    let speed = cell.config.calibration.speed_rad_s;
+    let mv = cell
+        .checker
+        .check_move(&from, target, speed)
+        .map_err(|v| Error::Hardware(format!("check_pose refused by the safety checker: {v}")))?;
+    cell.arm
+        .execute(&mv)
+        .await?
+        .wait()
+        .await
+        .map_err(|e| Error::driver("moving to check_pose", e))?;
+    Ok(true)
+}
+
+/// The index of `camera` in the cell (`None`: the cell's one camera).
+fn camera_index(cell: &Cell, camera: Option<&str>) -> Result<usize> {
+    match camera {
+        None => Ok(0),
+        Some(name) => cell
+            .cameras()
+            .iter()
+            .position(|c| c.name == name)
+            .ok_or_else(|| {
+                Error::Solve(format!("camera '{name}' is active but not in the config"))
+            }),
+    }
+}
+
+/// One camera's comparison, run off the async runtime.
+struct CameraCheck {
+    daemon: Arc<Daemon>,
+    id: String,
+    index: usize,
+    pose: Isometry3<f64>,
+    joints: Vec<f64>,
+    covariance: Option<Matrix6<f64>>,
+}
+
+impl CameraCheck {
+    /// Segments `frame` with the camera's segmenter and compares it with the silhouette
+    /// rendered under the active pose.
+    fn compare(self, frame: Frame) -> Result<(Agreement, f64)> {
+        let cell = self.daemon.cell().clone();
+        let unit = cell.cameras()[self.index];
+        let camera = unit.device.intrinsics().clone();
         if frame.width != camera.width || frame.height != camera.height {
             return Err(Error::Hardware(format!(
                 "camera returned a {}x{} frame; its intrinsics say {}x{}",
                 frame.width, frame.height, camera.width, camera.height
             )));
         }
-        let mask = if cell.segmenter.uses_context() {
-            let recorded = recorded_views(&daemon, &id, &camera)?;
+        let mask = if unit.segmenter.uses_context() {
+            let recorded = recorded_views(&self.daemon, &self.id, &camera)?;
             crate::pipeline::segment_solve::segment_among_recorded(
                 &CpuRenderer,
-                cell.segmenter.as_ref(),
-                &cell.seen,
+                unit.segmenter,
+                unit.seen,
                 &camera,
                 frame,
-                &q,
+                &self.joints,
                 recorded,
-                &pose,
-                cell.config.segmenter.min_band_px(),
+                &self.pose,
+                unit.segmenter_config.min_band_px(),
             )?
             .ok_or_else(|| Error::Solve("the segmenter returned no mask".into()))?
         } else {
-            cell.segmenter.segment(&frame)?
+            unit.segmenter.segment(&frame)?
         };
         let observed = camera.undistort_mask(&mask);
         let pinhole = camera.undistorted();
-        let rendered =
-            CpuRenderer.render(&PosedRobot::new(&cell.seen, &q), &pinhole, &pose, Some(1.0));
-        let explained = covariance.map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
+        let posed = PosedRobot::new(unit.seen, &self.joints);
+        let rendered = CpuRenderer.render(&posed, &pinhole, &self.pose, Some(1.0));
+        let explained = self
+            .covariance
+            .map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
         Ok((agreement(&observed, &rendered.mask), explained))
-    })
-    .await
-    .map_err(|e| Error::Hardware(format!("check task: {e}")))??;
-    Ok((joints, moved, agreement.0, agreement.1))
+    }
 }
 
 /// Outline distance (pixels) the calibration's own uncertainty explains at this view: twice
@@ -290,11 +405,11 @@ pub async fn schedule(daemon: Arc<Daemon>, interval: Duration) {
             _ = tick.tick() => {}
             _ = shutdown.changed() => return,
         }
-        if daemon.busy().is_some() || daemon.active_pose().is_none() {
+        if daemon.busy().is_some() || daemon.active_poses().is_empty() {
             continue;
         }
         match check(&daemon, "schedule").await {
-            Ok(c) if !c.stale => {}
+            Ok(c) if c.iter().all(|c| !c.stale) => {}
             // A failed measurement was logged by `check`.
             Ok(_) | Err(Refusal::Busy(_) | Refusal::Internal(_)) => {}
             Err(e) => tracing::warn!("easyhec daemon: scheduled check: {e:?}"),

@@ -208,7 +208,25 @@ pub struct StartOptions {
     /// Plan only, never move.
     #[serde(default)]
     pub dry_run: bool,
+    /// A cell with a list of cameras: calibrate only these, by name (default: every one).
+    /// The others keep their active calibrations.
+    #[serde(default)]
+    pub cameras: Option<Vec<String>>,
 }
+
+/// Where a recalibration starts: the active calibration(s) it replaces and each camera's
+/// pose in them (`None`: the cell's one camera).
+#[derive(Clone, Debug)]
+pub struct WarmStart {
+    /// The calibration the first pose came from.
+    pub from: String,
+    /// Each camera's starting pose.
+    pub poses: Vec<(Option<String>, Isometry3<f64>)>,
+}
+
+/// A camera's active calibration: the camera (`None`: the cell's one camera), its id and
+/// its pose.
+pub type ActivePose = (Option<String>, String, Isometry3<f64>);
 
 /// A present `max_views`: an integer, never `null`.
 fn some_count<'de, D: serde::Deserializer<'de>>(
@@ -221,10 +239,14 @@ impl Daemon {
     /// Opens the data folder at `data_dir` (repairing what a crash left) for `cell`, serving
     /// API calls that carry `token`.
     pub fn open(cell: Cell, data_dir: &Path, token: String) -> Result<Arc<Daemon>> {
-        // Overlays, bump checks and results are per camera of one camera so far.
-        cell.config
-            .camera
-            .require_one(&cell.config_path, "easyhec daemon")?;
+        if cell.config.camera.is_listed() && cell.config.ros2.as_ref().is_some_and(|r| r.publish_tf)
+        {
+            return Err(Error::input(
+                &cell.config_path,
+                "ros2.publish_tf",
+                "true with a list of cameras: the daemon publishes one camera's edge; allowed: false here, and `easyhec publish` of a calibration's result.json sends every camera",
+            ));
+        }
         if token.trim().is_empty() {
             return Err(Error::input(
                 &cell.config_path,
@@ -233,6 +255,7 @@ impl Daemon {
             ));
         }
         let (store, recovery) = Store::open(data_dir, &now())?;
+        check_active_cameras(&cell, &store)?;
         let (shutdown_tx, _) = watch::channel(false);
         #[cfg(feature = "ros2")]
         let tf = match &cell.config.ros2 {
@@ -352,9 +375,10 @@ impl Daemon {
         self: &Arc<Self>,
         opts: StartOptions,
         trigger: &str,
-        warm_start: Option<(String, Isometry3<f64>)>,
+        warm_start: Option<WarmStart>,
     ) -> std::result::Result<String, Refusal> {
         check_max_views(opts.max_views)?;
+        let cameras = self.requested_cameras(opts.cameras.as_deref())?;
         // Hold the jobs lock while choosing the id so two starts cannot pick the same one.
         let jobs_guard = lock(&self.jobs);
         let id = self.store.next_id()?;
@@ -381,9 +405,11 @@ impl Daemon {
             uncertainty: None,
             stop_reason: None,
             error: None,
-            warm_start_from: warm_start.as_ref().map(|(id, _)| id.clone()),
+            warm_start_from: warm_start.as_ref().map(|w| w.from.clone()),
             planned_poses: None,
             truth_error: None,
+            cameras,
+            camera_results: None,
         };
         if let Err(e) = self.store.save(&record) {
             self.release(&Busy::Calibration(id.clone()));
@@ -401,7 +427,7 @@ impl Daemon {
         drop(jobs_guard);
         self.metrics.started.fetch_add(1, Ordering::Relaxed);
         let daemon = self.clone();
-        let warm = warm_start.map(|(_, pose)| pose);
+        let warm = warm_start.map(|w| w.poses).unwrap_or_default();
         let thread_job = job.clone();
         let spawned = std::thread::Builder::new()
             .name(format!("easyhec-{id}"))
@@ -462,7 +488,12 @@ impl Daemon {
     }
 
     /// The calibration thread: runs the loop on a single-threaded runtime and records the end.
-    fn run_job(self: &Arc<Self>, job: &Arc<Job>, opts: StartOptions, warm: Option<Isometry3<f64>>) {
+    fn run_job(
+        self: &Arc<Self>,
+        job: &Arc<Job>,
+        opts: StartOptions,
+        warm: Vec<(Option<String>, Isometry3<f64>)>,
+    ) {
         let (id, run_dir) = {
             let r = job.record();
             (r.id.clone(), self.store.run_dir(&r))
@@ -484,7 +515,12 @@ impl Daemon {
             dry_run: opts.dry_run,
             on_progress: Some(on_progress),
             cancel: Some(job.cancel.clone()),
-            initial_guess: warm,
+            initial_guess: warm.iter().find(|(c, _)| c.is_none()).map(|(_, p)| *p),
+            camera_guesses: warm
+                .iter()
+                .filter_map(|(c, p)| c.clone().map(|c| (c, *p)))
+                .collect(),
+            only_cameras: job.record().cameras,
             max_views: opts.max_views,
             ..RunOptions::default()
         };
@@ -511,8 +547,14 @@ impl Daemon {
                 // Activate before the record turns final: a client that sees "succeeded" may
                 // check against the active calibration at once (it got 409 in between).
                 if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
-                    self.activate_new(&id, &o.result);
+                    self.activate_outcome(&id, &o);
                 }
+                let camera_results = self.camera_records(&o);
+                // A list's top-level figures are its first calibrated camera's.
+                let truth = match &camera_results {
+                    Some(c) => c.first().and_then(|c| c.truth_error.clone()),
+                    None => truth,
+                };
                 if opts.dry_run {
                     if let Err(e) = plan::write(&o.run_dir, &o.planned) {
                         tracing::error!("easyhec daemon: {id}: cannot keep the plan: {e}");
@@ -525,6 +567,7 @@ impl Daemon {
                     r.mean_iou = Some(o.report.mean_iou());
                     r.loss = Some(o.report.loss);
                     r.truth_error = truth;
+                    r.camera_results = camera_results;
                     if r.dry_run {
                         r.planned_poses = Some(o.planned.len());
                     }
@@ -597,10 +640,7 @@ impl Daemon {
     /// Error against the simulated camera's true pose now (simulated cells only).
     fn truth_error(&self, est: &Isometry3<f64>) -> Option<TruthError> {
         let truth = self.cell.sim.camera_from_base_now()?;
-        Some(TruthError {
-            rotation_deg: rotation_error_deg(est, &truth),
-            translation_mm: translation_error_mm(est, &truth),
-        })
+        Some(truth_error_of(est, &truth))
     }
 
     /// Cancels a running calibration: sets its flag and stops the arm at once.
@@ -629,17 +669,107 @@ impl Daemon {
         Ok(job.record())
     }
 
-    /// Activates a calibration that just succeeded, unless its pose is not rigid (logged:
-    /// a solver bug must not reach the robot controllers).
-    fn activate_new(&self, id: &str, result: &crate::run::ResultFile) {
+    /// Activates what a calibration that just succeeded solved: its one camera, or each
+    /// camera of a list it calibrated (the others keep theirs).
+    fn activate_outcome(&self, id: &str, o: &crate::calibrate::Outcome) {
+        if !self.cell.config.camera.is_listed() {
+            self.activate_new(id, None, &o.result);
+            return;
+        }
+        for c in &o.cameras {
+            self.activate_new(id, Some(&c.name), &c.result);
+        }
+    }
+
+    /// Activates one camera's result, unless its pose is not rigid (logged: a solver bug
+    /// must not reach the robot controllers).
+    fn activate_new(&self, id: &str, camera: Option<&str>, result: &crate::run::ResultFile) {
         if let Err((field, m)) = reconcile::check_result_pose(result) {
             tracing::warn!("easyhec daemon: {id}: result {field}: {m}; not activated");
             return;
         }
-        match self.store.activate(id, result.clone(), &now()) {
+        match self
+            .store
+            .activate_camera(camera, id, result.clone(), &now())
+        {
             Ok(active) => self.announce_active(&active),
             Err(e) => tracing::error!("easyhec daemon: {id}: cannot activate: {e}"),
         }
+    }
+
+    /// Each camera's final result, for a calibration of a list of cameras.
+    fn camera_records(&self, o: &crate::calibrate::Outcome) -> Option<Vec<store::CameraRecord>> {
+        if !self.cell.config.camera.is_listed() {
+            return None;
+        }
+        let units = self.cell.cameras();
+        let records = o
+            .cameras
+            .iter()
+            .map(|c| {
+                let truth = units
+                    .iter()
+                    .find(|u| u.name == c.name)
+                    .and_then(|u| u.sim.camera_from_base_now())
+                    .map(|t| truth_error_of(&c.result.camera_from_base(), &t));
+                store::CameraRecord {
+                    camera: c.name.clone(),
+                    camera_from_base: c.result.camera_from_base,
+                    uncertainty: c.result.uncertainty.clone(),
+                    mean_iou: c.report.mean_iou(),
+                    stop_reason: c.result.stop_reason.clone(),
+                    truth_error: truth,
+                }
+            })
+            .collect();
+        Some(records)
+    }
+
+    /// The cameras a start request names, checked against the cell: `None` for a cell of
+    /// one camera, else the names asked for (every camera by default), in config order.
+    fn requested_cameras(
+        &self,
+        asked: Option<&[String]>,
+    ) -> std::result::Result<Option<Vec<String>>, Refusal> {
+        let names: Vec<String> = self
+            .cell
+            .cameras()
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect();
+        if !self.cell.config.camera.is_listed() {
+            return match asked {
+                None => Ok(None),
+                Some(_) => Err(Refusal::BadRequest(
+                    "cameras: this cell has one [camera]; allowed: only for a cell with [[camera]] tables".into(),
+                )),
+            };
+        }
+        let Some(asked) = asked else {
+            return Ok(Some(names));
+        };
+        if asked.is_empty() || asked.len() > names.len() {
+            return Err(Refusal::BadRequest(format!(
+                "cameras: {} names; allowed: 1 to {} of {names:?}",
+                asked.len(),
+                names.len()
+            )));
+        }
+        for (i, n) in asked.iter().enumerate() {
+            if !names.contains(n) {
+                return Err(Refusal::BadRequest(format!(
+                    "cameras[{i}]: {n:?} is no camera of this cell; allowed: {names:?}"
+                )));
+            }
+            if asked[..i].contains(n) {
+                return Err(Refusal::BadRequest(format!(
+                    "cameras[{i}]: {n:?} is named twice"
+                )));
+            }
+        }
+        Ok(Some(
+            names.into_iter().filter(|n| asked.contains(n)).collect(),
+        ))
     }
 
     /// Begins shutdown: refuses new work, cancels a running calibration (stopping the arm
@@ -689,6 +819,20 @@ impl Daemon {
         Some((a.id, pose))
     }
 
+    /// Every camera's active calibration that fits its mount, for bump checks: the one
+    /// camera's, or each camera's of a list.
+    pub fn active_poses(&self) -> Vec<ActivePose> {
+        self.store
+            .active_all()
+            .into_iter()
+            .filter(|a| self.frame_mismatch(&a.result.base_link).is_none())
+            .filter_map(|a| {
+                let pose = from_rows(&a.result.camera_from_base).ok()?;
+                Some((a.camera, a.id, pose))
+            })
+            .collect()
+    }
+
     /// Why a result solved from frame `base_link` does not fit this cell's camera mount, if it
     /// does not: a camera on a link needs a result for that link, and a fixed camera one for
     /// a frame that no joint moves (the base link or a frame fixed to it).
@@ -706,6 +850,47 @@ impl Daemon {
             _ => None,
         }
     }
+}
+
+/// Error of `est` against a simulated camera's true pose.
+fn truth_error_of(est: &Isometry3<f64>, truth: &Isometry3<f64>) -> TruthError {
+    TruthError {
+        rotation_deg: rotation_error_deg(est, truth),
+        translation_mm: translation_error_mm(est, truth),
+    }
+}
+
+/// `active.json` fits the cell: entries named by camera for a list of cameras, each a camera
+/// of the config; one unnamed entry for a cell of one camera. A data folder written for
+/// another camera layout is refused before anything is checked against it.
+fn check_active_cameras(cell: &Cell, store: &Store) -> Result<()> {
+    let names: Vec<&str> = cell.cameras().iter().map(|c| c.name).collect();
+    let listed = cell.config.camera.is_listed();
+    for a in store.active_all() {
+        let problem = match (&a.camera, listed) {
+            (None, true) => Some(format!(
+                "holds one camera's calibration ({}), and this cell lists cameras {names:?}; allowed: an easyhec-daemon-active/2 file naming them",
+                a.id
+            )),
+            (Some(n), false) => Some(format!(
+                "names camera {n:?}, and this cell has one [camera]; allowed: an easyhec-daemon-active/1 file"
+            )),
+            (Some(n), true) if !names.contains(&n.as_str()) => Some(format!(
+                "names camera {n:?}, which the config does not list; allowed: {names:?}"
+            )),
+            _ => None,
+        };
+        if let Some(m) = problem {
+            return Err(Error::input(
+                store.dir().join("active.json"),
+                "cameras",
+                format!(
+                    "{m}: move the file away to start afresh (the run directories stay intact)"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// `max_views` within the bounds a cell config has (1 to `bounds::MAX_VIEWS`): a start

@@ -133,6 +133,22 @@ pub struct ActiveCalibration {
     pub result: ResultFile,
 }
 
+/// One camera of `GET /api/v1/cameras`.
+#[derive(Serialize, ToSchema)]
+pub struct CameraState {
+    /// The camera's name in the config (`camera` for a single `[camera]` table).
+    pub camera: String,
+    /// Its active calibration and last bump check, if one is active.
+    pub active: Option<ActiveCalibration>,
+}
+
+/// `GET /api/v1/cameras`: every camera of the cell, in config order.
+#[derive(Serialize, ToSchema)]
+pub struct Cameras {
+    /// One entry per camera.
+    pub cameras: Vec<CameraState>,
+}
+
 /// `GET /api/v1/checks`.
 #[derive(Serialize, ToSchema)]
 pub struct Checks {

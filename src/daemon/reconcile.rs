@@ -23,8 +23,8 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use super::store::{
-    ActiveFile, CalibrationRecord, CheckRecord, Recovery, State, ACTIVE_FORMAT, CHECKS_FORMAT,
-    INDEX_FORMAT,
+    ActiveFile, CalibrationRecord, CheckRecord, Recovery, RigActiveFile, State, ACTIVE_FORMAT,
+    CHECKS_FORMAT, INDEX_FORMAT, RIG_ACTIVE_FORMAT,
 };
 use super::validate::{check_inverse, check_rigid, id_number, id_problem, inside};
 use crate::error::{Error, Result};
@@ -36,7 +36,8 @@ pub const QUARANTINE: &str = "quarantine";
 /// What the data folder held, after reconciliation.
 pub(super) struct Loaded {
     pub records: Vec<CalibrationRecord>,
-    pub active: Option<ActiveFile>,
+    /// The one camera's entry, or each named camera's of a list.
+    pub active: Vec<ActiveFile>,
     pub checks: Vec<CheckRecord>,
     pub recovery: Recovery,
     /// The records differ from `index.json` on disk (rewrite it).
@@ -54,6 +55,14 @@ impl Problem {
         Problem {
             field: field.into(),
             message: message.into(),
+        }
+    }
+
+    /// The same problem, its field inside `outer`.
+    fn within(self, outer: &str) -> Problem {
+        Problem {
+            field: format!("{outer}.{}", self.field),
+            message: self.message,
         }
     }
 }
@@ -90,6 +99,11 @@ pub(super) fn load(dir: &Path, canonical: &Path, now: &str) -> Result<Loaded> {
 /// Reads a JSON file of format `tag`. Broken JSON (or a body that is not an object) is a
 /// [`Doc::Broken`] to quarantine; another format tag stops the daemon.
 fn read_doc(path: &Path, tag: &str) -> Result<Doc> {
+    read_doc_of(path, &[tag])
+}
+
+/// [`read_doc`] for a file that may hold any of `tags`.
+fn read_doc_of(path: &Path, tags: &[&str]) -> Result<Doc> {
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Doc::Missing),
@@ -114,14 +128,15 @@ fn read_doc(path: &Path, tag: &str) -> Result<Doc> {
             "is not a JSON object",
         )));
     }
-    check_format(path, &value, tag)?;
+    check_format(path, &value, tags)?;
     Ok(Doc::Found(value))
 }
 
 /// Refuses another format version, printing the tag as written.
-fn check_format(path: &Path, value: &Value, tag: &str) -> Result<()> {
+fn check_format(path: &Path, value: &Value, tags: &[&str]) -> Result<()> {
+    let tag = tags.join(" or ");
     let message = match value.get("format") {
-        Some(Value::String(t)) if t == tag => return Ok(()),
+        Some(Value::String(t)) if tags.contains(&t.as_str()) => return Ok(()),
         Some(Value::String(t)) => format!("{t:?} is not {tag}, the format this easyhec reads"),
         Some(other) => format!("{other} is not a format tag (this easyhec reads {tag})"),
         None => format!("absent (this easyhec reads {tag})"),
@@ -241,13 +256,21 @@ impl Folder<'_> {
     }
 
     /// `DATA/active.json`, or nothing (quarantined) when it does not hold a usable pose.
-    fn load_active(&self) -> Result<Option<ActiveFile>> {
+    fn load_active(&self) -> Result<Vec<ActiveFile>> {
         let path = self.dir.join("active.json");
-        let problem = match read_doc(&path, ACTIVE_FORMAT)? {
-            Doc::Missing => return Ok(None),
+        let problem = match read_doc_of(&path, &[ACTIVE_FORMAT, RIG_ACTIVE_FORMAT])? {
+            Doc::Missing => return Ok(Vec::new()),
             Doc::Broken(p) => p,
+            Doc::Found(v) if v["format"] == RIG_ACTIVE_FORMAT => match check_rig_active(v) {
+                Ok(a) => return Ok(a),
+                Err(p) => p,
+            },
             Doc::Found(v) => match check_active(v) {
-                Ok(a) => return Ok(Some(a)),
+                Ok(a) if a.camera.is_none() => return Ok(vec![a]),
+                Ok(_) => Problem::new(
+                    "camera",
+                    "is set in a file of one camera; allowed: only in easyhec-daemon-active/2",
+                ),
                 Err(p) => p,
             },
         };
@@ -255,7 +278,7 @@ impl Folder<'_> {
         tracing::info!(
             "easyhec daemon: no calibration is active: activate one with POST /api/v1/calibrations/{{id}}/activate"
         );
-        Ok(None)
+        Ok(Vec::new())
     }
 
     /// `DATA/checks.json`; broken JSON is quarantined and the history starts empty.
@@ -339,11 +362,55 @@ fn log_quarantined(path: &Path, p: &Problem, dest: &Path) {
 fn check_active(v: Value) -> std::result::Result<ActiveFile, Problem> {
     let a: ActiveFile =
         serde_json::from_value(v).map_err(|e| Problem::new("(content)", e.to_string()))?;
+    check_active_entry(a)
+}
+
+/// One active entry: a well-formed id and a rigid pose both ways.
+fn check_active_entry(a: ActiveFile) -> std::result::Result<ActiveFile, Problem> {
     if id_number(&a.id).is_none() {
         return Err(Problem::new("id", id_problem(&a.id)));
     }
     check_result_pose(&a.result).map_err(|(f, m)| Problem::new(format!("result.{f}"), m))?;
     Ok(a)
+}
+
+/// A list's `active.json`: 1 to `MAX_CAMERAS` entries, each a valid [`check_active`] entry
+/// naming a distinct camera, sorted by name.
+fn check_rig_active(v: Value) -> std::result::Result<Vec<ActiveFile>, Problem> {
+    use crate::config::cameras::{name_problem, MAX_CAMERAS};
+    let rig: RigActiveFile =
+        serde_json::from_value(v).map_err(|e| Problem::new("(content)", e.to_string()))?;
+    if !(1..=MAX_CAMERAS).contains(&rig.cameras.len()) {
+        return Err(Problem::new(
+            "cameras",
+            format!(
+                "holds {} entries; allowed: 1 to {MAX_CAMERAS}",
+                rig.cameras.len()
+            ),
+        ));
+    }
+    let mut out: Vec<ActiveFile> = Vec::new();
+    for (i, entry) in rig.cameras.into_iter().enumerate() {
+        let a = check_active_entry(entry).map_err(|p| p.within(&format!("cameras[{i}]")))?;
+        let Some(name) = a.camera.as_deref() else {
+            return Err(Problem::new(
+                format!("cameras[{i}].camera"),
+                "is absent; allowed: the camera's name",
+            ));
+        };
+        if let Some(m) = name_problem(name) {
+            return Err(Problem::new(format!("cameras[{i}].camera"), m));
+        }
+        if out.iter().any(|o| o.camera == a.camera) {
+            return Err(Problem::new(
+                format!("cameras[{i}].camera"),
+                format!("{name:?} is named twice"),
+            ));
+        }
+        out.push(a);
+    }
+    out.sort_by(|a, b| a.camera.cmp(&b.camera));
+    Ok(out)
 }
 
 /// A result's `camera_from_base` is rigid and `base_from_camera` is its inverse.
@@ -403,6 +470,8 @@ fn rebuilt_record(dir: &Path, id: &str, now: &str) -> CalibrationRecord {
         warm_start_from: None,
         planned_poses: None,
         truth_error: None,
+        cameras: None,
+        camera_results: None,
     }
 }
 

@@ -2,7 +2,8 @@
 //!
 //! ```text
 //! DATA/index.json          history: one record per calibration (easyhec-daemon-index/1)
-//! DATA/active.json         the active calibration with its easyhec-result/1 body
+//! DATA/active.json         the active calibration with its easyhec-result/1 body; for a
+//!                          list of cameras, each camera's (easyhec-daemon-active/2)
 //! DATA/checks.json         the latest bump checks (easyhec-daemon-checks/1)
 //! DATA/runs/<id>/          one easyhec-run/1 directory per calibration (run.json, views/,
 //!                          rounds.json, result.json), written by the loop as it goes
@@ -29,6 +30,9 @@ use crate::run::{ResultFile, UncertaintyEntry};
 pub const INDEX_FORMAT: &str = "easyhec-daemon-index/1";
 /// `active.json` format tag.
 pub const ACTIVE_FORMAT: &str = "easyhec-daemon-active/1";
+/// `active.json` format tag of a cell with a list of cameras: one [`ActiveFile`] per camera,
+/// each camera activated, marked stale and recalibrated by itself.
+pub const RIG_ACTIVE_FORMAT: &str = "easyhec-daemon-active/2";
 /// `checks.json` format tag.
 pub const CHECKS_FORMAT: &str = "easyhec-daemon-checks/1";
 /// Bump checks kept in `checks.json`.
@@ -141,6 +145,32 @@ pub struct CalibrationRecord {
     /// Simulated cells only: error of the estimate against the camera's true pose now.
     #[serde(default)]
     pub truth_error: Option<TruthError>,
+    /// A list of cameras: the cameras this calibration was asked for (the top-level
+    /// estimate fields are the first one's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cameras: Option<Vec<String>>,
+    /// A list of cameras: each calibrated camera's final result.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_results: Option<Vec<CameraRecord>>,
+}
+
+/// One camera's final result in a calibration of a list of cameras.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
+pub struct CameraRecord {
+    /// The camera's name in the config.
+    pub camera: String,
+    /// Its estimate, row-major 4x4.
+    pub camera_from_base: [[f64; 4]; 4],
+    /// 1-sigma uncertainty of the estimate.
+    #[serde(default)]
+    pub uncertainty: Option<UncertaintyEntry>,
+    /// Mean mask IoU at the estimate.
+    pub mean_iou: f64,
+    /// Why this camera stopped asking for views.
+    pub stop_reason: String,
+    /// Simulated cells only: error against the camera's true pose now.
+    #[serde(default)]
+    pub truth_error: Option<TruthError>,
 }
 
 /// `active.json`: the calibration in use, with its result, surviving restarts.
@@ -157,8 +187,21 @@ pub struct ActiveFile {
     /// When it became stale.
     #[serde(default)]
     pub stale_since: Option<String>,
+    /// The camera of a list this entry belongs to (absent for a cell of one camera).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
     /// The `easyhec-result/1` body.
     pub result: ResultFile,
+}
+
+/// `active.json` of a cell with a list of cameras: the cameras that have an active
+/// calibration, sorted by name. Two cameras may be active from different calibrations.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, utoipa::ToSchema)]
+pub struct RigActiveFile {
+    /// Always [`RIG_ACTIVE_FORMAT`].
+    pub format: String,
+    /// One entry per camera, each naming its camera.
+    pub cameras: Vec<ActiveFile>,
 }
 
 /// One bump check.
@@ -192,6 +235,9 @@ pub struct CheckRecord {
     /// The recalibration this check started, if any.
     #[serde(default)]
     pub recalibration: Option<String>,
+    /// The camera checked, for a cell with a list of cameras.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -208,7 +254,8 @@ struct ChecksFile {
 
 struct Inner {
     records: Vec<CalibrationRecord>,
-    active: Option<ActiveFile>,
+    /// One entry without a camera name, or one per named camera of a list.
+    active: Vec<ActiveFile>,
     checks: Vec<CheckRecord>,
 }
 
@@ -333,39 +380,104 @@ impl Store {
             .cloned()
     }
 
-    /// The active calibration.
+    /// The active calibration of a cell of one camera (none for a list of cameras).
     pub fn active(&self) -> Option<ActiveFile> {
+        self.active_of(None)
+    }
+
+    /// The active calibration of `camera` (`None`: the cell's one camera).
+    pub fn active_of(&self, camera: Option<&str>) -> Option<ActiveFile> {
+        lock(&self.inner)
+            .active
+            .iter()
+            .find(|a| a.camera.as_deref() == camera)
+            .cloned()
+    }
+
+    /// Every active entry: the one camera's, or each named camera's of a list.
+    pub fn active_all(&self) -> Vec<ActiveFile> {
         lock(&self.inner).active.clone()
     }
 
     /// Makes `result` of calibration `id` the active one.
     pub fn activate(&self, id: &str, result: ResultFile, now: &str) -> Result<ActiveFile> {
+        self.activate_camera(None, id, result, now)
+    }
+
+    /// Makes `result` of calibration `id` the active one of `camera` (`None`: the cell's one
+    /// camera), leaving every other camera's entry as it was.
+    pub fn activate_camera(
+        &self,
+        camera: Option<&str>,
+        id: &str,
+        result: ResultFile,
+        now: &str,
+    ) -> Result<ActiveFile> {
         let active = ActiveFile {
             format: ACTIVE_FORMAT.into(),
             id: id.to_string(),
             activated_at: now.to_string(),
             stale: false,
             stale_since: None,
+            camera: camera.map(str::to_string),
             result,
         };
         let mut inner = lock(&self.inner);
-        write_json_atomic(&self.dir.join("active.json"), &active)?;
-        inner.active = Some(active.clone());
+        let mut next: Vec<ActiveFile> = inner
+            .active
+            .iter()
+            .filter(|a| a.camera.is_some() && a.camera != active.camera)
+            .cloned()
+            .collect();
+        if camera.is_some() {
+            next.push(active.clone());
+            next.sort_by(|a, b| a.camera.cmp(&b.camera));
+        } else {
+            next = vec![active.clone()];
+        }
+        self.write_active(&next)?;
+        inner.active = next;
         Ok(active)
     }
 
     /// Marks the active calibration stale (when it is still `id`).
     pub fn mark_stale(&self, id: &str, now: &str) -> Result<()> {
+        self.mark_stale_camera(None, id, now)
+    }
+
+    /// Marks `camera`'s active calibration stale (when it is still `id`).
+    pub fn mark_stale_camera(&self, camera: Option<&str>, id: &str, now: &str) -> Result<()> {
         let mut inner = lock(&self.inner);
-        let Some(active) = inner.active.as_mut().filter(|a| a.id == id) else {
+        let mut next = inner.active.clone();
+        let Some(active) = next
+            .iter_mut()
+            .find(|a| a.camera.as_deref() == camera && a.id == id)
+        else {
             return Ok(());
         };
         if !active.stale {
             active.stale = true;
             active.stale_since = Some(now.to_string());
         }
-        let copy = active.clone();
-        write_json_atomic(&self.dir.join("active.json"), &copy)
+        self.write_active(&next)?;
+        inner.active = next;
+        Ok(())
+    }
+
+    /// Writes `active.json`: an [`ActiveFile`] for one camera, a [`RigActiveFile`] for named
+    /// cameras.
+    fn write_active(&self, entries: &[ActiveFile]) -> Result<()> {
+        let path = self.dir.join("active.json");
+        match entries {
+            [one] if one.camera.is_none() => write_json_atomic(&path, one),
+            _ => write_json_atomic(
+                &path,
+                &RigActiveFile {
+                    format: RIG_ACTIVE_FORMAT.into(),
+                    cameras: entries.to_vec(),
+                },
+            ),
+        }
     }
 
     /// Appends a bump check (the latest `CHECKS_KEPT` are kept).

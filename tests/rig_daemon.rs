@@ -1,0 +1,202 @@
+//! The daemon over a cell of three fixed cameras (`[[camera]]`): one calibration solves every
+//! camera from one motion and activates each; a bump check compares every camera; a knocked
+//! camera alone is marked stale and recalibrated, warm-started from its stale pose, while the
+//! other two keep their active calibrations untouched, across a restart too.
+
+mod daemon_common;
+
+use std::path::{Path, PathBuf};
+
+use daemon_common::{call, start, wait_final, TOKEN};
+use easyhec::config::read_config;
+use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use serde_json::{json, Value};
+
+/// Writes `DIR/cell.toml`: the shipped three-camera cell, four views per calibration, a
+/// light planner, bump recalibration on.
+fn write_rig_config(dir: &Path) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = read_config(&root.join("config/sim-xarm6-three-cameras.toml")).unwrap();
+    cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
+    cfg.calibration.max_views = 4;
+    cfg.calibration.min_views = 4;
+    cfg.calibration.joint_samples = 1000;
+    cfg.calibration.candidates = 24;
+    cfg.daemon.token = Some(TOKEN.into());
+    cfg.daemon.recalibrate_on_bump = true;
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
+    path
+}
+
+/// `GET /api/v1/cameras`, as (camera, active entry or null) pairs.
+fn cameras(base: &str) -> Vec<(String, Value)> {
+    let (code, body) = call("GET", &format!("{base}/api/v1/cameras"), None);
+    assert_eq!(code, 200, "{body}");
+    body["cameras"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["camera"].as_str().unwrap().to_string(),
+                c["active"].clone(),
+            )
+        })
+        .collect()
+}
+
+/// An active entry's pose.
+fn pose_of(active: &Value) -> Isometry3<f64> {
+    let rows: [[f64; 4]; 4] =
+        serde_json::from_value(active["result"]["camera_from_base"].clone()).unwrap();
+    from_rows(&rows).unwrap()
+}
+
+fn assert_near(name: &str, est: &Isometry3<f64>, truth: &Isometry3<f64>) {
+    let (r, t) = (
+        rotation_error_deg(est, truth),
+        translation_error_mm(est, truth),
+    );
+    eprintln!("{name}: {r:.4} deg, {t:.3} mm from the truth");
+    assert!(r < 0.2 && t < 1.5, "{name}: off by {r:.4} deg {t:.3} mm");
+}
+
+#[test]
+fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_rig_config(dir.path());
+    let data = dir.path().join("data");
+    let d = start(&config, &data);
+    let base = d.base.clone();
+    let scenes: Vec<_> = d
+        .daemon
+        .cell()
+        .cameras()
+        .iter()
+        .map(|c| (c.name.to_string(), c.sim.scene.clone().unwrap()))
+        .collect();
+
+    // Requests naming cameras the cell does not have are refused before anything moves.
+    for bad in [
+        json!({"cameras": []}),
+        json!({"cameras": ["nope"]}),
+        json!({"cameras": ["side", "side"]}),
+    ] {
+        let (code, body) = call("POST", &format!("{base}/api/v1/calibrations"), Some(&bad));
+        assert_eq!(code, 400, "{bad}: {body}");
+        assert!(
+            body["error"].as_str().unwrap().starts_with("cameras"),
+            "{body}"
+        );
+    }
+
+    let (code, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
+    assert_eq!(code, 202, "{body}");
+    let first = body["id"].as_str().unwrap().to_string();
+    let s = wait_final(&base, &first);
+    assert_eq!(s["state"], "succeeded", "{s}");
+    assert_eq!(s["cameras"], json!(["front", "side", "high"]), "{s}");
+    assert_eq!(s["camera_results"].as_array().unwrap().len(), 3, "{s}");
+    let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
+    assert_eq!(
+        code, 409,
+        "a list of cameras has no single active calibration"
+    );
+
+    let before = cameras(&base);
+    for ((name, active), (_, scene)) in before.iter().zip(&scenes) {
+        assert_eq!(
+            active["id"].as_str(),
+            Some(first.as_str()),
+            "{name}: {active}"
+        );
+        assert_near(name, &pose_of(active), &scene.camera_from_base());
+    }
+    let (code, ok) = call("POST", &format!("{base}/api/v1/checks"), None);
+    assert_eq!(code, 200, "{ok}");
+    let checks = ok["checks"].as_array().unwrap();
+    assert_eq!(checks.len(), 3, "{ok}");
+    assert!(checks.iter().all(|c| c["stale"] == false), "{ok}");
+
+    // Knock the side camera: about 1 degree and 15 mm.
+    let (_, side) = &scenes[1];
+    let old = side.camera_from_base();
+    let knock = Isometry3::from_parts(
+        Translation3::new(0.010, -0.008, 0.008),
+        UnitQuaternion::from_euler_angles(0.010, -0.012, 0.006),
+    );
+    side.set_camera_from_base(knock * old);
+    let (code, bad) = call("POST", &format!("{base}/api/v1/checks"), None);
+    assert_eq!(code, 200, "{bad}");
+    let checks = bad["checks"].as_array().unwrap();
+    let stale: Vec<&str> = checks
+        .iter()
+        .filter(|c| c["stale"] == true)
+        .map(|c| c["camera"].as_str().unwrap())
+        .collect();
+    assert_eq!(stale, ["side"], "{bad}");
+    let second = checks
+        .iter()
+        .find(|c| c["camera"] == "side")
+        .and_then(|c| c["recalibration"].as_str())
+        .expect("a recalibration of the side camera");
+    let others = checks.iter().filter(|c| c["camera"] != "side");
+    assert!(
+        others.clone().count() == 2 && others.into_iter().all(|c| c["recalibration"].is_null())
+    );
+
+    let s = wait_final(&base, second);
+    assert_eq!(s["state"], "succeeded", "{s}");
+    assert_eq!(s["trigger"], "bump");
+    assert_eq!(s["cameras"], json!(["side"]), "{s}");
+    assert_eq!(s["camera_results"].as_array().unwrap().len(), 1, "{s}");
+    let run: Value = serde_json::from_str(
+        &std::fs::read_to_string(data.join("runs").join(second).join("run.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        run["cameras"].as_array().unwrap().len(),
+        1,
+        "only the side camera grabbed"
+    );
+
+    let check_after = |base: &str| {
+        let after = cameras(base);
+        for ((name, now), (_, was)) in after.iter().zip(&before) {
+            if name == "side" {
+                assert_eq!(now["id"].as_str(), Some(second), "{now}");
+                assert_eq!(now["stale"], false, "{now}");
+                assert_near(name, &pose_of(now), &side.camera_from_base());
+            } else {
+                assert_eq!(now["id"], was["id"], "{name} kept its calibration");
+                assert_eq!(now["result"], was["result"], "{name} kept its result");
+                assert_eq!(now["stale"], false, "{name}: {now}");
+            }
+        }
+    };
+    check_after(&base);
+    let active: Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("active.json")).unwrap()).unwrap();
+    assert_eq!(active["format"], "easyhec-daemon-active/2");
+
+    // The per-camera state reads back after a restart.
+    d.stop();
+    let d = start(&config, &data);
+    check_after(&d.base);
+    d.stop();
+
+    // A cell of one camera does not take this folder's per-camera calibrations as its own.
+    std::fs::create_dir_all(dir.path().join("one")).unwrap();
+    let single = daemon_common::write_config(&dir.path().join("one"), |_| {});
+    let cell = easyhec::cell::Cell::open(&single).unwrap();
+    let refused = easyhec::daemon::Daemon::open(cell, &data, TOKEN.into())
+        .err()
+        .expect("a single-camera daemon refuses a list's active.json")
+        .to_string();
+    assert!(
+        refused.contains("active.json") && refused.contains("cameras") && !refused.contains('\n'),
+        "{refused}"
+    );
+}
