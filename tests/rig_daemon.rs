@@ -92,6 +92,13 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         );
     }
 
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations"),
+        Some(&json!({"cameras": null})),
+    );
+    assert_eq!(code, 400, "a null list never means every camera: {body}");
+
     let (code, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
     assert_eq!(code, 202, "{body}");
     let first = body["id"].as_str().unwrap().to_string();
@@ -99,6 +106,16 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
     assert_eq!(s["state"], "succeeded", "{s}");
     assert_eq!(s["cameras"], json!(["front", "side", "high"]), "{s}");
     assert_eq!(s["camera_results"].as_array().unwrap().len(), 3, "{s}");
+    let (code, body) = call(
+        "GET",
+        &format!("{base}/api/v1/calibrations/{first}/export/opencv"),
+        None,
+    );
+    assert_eq!(code, 409, "{body}");
+    assert!(
+        body["error"].as_str().unwrap().contains("easyhec export"),
+        "{body}"
+    );
     let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(
         code, 409,

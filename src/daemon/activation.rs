@@ -45,14 +45,9 @@ impl Daemon {
                 return Err(refuse(&record, "result.json base_link", why));
             }
         }
-        let mut activated = Vec::new();
-        for (camera, result) in results {
-            let active = self
-                .store
-                .activate_camera(camera.as_deref(), id, result, &now())?;
-            self.announce_active(&active);
-            activated.push(active);
-        }
+        // One write for every camera: a failure leaves the previous active set whole.
+        let activated = self.store.activate_cameras(id, results, &now())?;
+        activated.iter().for_each(|a| self.announce_active(a));
         Ok(activated)
     }
 }

@@ -439,7 +439,7 @@ fn bad_body(at: &str, e: &serde_json::Error) -> Refusal {
         format!("{at}: ")
     };
     Refusal::BadRequest(format!(
-        "request body: {field}{e} (expected {{\"max_views\": N, \"dry_run\": false}}, both optional)"
+        "request body: {field}{e} (expected {{\"max_views\": N, \"dry_run\": false, \"cameras\": [NAME]}}, each optional; cameras only for [[camera]] tables)"
     ))
 }
 
@@ -773,6 +773,11 @@ async fn export_file(
             ))
         })?;
     let record = record_of(&d, &id)?;
+    if d.cell().config.camera.is_listed() {
+        return Err(Refusal::Conflict(format!(
+            "calibration {id}: its result.json holds a list of cameras (easyhec-result/2), which this route does not export; use `easyhec export DATA/runs/{id}/result.json --out DIR` (one file per camera)"
+        )));
+    }
     let path = run_file(&d, &record, "result.json")?;
     let settings = d.cell().config.ros2.clone();
     let (name, text) = tokio::task::spawn_blocking(move || {

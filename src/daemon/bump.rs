@@ -122,6 +122,8 @@ pub async fn check(
         .filter(|(_, r)| r.stale)
         .map(|(a, _)| a)
         .collect();
+    // The measurements are kept first, whatever happens next.
+    daemon.store().push_checks(&records)?;
     for (camera, id, _) in &stale {
         m.bumps.fetch_add(1, Ordering::Relaxed);
         let r = records
@@ -142,10 +144,12 @@ pub async fn check(
             for r in records.iter_mut().filter(|r| r.stale) {
                 r.recalibration = Some(new_id.clone());
             }
+            if let Err(e) = daemon.store().update_last_checks(&records) {
+                tracing::error!(
+                    "easyhec daemon: cannot note recalibration {new_id} in checks.json: {e}"
+                );
+            }
         }
-    }
-    for r in &records {
-        daemon.store().push_check(r)?;
     }
     Ok(records)
 }

@@ -210,8 +210,15 @@ pub struct StartOptions {
     pub dry_run: bool,
     /// A cell with a list of cameras: calibrate only these, by name (default: every one).
     /// The others keep their active calibrations.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "some_names")]
     pub cameras: Option<Vec<String>>,
+}
+
+/// A present `cameras`: a list of names, never `null`.
+fn some_names<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<Vec<String>>, D::Error> {
+    <Vec<String> as serde::Deserialize>::deserialize(d).map(Some)
 }
 
 /// Where a recalibration starts: the active calibration(s) it replaces and each camera's
@@ -246,6 +253,15 @@ impl Daemon {
                 "ros2.publish_tf",
                 "true with a list of cameras: the daemon publishes one camera's edge; allowed: false here, and `easyhec publish` of a calibration's result.json sends every camera",
             ));
+        }
+        if cell.config.camera.is_listed() {
+            if let Some(c) = cell.cameras().iter().find(|c| c.segmenter.uses_context()) {
+                return Err(Error::input(
+                    &cell.config_path,
+                    "segmenter.kind",
+                    format!("camera '{}': a segmenter that reads the whole run (builtin) cannot check a camera of a [[camera]] list; allowed: a per-frame segmenter (onnx, sim-truth)", c.name),
+                ));
+            }
         }
         if token.trim().is_empty() {
             return Err(Error::input(
@@ -676,8 +692,20 @@ impl Daemon {
             self.activate_new(id, None, &o.result);
             return;
         }
+        let mut results = Vec::new();
         for c in &o.cameras {
-            self.activate_new(id, Some(&c.name), &c.result);
+            if let Err((field, m)) = reconcile::check_result_pose(&c.result) {
+                tracing::warn!(
+                    "easyhec daemon: {id}: camera '{}': result {field}: {m}; not activated",
+                    c.name
+                );
+                return;
+            }
+            results.push((Some(c.name.clone()), c.result.clone()));
+        }
+        match self.store.activate_cameras(id, results, &now()) {
+            Ok(active) => active.iter().for_each(|a| self.announce_active(a)),
+            Err(e) => tracing::error!("easyhec daemon: {id}: cannot activate: {e}"),
         }
     }
 

@@ -413,31 +413,46 @@ impl Store {
         result: ResultFile,
         now: &str,
     ) -> Result<ActiveFile> {
-        let active = ActiveFile {
-            format: ACTIVE_FORMAT.into(),
-            id: id.to_string(),
-            activated_at: now.to_string(),
-            stale: false,
-            stale_since: None,
-            camera: camera.map(str::to_string),
-            result,
-        };
+        let mut done =
+            self.activate_cameras(id, vec![(camera.map(str::to_string), result)], now)?;
+        Ok(done.remove(0))
+    }
+
+    /// Makes each camera's result of calibration `id` its active one in one write of
+    /// `active.json` (a failed write changes nothing), leaving the other cameras' entries.
+    pub fn activate_cameras(
+        &self,
+        id: &str,
+        results: Vec<(Option<String>, ResultFile)>,
+        now: &str,
+    ) -> Result<Vec<ActiveFile>> {
+        let new: Vec<ActiveFile> = results
+            .into_iter()
+            .map(|(camera, result)| ActiveFile {
+                format: ACTIVE_FORMAT.into(),
+                id: id.to_string(),
+                activated_at: now.to_string(),
+                stale: false,
+                stale_since: None,
+                camera,
+                result,
+            })
+            .collect();
         let mut inner = lock(&self.inner);
         let mut next: Vec<ActiveFile> = inner
             .active
             .iter()
-            .filter(|a| a.camera.is_some() && a.camera != active.camera)
+            .filter(|a| a.camera.is_some() && !new.iter().any(|n| n.camera == a.camera))
             .cloned()
             .collect();
-        if camera.is_some() {
-            next.push(active.clone());
-            next.sort_by(|a, b| a.camera.cmp(&b.camera));
-        } else {
-            next = vec![active.clone()];
+        if new.iter().any(|n| n.camera.is_none()) {
+            next.clear();
         }
+        next.extend(new.iter().cloned());
+        next.sort_by(|a, b| a.camera.cmp(&b.camera));
         self.write_active(&next)?;
         inner.active = next;
-        Ok(active)
+        Ok(new)
     }
 
     /// Marks the active calibration stale (when it is still `id`).
@@ -482,30 +497,45 @@ impl Store {
 
     /// Appends a bump check (the latest `CHECKS_KEPT` are kept).
     pub fn push_check(&self, check: &CheckRecord) -> Result<()> {
+        self.push_checks(std::slice::from_ref(check))
+    }
+
+    /// Appends the checks of one bump check (one per camera) in one write.
+    pub fn push_checks(&self, checks: &[CheckRecord]) -> Result<()> {
         let mut inner = lock(&self.inner);
-        inner.checks.push(check.clone());
-        let excess = inner.checks.len().saturating_sub(CHECKS_KEPT);
-        inner.checks.drain(..excess);
-        write_json_atomic(
-            &self.dir.join("checks.json"),
-            &ChecksFile {
-                format: CHECKS_FORMAT.into(),
-                checks: inner.checks.clone(),
-            },
-        )
+        let mut next = inner.checks.clone();
+        next.extend_from_slice(checks);
+        let excess = next.len().saturating_sub(CHECKS_KEPT);
+        next.drain(..excess);
+        self.write_checks(&next)?;
+        inner.checks = next;
+        Ok(())
     }
 
     /// Updates the latest check (e.g. with the recalibration it started).
     pub fn update_last_check(&self, check: &CheckRecord) -> Result<()> {
+        self.update_last_checks(std::slice::from_ref(check))
+    }
+
+    /// Replaces the latest `checks.len()` checks with `checks` (the same checks, now naming
+    /// the recalibration they started).
+    pub fn update_last_checks(&self, checks: &[CheckRecord]) -> Result<()> {
         let mut inner = lock(&self.inner);
-        if let Some(last) = inner.checks.last_mut() {
-            *last = check.clone();
-        }
+        let mut next = inner.checks.clone();
+        let from = next.len().saturating_sub(checks.len());
+        next.truncate(from);
+        next.extend_from_slice(checks);
+        self.write_checks(&next)?;
+        inner.checks = next;
+        Ok(())
+    }
+
+    fn write_checks(&self, checks: &[CheckRecord]) -> Result<()> {
         write_json_atomic(
             &self.dir.join("checks.json"),
             &ChecksFile {
                 format: CHECKS_FORMAT.into(),
-                checks: inner.checks.clone(),
+                checks: checks.to_vec(),
             },
         )
     }
