@@ -40,17 +40,31 @@ fn skip(test: &str, why: &str) {
 }
 
 fn sdk_available() -> Result<(), String> {
-    let out = Command::new("python3")
-        .args(["-c", "import xarm.wrapper"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .output()
-        .map_err(|e| format!("python3 cannot run ({e})"))?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err("the xarm SDK is not installed (python3 -m pip install xarm-python-sdk==1.18.4)".into())
+    // Tried twice: on a fresh machine the first imports run right after pip installed the
+    // package, and one of two tests importing it at once has been seen to fail there.
+    let mut last = String::new();
+    for attempt in 0..2 {
+        if attempt > 0 {
+            std::thread::sleep(std::time::Duration::from_secs(2));
+        }
+        let out = Command::new("python3")
+            .args(["-c", "import xarm.wrapper"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .output()
+            .map_err(|e| format!("python3 cannot run ({e})"))?;
+        if out.status.success() {
+            return Ok(());
+        }
+        last = String::from_utf8_lossy(&out.stderr)
+            .lines()
+            .last()
+            .unwrap_or_default()
+            .to_string();
     }
+    Err(format!(
+        "the xarm SDK is not installed (python3 -m pip install xarm-python-sdk==1.18.4): {last}"
+    ))
 }
 
 /// Runs the script, killing it after `SCRIPT_TIMEOUT`; returns (success, stdout + stderr).
