@@ -11,6 +11,8 @@
 //! under a kill timeout. Without the SDK (or python3) the test fails when `CI` is set and is
 //! skipped with a message otherwise.
 
+mod python_probe;
+
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -23,31 +25,10 @@ const SCRIPT_TIMEOUT: Duration = Duration::from_secs(60);
 const START: [f64; 6] = [0.3, -1.9, 1.6, -1.3, -1.57, 0.0];
 
 fn sdk_available() -> Result<(), String> {
-    // Tried twice: on a fresh machine the first imports run right after pip installed the
-    // package, and one of two tests importing it at once has been seen to fail there.
-    let mut last = String::new();
-    for attempt in 0..2 {
-        if attempt > 0 {
-            std::thread::sleep(std::time::Duration::from_secs(2));
-        }
-        let out = Command::new("python3")
-            .args(["-c", "import rtde_control, rtde_receive, dashboard_client"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .output()
-            .map_err(|e| format!("python3 cannot run ({e})"))?;
-        if out.status.success() {
-            return Ok(());
-        }
-        last = String::from_utf8_lossy(&out.stderr)
-            .lines()
-            .last()
-            .unwrap_or_default()
-            .to_string();
-    }
-    Err(format!(
-        "ur_rtde is not installed (python3 -m pip install ur-rtde==1.6.5): {last}"
-    ))
+    python_probe::sdk_importable(
+        "import rtde_control, rtde_receive, dashboard_client",
+        "ur_rtde is not installed (python3 -m pip install ur-rtde==1.6.5)",
+    )
 }
 
 /// Skips (or fails under CI) without the SDK; true when the test should go on.

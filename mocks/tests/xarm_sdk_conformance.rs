@@ -17,6 +17,8 @@
 //! skipped with a message otherwise. The SDK can block forever on a peer that never answers,
 //! so the script runs under a kill timeout: the only timed check here.
 
+mod python_probe;
+
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::PathBuf;
@@ -40,31 +42,10 @@ fn skip(test: &str, why: &str) {
 }
 
 fn sdk_available() -> Result<(), String> {
-    // Tried twice: on a fresh machine the first imports run right after pip installed the
-    // package, and one of two tests importing it at once has been seen to fail there.
-    let mut last = String::new();
-    for attempt in 0..2 {
-        if attempt > 0 {
-            std::thread::sleep(std::time::Duration::from_secs(2));
-        }
-        let out = Command::new("python3")
-            .args(["-c", "import xarm.wrapper"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .output()
-            .map_err(|e| format!("python3 cannot run ({e})"))?;
-        if out.status.success() {
-            return Ok(());
-        }
-        last = String::from_utf8_lossy(&out.stderr)
-            .lines()
-            .last()
-            .unwrap_or_default()
-            .to_string();
-    }
-    Err(format!(
-        "the xarm SDK is not installed (python3 -m pip install xarm-python-sdk==1.18.4): {last}"
-    ))
+    python_probe::sdk_importable(
+        "import xarm.wrapper",
+        "the xarm SDK is not installed (python3 -m pip install xarm-python-sdk==1.18.4)",
+    )
 }
 
 /// Runs the script, killing it after `SCRIPT_TIMEOUT`; returns (success, stdout + stderr).

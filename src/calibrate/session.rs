@@ -874,22 +874,10 @@ fn check_only_cameras(cell: &Cell, names: Option<&[String]>) -> Result<()> {
         return Ok(());
     };
     let known: Vec<&str> = cell.cameras().iter().map(|c| c.name).collect();
-    if names.is_empty() {
-        return Err(Error::Usage(format!(
-            "cameras: empty; allowed: one or more of {known:?}"
-        )));
+    match crate::config::cameras::selection_problem(&known, names) {
+        Some(m) => Err(Error::Usage(m)),
+        None => Ok(()),
     }
-    for (i, n) in names.iter().enumerate() {
-        if !known.contains(&n.as_str()) {
-            return Err(Error::Usage(format!(
-                "cameras[{i}]: {n:?} is no camera of this cell; allowed: {known:?}"
-            )));
-        }
-        if names[..i].contains(n) {
-            return Err(Error::Usage(format!("cameras[{i}]: {n:?} is named twice")));
-        }
-    }
-    Ok(())
 }
 
 /// A camera of the cell as a track: its intrinsics, its starting pose, and the frames a

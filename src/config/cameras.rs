@@ -185,6 +185,29 @@ fn source_of(config: &CameraConfig) -> Option<(&'static str, String)> {
     }
 }
 
+/// Why `asked` is no selection of the cameras `known` (1 to all of them, each a known name,
+/// none twice), or `None`. The calibration loop and the daemon's start request both use it.
+pub fn selection_problem(known: &[&str], asked: &[String]) -> Option<String> {
+    if asked.is_empty() || asked.len() > known.len() {
+        return Some(format!(
+            "cameras: {} names; allowed: 1 to {} of {known:?}",
+            asked.len(),
+            known.len()
+        ));
+    }
+    for (i, n) in asked.iter().enumerate() {
+        if !known.contains(&n.as_str()) {
+            return Some(format!(
+                "cameras[{i}]: {n:?} is no camera of this cell; allowed: {known:?}"
+            ));
+        }
+        if asked[..i].contains(n) {
+            return Some(format!("cameras[{i}]: {n:?} is named twice"));
+        }
+    }
+    None
+}
+
 /// Why `name` cannot name a camera, or `None`.
 pub fn name_problem(name: &str) -> Option<String> {
     let ok_chars = name

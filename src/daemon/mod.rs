@@ -776,24 +776,9 @@ impl Daemon {
         let Some(asked) = asked else {
             return Ok(Some(names));
         };
-        if asked.is_empty() || asked.len() > names.len() {
-            return Err(Refusal::BadRequest(format!(
-                "cameras: {} names; allowed: 1 to {} of {names:?}",
-                asked.len(),
-                names.len()
-            )));
-        }
-        for (i, n) in asked.iter().enumerate() {
-            if !names.contains(n) {
-                return Err(Refusal::BadRequest(format!(
-                    "cameras[{i}]: {n:?} is no camera of this cell; allowed: {names:?}"
-                )));
-            }
-            if asked[..i].contains(n) {
-                return Err(Refusal::BadRequest(format!(
-                    "cameras[{i}]: {n:?} is named twice"
-                )));
-            }
+        let known: Vec<&str> = names.iter().map(String::as_str).collect();
+        if let Some(m) = crate::config::cameras::selection_problem(&known, asked) {
+            return Err(Refusal::BadRequest(m));
         }
         Ok(Some(
             names.into_iter().filter(|n| asked.contains(n)).collect(),
