@@ -5,9 +5,8 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use easyhec::calibrate::{calibrate, Outcome, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::{read_config, CellConfig, Mount};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
@@ -17,15 +16,6 @@ fn config_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("config")
         .join(name)
-}
-
-fn run(cell: &Cell, out: &Path) -> Outcome {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-        .block_on(calibrate(cell, out, &RunOptions::default()))
-        .unwrap()
 }
 
 fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
@@ -60,7 +50,7 @@ fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
         assert_eq!(cell.config.camera.mount(), &Mount::Link(link.into()));
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("run");
-        let outcome = run(&cell, &out);
+        let outcome = common::run_loop(&cell, &out);
         let truth = cell.sim.camera_from_base.unwrap();
         let est = outcome.result.camera_from_base();
         let (r, t) = (
@@ -163,7 +153,7 @@ fn no_pose_that_shows_the_robot_is_said_plainly() {
     cfg.calibration.min_robot_image_fraction = 0.95;
     let cell = Cell::build(cfg, &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let outcome = run(&cell, &dir.path().join("run"));
+    let outcome = common::run_loop(&cell, &dir.path().join("run"));
     assert!(
         outcome
             .result

@@ -8,7 +8,6 @@ mod common;
 
 use std::path::PathBuf;
 
-use easyhec::calibrate::{calibrate, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::read_config;
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
@@ -23,16 +22,6 @@ fn config_path() -> PathBuf {
         .join(RIG)
 }
 
-/// The closed loop on `cell`, recorded into `out`.
-fn run_loop(cell: &Cell, out: &std::path::Path) -> easyhec::calibrate::Outcome {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-        .block_on(calibrate(cell, out, &RunOptions::default()))
-        .unwrap()
-}
-
 #[test]
 fn three_cameras_reach_the_truth_from_one_motion() {
     let path = config_path();
@@ -44,7 +33,7 @@ fn three_cameras_reach_the_truth_from_one_motion() {
     let cell = Cell::build(cfg, &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let outcome = run_loop(&cell, &out);
+    let outcome = common::run_loop(&cell, &out);
     let names: Vec<&str> = outcome.cameras.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["front", "side", "high"]);
     for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
@@ -248,7 +237,7 @@ fn cameras_that_converge_stop_asking_and_the_loop_stops_when_all_have() {
     let cell = Cell::build(cfg, &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let outcome = run_loop(&cell, &out);
+    let outcome = common::run_loop(&cell, &out);
     let views = outcome.cameras[0].result.views_used.len();
     assert!(views < 8, "{}", outcome.result.stop_reason);
     assert_eq!(
@@ -292,7 +281,7 @@ fn a_single_camera_table_keeps_the_first_formats() {
     let cell = Cell::build(cfg, &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    run_loop(&cell, &out);
+    common::run_loop(&cell, &out);
     let read = |f: &str| -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(out.join(f)).unwrap()).unwrap()
     };

@@ -166,3 +166,18 @@ pub fn shipped_config_text(name: &str) -> String {
             &format!("\"{}/", root.join("robots").display()),
         )
 }
+
+/// The closed loop on `cell` with default options, recorded into `out`, on a runtime of its
+/// own (tests are synchronous).
+pub fn run_loop(cell: &easyhec::cell::Cell, out: &std::path::Path) -> easyhec::calibrate::Outcome {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+        .block_on(easyhec::calibrate::calibrate(
+            cell,
+            out,
+            &easyhec::calibrate::RunOptions::default(),
+        ))
+        .unwrap()
+}
