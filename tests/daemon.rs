@@ -187,6 +187,20 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
         "{base}/api/v1/calibrations/{id}/views/99/overlay.png"
     ));
     assert_eq!(code, 404);
+    // One [camera] table: naming a camera is refused, not ignored.
+    let (code, body) = call(
+        "GET",
+        &format!("{base}/api/v1/calibrations/{id}/views/0/overlay.png?camera=camera"),
+        None,
+    );
+    assert_eq!(code, 400, "{body}");
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("camera: this cell has one"),
+        "{body}"
+    );
     let (code, _) = call("GET", &format!("{base}/api/v1/calibrations/cal-9999"), None);
     assert_eq!(code, 404);
 

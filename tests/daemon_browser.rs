@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use daemon_common::{call, get_bytes, start, wait_final, write_config, TOKEN};
+use daemon_common::{
+    call, get_bytes, start, wait_final, write_config, write_shipped_config, TOKEN,
+};
 use serde_json::{json, Value};
 
 fn find(names: &[&str]) -> Option<PathBuf> {
@@ -165,8 +167,8 @@ fn screenshot(session: &str, path: &Path) {
     );
 }
 
-#[test]
-fn web_page_calibrates_with_one_click_and_shows_the_result() {
+/// Chromium and chromedriver, or `None` (and SKIPPED) outside CI.
+fn browser() -> Option<(PathBuf, PathBuf)> {
     let chromium = find(&["chromium", "chromium-browser", "google-chrome"]);
     let chromedriver = find(&["chromedriver"]);
     let (Some(chromium), Some(chromedriver)) = (chromium, chromedriver) else {
@@ -174,13 +176,13 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             panic!("chromium and chromedriver are required under CI: apt-get install chromium chromium-driver");
         }
         eprintln!("SKIPPED: chromium / chromedriver not installed (apt-get install chromium chromium-driver)");
-        return;
+        return None;
     };
-    let dir = tempfile::tempdir().unwrap();
-    // Reads need the token too, so a wrong one shows on the first refresh.
-    let config = write_config(dir.path(), |c| c.daemon.protect_reads = true);
-    let d = start(&config, &dir.path().join("data"));
-    let driver = start_driver(&chromedriver);
+    Some((chromium, chromedriver))
+}
+
+/// A headless browser session on `driver`: its WebDriver URL.
+fn new_session(driver: &Driver, chromium: &Path) -> String {
     let caps = json!({
         "capabilities": { "alwaysMatch": {
             "browserName": "chrome",
@@ -192,12 +194,52 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
         }}
     });
     let created = wd("POST", &format!("{}/session", driver.base), Some(caps));
-    let session = format!(
+    format!(
         "{}/session/{}",
         driver.base,
         created["sessionId"].as_str().expect("a session id")
+    )
+}
+
+/// Runs `steps` in a browser session on `base`'s page, closing the session and the driver
+/// whatever happens.
+fn with_page(chromium: &Path, chromedriver: &Path, steps: impl FnOnce(&str)) {
+    let driver = start_driver(chromedriver);
+    let session = new_session(&driver, chromium);
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| steps(&session)));
+    let _ = agent().delete(&session).call();
+    drop(driver);
+    if let Err(e) = result {
+        std::panic::resume_unwind(e);
+    }
+}
+
+/// Opens the page with the token in the address and waits for it to show.
+fn open_page(session: &str, base: &str) {
+    wd(
+        "POST",
+        &format!("{session}/url"),
+        Some(json!({ "url": format!("{base}/?token={TOKEN}") })),
     );
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+    wait_js(
+        session,
+        "return !document.getElementById('app').hidden && document.getElementById('start') !== null",
+        Duration::from_secs(20),
+        "the page",
+    );
+}
+
+#[test]
+fn web_page_calibrates_with_one_click_and_shows_the_result() {
+    let Some((chromium, chromedriver)) = browser() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // Reads need the token too, so a wrong one shows on the first refresh.
+    let config = write_config(dir.path(), |c| c.daemon.protect_reads = true);
+    let d = start(&config, &dir.path().join("data"));
+    with_page(&chromium, &chromedriver, |session| {
+        let session = session.to_string();
         // A wrong token is refused and the page asks for one.
         wd(
             "POST",
@@ -211,17 +253,7 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             "the login form after a wrong token",
         );
         // The token in the address: stored for the tab and removed from the address bar.
-        wd(
-            "POST",
-            &format!("{session}/url"),
-            Some(json!({ "url": format!("{}/?token={TOKEN}", d.base) })),
-        );
-        wait_js(
-            &session,
-            "return !document.getElementById('app').hidden && document.getElementById('start') !== null",
-            Duration::from_secs(20),
-            "the page",
-        );
+        open_page(&session, &d.base);
         let url = js(&session, "return window.location.href");
         assert!(!url.as_str().unwrap().contains("token"), "{url}");
         previews_the_camera(&session);
@@ -300,12 +332,68 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
         screenshot(&session, &target);
         eprintln!("screenshot: {}", target.display());
         shows_a_past_runs_overlays(&session, &d, &id, views);
-    }));
-    let _ = agent().delete(&session).call();
-    drop(driver);
-    if let Err(e) = result {
-        std::panic::resume_unwind(e);
-    }
+    });
+}
+
+/// A cell of several cameras: one click calibrates every camera, the page lists each camera
+/// with its active calibration, draws every camera's views at that camera's size, points to
+/// `easyhec export`, and a bump check gives one verdict over all cameras.
+#[test]
+fn web_page_follows_every_camera_of_a_list() {
+    let Some((chromium, chromedriver)) = browser() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_shipped_config(dir.path(), "sim-xarm6-three-cameras.toml");
+    let d = start(&config, &dir.path().join("data"));
+    with_page(&chromium, &chromedriver, |session| {
+        open_page(session, &d.base);
+        click(session, "#start");
+        let rows = wait_js(
+            session,
+            "const rows = [...document.querySelectorAll('#cameras tr')]; return rows.length === 3 && rows.every(r => r.children[1].textContent.startsWith('cal-') && r.children[2].textContent === 'fits') && rows.map(r => r.dataset.camera).join(',')",
+            Duration::from_secs(120),
+            "every camera's active calibration",
+        );
+        assert_eq!(rows.as_str(), Some("front,side,high"));
+        assert!(js(
+            session,
+            "return document.getElementById('result-body').hidden"
+        )
+        .as_bool()
+        .unwrap());
+        let id = d.daemon.store().active_all()[0].id.clone();
+        let views = d.daemon.store().record(&id).unwrap().views;
+        let sizes = wait_js(
+            session,
+            &format!("const imgs = [...document.querySelectorAll('#overlays img')]; return imgs.length === {} && imgs.every(i => i.complete && i.naturalWidth > 0) && [...new Set(imgs.map(i => i.alt.split(' ')[0] + ' ' + i.naturalWidth))].sort().join(',')", views * 3),
+            Duration::from_secs(60),
+            "every camera's overlays",
+        );
+        assert_eq!(sizes.as_str(), Some("front 640,high 512,side 800"));
+        let downloads = js(
+            session,
+            "return document.getElementById('downloads').textContent",
+        );
+        assert!(
+            downloads.as_str().unwrap().contains("easyhec export"),
+            "{downloads}"
+        );
+        click(session, "#check");
+        wait_js(
+            session,
+            "return document.getElementById('check-verdict').textContent === 'no camera has moved'",
+            Duration::from_secs(60),
+            "the bump check verdict",
+        );
+        let checked = wait_js(
+            session,
+            "const rows = [...document.querySelectorAll('#cameras tr')]; return rows.every(r => r.children[4].textContent.includes('not moved')) && rows.length",
+            Duration::from_secs(20),
+            "each camera's last check",
+        );
+        assert_eq!(checked.as_u64(), Some(3));
+    });
 }
 
 /// Clicks every download button: each fetch succeeds, and the daemon's file is exactly what

@@ -17,25 +17,28 @@ use easyhec::run::{load_cameras_with, MaskSource};
 const RIG: &str = "sim-xarm6-three-cameras.toml";
 
 fn config_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("config")
-        .join(RIG)
+    shipped(RIG)
 }
 
-#[test]
-fn three_cameras_reach_the_truth_from_one_motion() {
-    let path = config_path();
-    let mut cfg = read_config(&path).unwrap();
+fn shipped(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("config")
+        .join(name)
+}
+
+/// The shipped config `name` with four views and a light planner.
+fn quick_config(name: &str) -> easyhec::config::CellConfig {
+    let mut cfg = read_config(&shipped(name)).unwrap();
     cfg.calibration.max_views = 4;
     cfg.calibration.min_views = 4;
     cfg.calibration.joint_samples = 1000;
     cfg.calibration.candidates = 24;
-    let cell = Cell::build(cfg, &path).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    let outcome = common::run_loop(&cell, &out);
-    let names: Vec<&str> = outcome.cameras.iter().map(|c| c.name.as_str()).collect();
-    assert_eq!(names, ["front", "side", "high"]);
+    cfg
+}
+
+/// Every camera of the loop's outcome took 4 views and lies within `deg` / `mm` of its
+/// simulated truth (whatever frame its mount solves for).
+fn assert_each_camera_near(cell: &Cell, outcome: &easyhec::calibrate::Outcome, deg: f64, mm: f64) {
     for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
         let truth = unit.sim.camera_from_base.unwrap();
         let est = cam.result.camera_from_base();
@@ -44,13 +47,33 @@ fn three_cameras_reach_the_truth_from_one_motion() {
             translation_error_mm(&est, &truth),
         );
         assert!(
-            r < 0.2 && t < 1.5,
-            "{}: off by {r:.4} deg {t:.3} mm",
-            cam.name
+            r < deg && t < mm,
+            "{}: camera_from_{} off by {r:.4} deg {t:.3} mm",
+            cam.name,
+            cam.result.base_link
         );
         assert_eq!(cam.result.views_used.len(), 4, "{}", cam.name);
     }
-    // One motion served all three: 3 moves for 4 views, each one checked.
+}
+
+/// `easyhec export RESULT --format urdf --out DIR`, which must succeed.
+fn export_urdf(result: &std::path::Path, dir: &std::path::Path) {
+    let status = std::process::Command::new(common::easyhec_bin())
+        .arg("export")
+        .arg(result)
+        .args(["--format", "urdf", "--out"])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+}
+
+/// One motion served every camera: 3 moves for 4 views, each accepted and each path safe.
+fn assert_three_safe_moves(cell: &Cell) {
     let sim = cell.sim.arm.as_ref().unwrap();
     let commands = sim.commands();
     assert_eq!(commands.len(), 3);
@@ -58,6 +81,18 @@ fn three_cameras_reach_the_truth_from_one_motion() {
         assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
         common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
     }
+}
+
+#[test]
+fn three_cameras_reach_the_truth_from_one_motion() {
+    let cell = Cell::build(quick_config(RIG), &config_path()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let outcome = common::run_loop(&cell, &out);
+    let names: Vec<&str> = outcome.cameras.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["front", "side", "high"]);
+    assert_each_camera_near(&cell, &outcome, 0.2, 1.5);
+    assert_three_safe_moves(&cell);
 
     // The result names every camera, and each part reads as a run of its own.
     let result = RigResultFile::read(&out.join("result.json")).unwrap();
@@ -104,22 +139,7 @@ fn three_cameras_reach_the_truth_from_one_motion() {
 
     // `easyhec export` writes every camera, each under its own frame.
     let exported = dir.path().join("export");
-    let status = std::process::Command::new(common::easyhec_bin())
-        .args([
-            "export",
-            resolved.to_str().unwrap(),
-            "--format",
-            "urdf",
-            "--out",
-        ])
-        .arg(&exported)
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
-    );
+    export_urdf(&resolved, &exported);
     for name in ["front", "side", "high"] {
         let text = std::fs::read_to_string(exported.join(format!("{name}.urdf"))).unwrap();
         assert!(
@@ -142,13 +162,22 @@ fn configs_a_rig_cannot_serve_are_refused_naming_the_key() {
             base.replacen("name = \"high\"", "name = \"../high\"", 1),
             "camera[2].name",
         ),
+        // A camera on a link needs its own starting pose in the link's frame.
+        (
+            base.replacen(
+                "initial_guess = { eye = [0.35, -1.25, 0.85], look_at = [0.2, 0.0, 0.35] }",
+                "mount = { link = \"link6\" }",
+                1,
+            ),
+            "camera[1].initial_guess",
+        ),
         (
             base.replacen(
                 "name = \"side\"",
-                "name = \"side\"\nmount = { link = \"link6\" }",
+                "name = \"side\"\nmount = { link = \"no_such_link\" }",
                 1,
             ),
-            "camera[1].mount",
+            "camera[1].mount.link",
         ),
         (
             base.replacen("max_views = 5", "max_views = 5\ninitial_guess = { eye = [1.0, 0.0, 1.0], look_at = [0.0, 0.0, 0.3] }", 1),
@@ -291,4 +320,59 @@ fn a_single_camera_table_keeps_the_first_formats() {
     let rounds = rounds["rounds"].as_array().unwrap();
     assert!(!rounds.is_empty());
     assert!(rounds.iter().all(|r| r.get("cameras").is_none()));
+}
+
+/// A fixed camera and a wrist camera in one run: each transform is named by its own mount
+/// (`camera_from_base`, `camera_from_link6`) and reaches its truth, every view shows the
+/// robot to both cameras by each one's rule, and every commanded pose passes the checker.
+#[test]
+fn a_fixed_and_a_wrist_camera_calibrate_from_one_motion() {
+    use easyhec::config::Mount;
+    let name = "sim-xarm6-fixed-and-wrist.toml";
+    let cfg = quick_config(name);
+    let coverage_needed = cfg.calibration.min_robot_image_fraction;
+    let cell = Cell::build(cfg, &shipped(name)).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let outcome = common::run_loop(&cell, &out);
+    let frames = ["world", "link6"];
+    let bases: Vec<&str> = outcome
+        .cameras
+        .iter()
+        .map(|c| c.result.base_link.as_str())
+        .collect();
+    assert_eq!(bases, frames);
+    assert_each_camera_near(&cell, &outcome, 0.2, 1.0);
+    assert_three_safe_moves(&cell);
+    // The run records each mount, and every recorded wrist mask shows the robot over at
+    // least the share of the image the planner asked for.
+    let parts = load_cameras_with(&out, MaskSource::Recorded).unwrap();
+    assert_eq!(parts[0].1.file.camera.mount, Mount::Fixed);
+    assert_eq!(parts[1].1.file.camera.mount, Mount::Link("link6".into()));
+    assert_eq!(parts[1].1.robot.links[parts[1].1.robot.base], "link6");
+    for (k, view) in parts[1].1.views.iter().enumerate() {
+        let mask = &view.observed;
+        let covered = mask.data.iter().filter(|&&m| m != 0).count() as f64 / mask.data.len() as f64;
+        assert!(
+            covered >= 0.8 * coverage_needed,
+            "wrist view {k}: the robot covers {covered:.3} of the image"
+        );
+    }
+    let result = RigResultFile::read(&out.join("result.json")).unwrap();
+    let bases: Vec<&str> = result
+        .cameras
+        .iter()
+        .map(|c| c.base_link.as_str())
+        .collect();
+    assert_eq!(bases, frames);
+    // Exported, each camera hangs from its own mount's frame.
+    let exported = dir.path().join("urdf");
+    export_urdf(&out.join("result.json"), &exported);
+    for (name, frame) in ["front", "wrist"].iter().zip(frames) {
+        let urdf = std::fs::read_to_string(exported.join(format!("{name}.urdf"))).unwrap();
+        assert!(
+            urdf.contains(&format!("<parent link=\"{frame}\"/>")),
+            "{urdf}"
+        );
+    }
 }

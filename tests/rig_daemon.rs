@@ -1,14 +1,14 @@
 //! The daemon over a cell of three fixed cameras (`[[camera]]`): one calibration solves every
 //! camera from one motion and activates each; a bump check compares every camera; a knocked
 //! camera alone is marked stale and recalibrated, warm-started from its stale pose, while the
-//! other two keep their active calibrations untouched, across a restart too.
+//! other two keep their active calibrations untouched, across a restart too. A wrist camera
+//! beside a fixed one is activated and checked against its own mount.
 
 mod daemon_common;
 
 use std::path::{Path, PathBuf};
 
-use daemon_common::{call, start, wait_final, TOKEN};
-use easyhec::config::read_config;
+use daemon_common::{call, get_bytes, start, wait_final, write_shipped_config, TOKEN};
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
@@ -16,18 +16,7 @@ use serde_json::{json, Value};
 /// Writes `DIR/cell.toml`: the shipped three-camera cell, four views per calibration, a
 /// light planner, bump recalibration on.
 fn write_rig_config(dir: &Path) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let mut cfg = read_config(&root.join("config/sim-xarm6-three-cameras.toml")).unwrap();
-    cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
-    cfg.calibration.max_views = 4;
-    cfg.calibration.min_views = 4;
-    cfg.calibration.joint_samples = 1000;
-    cfg.calibration.candidates = 24;
-    cfg.daemon.token = Some(TOKEN.into());
-    cfg.daemon.recalibrate_on_bump = true;
-    let path = dir.join("cell.toml");
-    std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
-    path
+    write_shipped_config(dir, "sim-xarm6-three-cameras.toml")
 }
 
 /// `GET /api/v1/cameras`, as (camera, active entry or null) pairs.
@@ -52,6 +41,31 @@ fn pose_of(active: &Value) -> Isometry3<f64> {
     let rows: [[f64; 4]; 4] =
         serde_json::from_value(active["result"]["camera_from_base"].clone()).unwrap();
     from_rows(&rows).unwrap()
+}
+
+/// Each camera's overlay of view 0 decodes at that camera's own size; the query is
+/// required, and must name a camera of the cell.
+fn assert_overlays_per_camera(base: &str, id: &str, sizes: &[(u32, u32)]) {
+    let url = format!("{base}/api/v1/calibrations/{id}/views/0/overlay.png");
+    for ((name, _), size) in cameras(base).iter().zip(sizes) {
+        let (code, ctype, png) = get_bytes(&format!("{url}?camera={name}"));
+        assert_eq!((code, ctype.as_str()), (200, "image/png"), "{name}");
+        let img = image::load_from_memory(&png).unwrap();
+        assert_eq!((img.width(), img.height()), *size, "{name}");
+    }
+    for (query, needle) in [
+        ("", "name the camera"),
+        ("?camera=nope", "is no camera of this cell"),
+        ("?camera=front&camera=front", "given twice"),
+        ("?view=1", "only camera=NAME"),
+    ] {
+        let (code, body) = call("GET", &format!("{url}{query}"), None);
+        assert_eq!(code, 400, "{query}: {body}");
+        assert!(
+            body["error"].as_str().unwrap().contains(needle),
+            "{query}: {body}"
+        );
+    }
 }
 
 fn assert_near(name: &str, est: &Isometry3<f64>, truth: &Isometry3<f64>) {
@@ -121,6 +135,8 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         code, 409,
         "a list of cameras has no single active calibration"
     );
+
+    assert_overlays_per_camera(&base, &first, &[(640, 480), (800, 600), (512, 384)]);
 
     let before = cameras(&base);
     for ((name, active), (_, scene)) in before.iter().zip(&scenes) {
@@ -216,4 +232,45 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         refused.contains("active.json") && refused.contains("cameras") && !refused.contains('\n'),
         "{refused}"
     );
+}
+
+/// A fixed camera and a wrist camera: the calibration activates each against its own mount
+/// (the wrist's result is `camera_from_link6`, which a fixed camera's check would refuse), and
+/// a bump check right after compares both without finding either moved.
+#[test]
+fn a_wrist_camera_beside_a_fixed_one_is_activated_against_its_own_mount() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_shipped_config(dir.path(), "sim-xarm6-fixed-and-wrist.toml");
+    let d = start(&config, &dir.path().join("data"));
+    let base = d.base.clone();
+    let truths: Vec<Isometry3<f64>> = d
+        .daemon
+        .cell()
+        .cameras()
+        .iter()
+        .map(|c| c.sim.camera_from_base.unwrap())
+        .collect();
+    let (code, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
+    assert_eq!(code, 202, "{body}");
+    let id = body["id"].as_str().unwrap().to_string();
+    let s = wait_final(&base, &id);
+    assert_eq!(s["state"], "succeeded", "{s}");
+    let active = cameras(&base);
+    let names: Vec<&str> = active.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["front", "wrist"]);
+    for (((name, a), truth), frame) in active.iter().zip(&truths).zip(["world", "link6"]) {
+        assert_eq!(a["id"], id.as_str(), "{name}: {a}");
+        assert_eq!(a["result"]["base_link"], frame, "{name}: {a}");
+        assert_near(name, &pose_of(a), truth);
+    }
+    let (code, ok) = call("POST", &format!("{base}/api/v1/checks"), None);
+    assert_eq!(code, 200, "{ok}");
+    let checks = ok["checks"].as_array().unwrap();
+    let checked: Vec<&str> = checks
+        .iter()
+        .map(|c| c["camera"].as_str().unwrap())
+        .collect();
+    assert_eq!(checked, ["front", "wrist"], "{ok}");
+    assert!(checks.iter().all(|c| c["stale"] == false), "{ok}");
+    assert_overlays_per_camera(&base, &id, &[(640, 480), (640, 480)]);
 }

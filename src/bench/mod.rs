@@ -238,7 +238,7 @@ fn with_visible_start(
     let pose = cell.sim.camera_from_base.ok_or_else(|| {
         crate::Error::input(config_path, "camera.kind", "needs a simulated camera")
     })?;
-    let rule = match VisibilityRule::of(&cell) {
+    let rule = match VisibilityRule::of(&cell, cfg.camera.mount()) {
         VisibilityRule::InImage(_) => VisibilityRule::InImage(0.97),
         coverage => coverage,
     };

@@ -8,6 +8,7 @@ use std::time::Instant;
 use rand::{Rng, SeedableRng};
 
 use super::{median, Report};
+use crate::calibrate::VisibilityRule;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::{read_config, CameraConfig, CellConfig, InitialGuess};
@@ -230,8 +231,10 @@ fn commanded_motion_s(cell: &Cell) -> f64 {
         .sum()
 }
 
-/// A seeded variant of a rig config: each camera's true pose moved by up to 10 cm and a few
-/// degrees, its guess 2–6° / 2–8 cm off the truth, and a start pose that every camera sees.
+/// A seeded variant of a rig config: each fixed camera's true pose moved by up to 10 cm and a
+/// few degrees, each camera on a link moved on its bracket by up to 1 cm and about 5° (as
+/// `bench loop` seeds a wrist camera), every guess 2–6° / 2–8 cm off the truth, and a start
+/// pose that every camera sees.
 fn seeded_rig(base: &CellConfig, path: &Path, seed: u64, views: usize) -> Result<CellConfig> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 7000);
     let mut cfg = base.clone();
@@ -239,6 +242,7 @@ fn seeded_rig(base: &CellConfig, path: &Path, seed: u64, views: usize) -> Result
     cfg.calibration.max_views = views;
     cfg.calibration.min_views = views;
     for (k, cam) in cfg.camera.cameras_mut().iter_mut().enumerate() {
+        let fixed = cam.config.mount().is_fixed();
         let CameraConfig::Sim { truth, scene, .. } = &mut cam.config else {
             return Err(Error::input(
                 path,
@@ -246,13 +250,17 @@ fn seeded_rig(base: &CellConfig, path: &Path, seed: u64, views: usize) -> Result
                 "bench rig needs simulated cameras",
             ));
         };
+        let (eye_m, roll_deg) = match fixed {
+            true => (0.1, 3.0),
+            false => (0.01, 5.0),
+        };
         for v in &mut truth.eye {
-            *v += rng.random_range(-0.1..0.1);
+            *v += rng.random_range(-eye_m..eye_m);
         }
         for v in &mut truth.look_at {
             *v += rng.random_range(-0.05..0.05);
         }
-        truth.roll_deg += rng.random_range(-3.0..3.0);
+        truth.roll_deg += rng.random_range(-roll_deg..roll_deg);
         scene.seed = seed * 16 + k as u64;
         let guess = crate::synth::perturb(
             &mut rng,
@@ -270,7 +278,30 @@ fn seeded_rig(base: &CellConfig, path: &Path, seed: u64, views: usize) -> Result
     visible_start(cfg, path, seed, &mut rng)
 }
 
-/// `cfg` with a safe start pose that keeps 97% of the robot in every camera's image.
+/// What a start pose must show one camera: its robot, lens and rule, and the poses (truth,
+/// and for a camera on a link its guess too) under which it must show it.
+struct StartView {
+    seen: std::sync::Arc<crate::robot::RobotModel>,
+    camera: crate::camera::Intrinsics,
+    low: crate::camera::Intrinsics,
+    rule: VisibilityRule,
+    poses: Vec<nalgebra::Isometry3<f64>>,
+}
+
+impl StartView {
+    fn shows(&self, q: &[f64]) -> bool {
+        let posed = crate::render::PosedRobot::new(&self.seen, q).decimated(0.01);
+        self.poses.iter().all(|p| {
+            self.rule
+                .shows(&posed, &self.camera, &self.low, p)
+                .is_some()
+        })
+    }
+}
+
+/// `cfg` with a safe start pose that keeps 97% of the robot in every fixed camera's image and
+/// shows each camera on a link its share of robot, under its truth and its guess (an operator
+/// starts where the wrist camera sees the robot).
 fn visible_start(
     mut cfg: CellConfig,
     path: &Path,
@@ -278,21 +309,31 @@ fn visible_start(
     rng: &mut rand_chacha::ChaCha8Rng,
 ) -> Result<CellConfig> {
     let cell = Cell::build(cfg.clone(), path)?;
-    let views: Vec<_> = cell
+    let views: Vec<StartView> = cell
         .cameras()
         .iter()
-        .filter_map(|u| Some((u.device.intrinsics().undistorted(), u.sim.camera_from_base?)))
+        .filter_map(|u| {
+            let camera = u.device.intrinsics().undistorted();
+            let rule = match VisibilityRule::of(&cell, u.config.mount()) {
+                VisibilityRule::InImage(_) => VisibilityRule::InImage(0.97),
+                coverage => coverage,
+            };
+            let mut poses = vec![u.sim.camera_from_base?];
+            if !u.config.mount().is_fixed() {
+                poses.extend(u.initial_guess.and_then(|g| g.camera_from_base().ok()));
+            }
+            Some(StartView {
+                seen: u.seen.clone(),
+                low: camera.downsampled(cfg.calibration.score_downsample),
+                camera,
+                rule,
+                poses,
+            })
+        })
         .collect();
     for _ in 0..10_000 {
         let q = super::uniform_joints(cell.checker.limits(), rng);
-        if cell.checker.check_pose(&q).is_err() {
-            continue;
-        }
-        let posed = crate::render::PosedRobot::new(&cell.seen, &q).decimated(0.01);
-        let all = views.iter().all(|(camera, pose)| {
-            crate::calibrate::in_image_fraction(&posed, camera, pose) >= 0.97
-        });
-        if !all {
+        if cell.checker.check_pose(&q).is_err() || !views.iter().all(|v| v.shows(&q)) {
             continue;
         }
         let crate::config::ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {

@@ -220,6 +220,8 @@ impl TrialCell {
             };
             let one = [PlanCamera {
                 camera,
+                mount: cell.config.camera.mount(),
+                seen: &cell.seen,
                 report: &report,
                 wants_views: true,
             }];

@@ -3,6 +3,8 @@
 //! would tell (`[calibration] score`), or at random for the baseline selection. A ranked pose
 //! still has to pass the path check ([`choose_reachable`]) before the arm may move.
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, Matrix6};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
@@ -14,11 +16,12 @@ use super::PlannedPose;
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
 use crate::cell::Cell;
-use crate::config::{CalibrationSettings, ScoreSetting, SelectionSetting, SourceSetting};
+use crate::config::{CalibrationSettings, Mount, ScoreSetting, SelectionSetting, SourceSetting};
 use crate::explore::{
     camera_candidates, cost_reduction, view_terms, CandidateSource, ExploreOptions, ViewTerms,
 };
 use crate::render::{CoarseRobot, PosedRobot};
+use crate::robot::RobotModel;
 use crate::safety::CheckedMove;
 use crate::solve::SolveReport;
 
@@ -58,7 +61,8 @@ pub struct Ranked {
     /// unless the variance ranked them all).
     pub variance: Option<f64>,
     /// What the view shows under the estimate: the in-image share of the robot (fixed
-    /// camera) or the image share it covers (camera on a link).
+    /// camera) or the image share it covers (camera on a link); with several cameras, the
+    /// least of theirs.
     pub in_image: f64,
 }
 
@@ -85,12 +89,17 @@ pub struct PlanRequest<'a> {
     pub motion: Option<MotionCost>,
 }
 
-/// One camera as the planner sees it: its model, its current estimate, and whether it still
-/// asks for views (a camera that has converged in a rig does not).
+/// One camera as the planner sees it: its model, its mount and the robot it sees, its
+/// current estimate, and whether it still asks for views (a camera that has converged in a
+/// rig does not).
 #[derive(Clone, Copy)]
 pub struct PlanCamera<'a> {
     /// The camera's intrinsics (distortion allowed).
     pub camera: &'a Intrinsics,
+    /// Where it is mounted: the rule for what a view must show follows from it.
+    pub mount: &'a Mount,
+    /// The robot as this camera sees it (rooted at its link for a camera on one).
+    pub seen: &'a Arc<RobotModel>,
     /// Its latest solve.
     pub report: &'a SolveReport,
     /// Whether a view's value to this camera counts.
@@ -153,17 +162,24 @@ pub fn rank_poses(
     (ranked, stats)
 }
 
-/// A joint sample that passed the static checks, with its coarse posed robot.
-type Posed = (Vec<f64>, PosedRobot);
-/// A sample in view: its in-image fraction, joints and coarse posed robot.
-type InView = (f64, Vec<f64>, PosedRobot);
-/// A ranked sample with the posed robot it was scored on.
-type RankedPosed = (Ranked, PosedRobot);
+/// A sample's coarse posed robot per robot model the round's cameras see
+/// ([`RoundPlan::models`]): one for fixed cameras, one more per link a camera rides on.
+type Poses = Vec<PosedRobot>;
+/// A joint sample that passed the static checks, with its coarse posed robots.
+type Posed = (Vec<f64>, Poses);
+/// A sample in view: its in-image fraction, joints and coarse posed robots.
+type InView = (f64, Vec<f64>, Poses);
+/// A ranked sample with the posed robots it was scored on.
+type RankedPosed = (Ranked, Poses);
 
 /// One camera's share of a planning round: its scoring images, the camera candidates drawn
 /// around its estimate, and whether its score counts.
 struct CameraPlan<'a> {
     report: &'a SolveReport,
+    /// Index of the robot model this camera sees in [`RoundPlan::models`].
+    model: usize,
+    seen: &'a Arc<RobotModel>,
+    visibility: VisibilityRule,
     pinhole: Intrinsics,
     low: Intrinsics,
     candidates: Vec<Isometry3<f64>>,
@@ -180,13 +196,22 @@ struct RoundPlan<'a> {
     round: usize,
     cameras: Vec<CameraPlan<'a>>,
     cell_m: f64,
-    coarse: CoarseRobot,
-    visibility: VisibilityRule,
+    /// The distinct robot models the cameras see: every fixed camera shares the cell's
+    /// robot, a camera on a link sees the robot rooted there.
+    models: Vec<&'a Arc<RobotModel>>,
+    /// Each model decimated once, for the variance score.
+    coarse: Vec<CoarseRobot>,
     motion: Option<MotionCost>,
 }
 
 impl<'a> CameraPlan<'a> {
-    fn new(cam: &PlanCamera<'a>, settings: &CalibrationSettings, round: usize) -> Self {
+    fn new(
+        cam: &PlanCamera<'a>,
+        cell: &Cell,
+        model: usize,
+        settings: &CalibrationSettings,
+        round: usize,
+    ) -> Self {
         let pinhole = cam.camera.undistorted();
         let low = pinhole.downsampled(settings.score_downsample);
         let candidates = camera_candidates(
@@ -203,6 +228,9 @@ impl<'a> CameraPlan<'a> {
         );
         CameraPlan {
             report: cam.report,
+            model,
+            seen: cam.seen,
+            visibility: VisibilityRule::of(cell, cam.mount),
             low,
             candidates,
             estimate: cam.report.camera_from_base,
@@ -220,9 +248,19 @@ impl<'a> RoundPlan<'a> {
         settings: &'a CalibrationSettings,
         round: usize,
     ) -> Self {
+        let mut models: Vec<&'a Arc<RobotModel>> = Vec::new();
         let cameras: Vec<CameraPlan> = cameras
             .iter()
-            .map(|c| CameraPlan::new(c, settings, round))
+            .map(|c| {
+                let model = models
+                    .iter()
+                    .position(|m| Arc::ptr_eq(m, c.seen))
+                    .unwrap_or_else(|| {
+                        models.push(c.seen);
+                        models.len() - 1
+                    });
+                CameraPlan::new(c, cell, model, settings, round)
+            })
             .collect();
         // Vertex clustering at one scoring pixel (at 1 m) of the sharpest camera: coarse
         // masks need no finer mesh.
@@ -238,8 +276,8 @@ impl<'a> RoundPlan<'a> {
             round,
             cameras,
             cell_m,
-            coarse: CoarseRobot::new(&cell.seen, cell_m),
-            visibility: VisibilityRule::of(cell),
+            coarse: models.iter().map(|m| CoarseRobot::new(m, cell_m)).collect(),
+            models,
             motion: None,
         }
     }
@@ -263,14 +301,20 @@ impl<'a> RoundPlan<'a> {
 
     /// The variance score only needs coarse masks: one decimation per robot (link frames),
     /// posed per sample. The information score reads outline samples, which follow the posed
-    /// surface more faithfully when each pose is clustered in the base frame. Every camera
-    /// of a rig is fixed, so all see the same robot (`cell.seen`).
-    fn pose_coarse(&self, q: &[f64]) -> PosedRobot {
-        if self.settings.score == ScoreSetting::Information {
-            PosedRobot::new(&self.cell.seen, q).decimated(self.cell_m)
-        } else {
-            self.coarse.pose(&self.cell.seen, q)
-        }
+    /// surface more faithfully when each pose is clustered in the base frame. One posed
+    /// robot per model the cameras see.
+    fn pose_coarse(&self, q: &[f64]) -> Poses {
+        self.models
+            .iter()
+            .zip(&self.coarse)
+            .map(|(seen, coarse)| {
+                if self.settings.score == ScoreSetting::Information {
+                    PosedRobot::new(seen, q).decimated(self.cell_m)
+                } else {
+                    coarse.pose(seen, q)
+                }
+            })
+            .collect()
     }
 
     /// The samples that pass limits, collision and workspace checks, posed coarsely.
@@ -296,14 +340,14 @@ impl<'a> RoundPlan<'a> {
     }
 
     /// How much of the robot a view of `posed` shows under the estimates, when enough for
-    /// every camera ([`VisibilityRule`]): every camera records every view, so each must see
-    /// the robot. The least share of any camera.
-    fn shows(&self, posed: &PosedRobot) -> Option<f64> {
+    /// every camera (each by its own [`VisibilityRule`]): every camera records every view,
+    /// so each must see the robot. The least share of any camera.
+    fn shows(&self, posed: &Poses) -> Option<f64> {
         self.cameras
             .iter()
             .map(|c| {
-                self.visibility
-                    .shows(posed, &c.pinhole, &c.low, &c.estimate)
+                c.visibility
+                    .shows(&posed[c.model], &c.pinhole, &c.low, &c.estimate)
             })
             .try_fold(f64::INFINITY, |least, s| s.map(|s| least.min(s)))
     }
@@ -311,18 +355,21 @@ impl<'a> RoundPlan<'a> {
     /// The candidates' disagreement at each pool pose, added over the cameras that want
     /// views. Batched through the renderer: a GPU backend scores the whole pool per
     /// submission.
-    fn variances(&self, pool: &[&PosedRobot]) -> Vec<f64> {
+    fn variances(&self, pool: &[&Poses]) -> Vec<f64> {
         self.variances_with(pool, |c| &c.candidates)
     }
 
     fn variances_with(
         &self,
-        pool: &[&PosedRobot],
+        pool: &[&Poses],
         candidates: impl for<'c> Fn(&'c CameraPlan<'a>) -> &'c [Isometry3<f64>],
     ) -> Vec<f64> {
         let mut total = vec![0.0; pool.len()];
         for c in self.cameras.iter().filter(|c| c.wants_views) {
-            let v = self.renderer.disagreement_many(&c.low, pool, candidates(c));
+            let seen: Vec<&PosedRobot> = pool.iter().map(|p| &p[c.model]).collect();
+            let v = self
+                .renderer
+                .disagreement_many(&c.low, &seen, candidates(c));
             total.iter_mut().zip(v).for_each(|(t, v)| *t += v);
         }
         total
@@ -350,12 +397,12 @@ impl<'a> RoundPlan<'a> {
 
     /// What a view at `q` adds to camera `c`'s estimate's information (outline and joint
     /// terms).
-    fn terms(&self, c: &CameraPlan, posed: &PosedRobot, q: &[f64]) -> ViewTerms {
+    fn terms(&self, c: &CameraPlan, posed: &Poses, q: &[f64]) -> ViewTerms {
         view_terms(
             &c.low,
             c.pinhole.fx,
-            posed,
-            &self.cell.seen.joint_motions(q),
+            &posed[c.model],
+            &c.seen.joint_motions(q),
             &c.estimate,
             c.report.outline_noise_px2,
             self.settings.joint_noise_rad,
@@ -380,7 +427,7 @@ impl<'a> RoundPlan<'a> {
                 t
             })
             .collect();
-        let score = |posed: &PosedRobot, q: &[f64]| {
+        let score = |posed: &Poses, q: &[f64]| {
             let gain: f64 = wanting
                 .iter()
                 .zip(&current)
@@ -414,7 +461,7 @@ impl<'a> RoundPlan<'a> {
     fn climb_from_best(
         &self,
         scored: &mut [RankedPosed],
-        score: &(dyn Fn(&PosedRobot, &[f64]) -> f64 + Sync),
+        score: &(dyn Fn(&Poses, &[f64]) -> f64 + Sync),
     ) -> Vec<RankedPosed> {
         scored.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
         let starts: Vec<Ranked> = scored
@@ -452,18 +499,18 @@ impl<'a> RoundPlan<'a> {
     /// candidates, then the best quarter against all of them (the argmax is almost always in
     /// that quarter; this halves the planning time).
     fn rank_by_variance(&self, in_view: Vec<InView>, n_scored: usize) -> Vec<RankedPosed> {
-        let pool: Vec<&PosedRobot> = in_view.iter().map(|(_, _, p)| p).collect();
+        let pool: Vec<&Poses> = in_view.iter().map(|(_, _, p)| p).collect();
         let quick_scores = self.variances_with(&pool, |c| {
             &c.candidates[..(c.candidates.len() / 5).max(2).min(c.candidates.len())]
         });
-        let mut first: Vec<(f64, f64, Vec<f64>, PosedRobot)> = in_view
+        let mut first: Vec<(f64, f64, Vec<f64>, Poses)> = in_view
             .into_iter()
             .zip(quick_scores)
             .map(|((in_image, q, posed), v)| (v, in_image, q, posed))
             .collect();
         first.sort_by(|a, b| b.0.total_cmp(&a.0));
         first.truncate((n_scored / 4).max(64.min(n_scored)));
-        let pool: Vec<&PosedRobot> = first.iter().map(|(_, _, _, p)| p).collect();
+        let pool: Vec<&Poses> = first.iter().map(|(_, _, _, p)| p).collect();
         let full = self.variances(&pool);
         first
             .into_iter()
@@ -487,7 +534,7 @@ impl<'a> RoundPlan<'a> {
             t_checked.elapsed().as_secs_f64(),
             ranked.len(),
             PosedRobot::new(
-                &self.cell.seen,
+                self.models[0],
                 &ranked.first().map(|r| r.joints.clone()).unwrap_or_default()
             )
             .decimated(self.cell_m)
@@ -538,13 +585,13 @@ const LIMIT_MARGIN_RAD: f64 = 0.02;
 /// (0.3 rad, shrunk by 15% per failed step), a step kept when `evaluate` passes the pose
 /// (static safety checks, robot in view) and it scores higher. `None` when no step improved
 /// on `start`. The climbed pose still goes through the path check before any move.
-fn climb(
+fn climb<P>(
     start: Ranked,
     steps: usize,
     limits: &[(f64, f64)],
     rng: &mut rand_chacha::ChaCha8Rng,
-    evaluate: impl Fn(&[f64]) -> Option<(f64, f64, PosedRobot)>,
-) -> Option<(Ranked, PosedRobot)> {
+    evaluate: impl Fn(&[f64]) -> Option<(f64, f64, P)>,
+) -> Option<(Ranked, P)> {
     let mut best = start;
     let mut best_posed = None;
     let mut sigma = 0.3;

@@ -13,6 +13,7 @@ use nalgebra::Isometry3;
 use super::planner::in_image_fraction;
 use crate::camera::Intrinsics;
 use crate::cell::Cell;
+use crate::config::Mount;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 
 /// Depth (metres) below which robot geometry counts as touching the lens.
@@ -28,9 +29,9 @@ pub enum VisibilityRule {
 }
 
 impl VisibilityRule {
-    /// The rule for `cell`'s camera.
-    pub fn of(cell: &Cell) -> VisibilityRule {
-        if cell.config.camera.mount().is_fixed() {
+    /// The rule for a camera of `cell` on `mount`: each camera of a list has its own.
+    pub fn of(cell: &Cell, mount: &Mount) -> VisibilityRule {
+        if mount.is_fixed() {
             VisibilityRule::InImage(cell.checker.min_in_image)
         } else {
             VisibilityRule::ImageCoverage(cell.config.calibration.min_robot_image_fraction)

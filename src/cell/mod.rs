@@ -142,7 +142,7 @@ impl Cell {
         // So does a bad segmentation model.
         let segmenter = crate::segment::build(&first.segmenter, path).map_err(rekey)?;
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
-        let seen = seen_robot(&config, &robot, path).map_err(rekey)?;
+        let seen = seen_robot(&config, 0, &robot, path).map_err(rekey)?;
         let arm = build_arm(&config, &robot, path)?;
         let feed = ros2::joint_feed(&first, &robot, path).map_err(rekey)?;
         let camera = build_camera(&first, calibration, &robot, &arm, feed, path).map_err(rekey)?;
@@ -232,28 +232,36 @@ fn build_unit(
         name: config.camera.cameras()[index].name.clone(),
         config: one,
         device: camera.device,
-        seen: robot.clone(),
+        seen: seen_robot(config, index, robot, path)?,
         segmenter,
         sim,
     })
 }
 
-/// The robot as the camera sees it (see [`Cell::seen`]). A camera on a link needs a starting
-/// pose: the automatic initialisation searches around a fixed camera only.
+/// The robot as camera `index` sees it (see [`Cell::seen`]). A camera on a link needs a
+/// starting pose: the automatic initialisation searches around a fixed camera only. In a
+/// list, that is the camera's own `initial_guess` (one pose cannot serve several cameras).
 fn seen_robot(
     config: &CellConfig,
+    index: usize,
     robot: &Arc<RobotModel>,
     path: &Path,
 ) -> Result<Arc<RobotModel>> {
-    let Some(link) = config.camera.mount().link() else {
+    let named = &config.camera.cameras()[index];
+    let Some(link) = named.config.mount().link() else {
         return Ok(robot.clone());
     };
     let seen = robot.seen_from_link(link, path, "camera.mount.link")?;
-    let own_guess = config.camera.cameras()[0].initial_guess.is_some();
-    if config.calibration.initial_guess.is_none() && !own_guess {
+    let shared_guess = config.calibration.initial_guess.is_some() && !config.camera.is_listed();
+    if named.initial_guess.is_none() && !shared_guess {
+        let key = if config.camera.is_listed() {
+            "camera.initial_guess"
+        } else {
+            "calibration.initial_guess"
+        };
         return Err(crate::error::Error::input(
             path,
-            "calibration.initial_guess",
+            key,
             format!("a camera on link '{link}' needs a starting camera_from_{link}, from the mount's drawing: {{ eye = […], look_at = […] }} in the link's frame, or a 4x4 matrix"),
         ));
     }

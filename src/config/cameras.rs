@@ -95,8 +95,8 @@ impl CameraSet {
         Ok(())
     }
 
-    /// Checks what only a list of cameras can get wrong: how many, their names, and mounts
-    /// a rig supports. Each camera's own values are checked as a `[camera]` table is.
+    /// Checks what only a list of cameras can get wrong: how many, their names, their
+    /// sources, and a starting pose for each camera on a link. Each camera's own values are checked as a `[camera]` table is.
     pub fn validate(&self, path: &Path) -> Result<()> {
         let n = self.cameras.len();
         if n == 0 || n > MAX_CAMERAS {
@@ -139,11 +139,13 @@ impl CameraSet {
                     ));
                 }
             }
-            if n > 1 && !cam.config.mount().is_fixed() {
+            if let (true, Some(link), None) =
+                (self.listed, cam.config.mount().link(), &cam.initial_guess)
+            {
                 return Err(Error::input(
                     path,
-                    format!("camera[{i}].mount"),
-                    "a camera on a link calibrates alone: in a list of cameras every mount is \"fixed\" (run the wrist camera from a config of its own)",
+                    format!("camera[{i}].initial_guess"),
+                    format!("is missing; a camera on link '{link}' needs its own starting camera_from_{link}, from the mount's drawing ({{ eye = […], look_at = […] }} in the link's frame)"),
                 ));
             }
         }

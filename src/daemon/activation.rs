@@ -40,8 +40,8 @@ impl Daemon {
         } else {
             vec![(None, activatable(&self.store, &record)?)]
         };
-        for (_, result) in &results {
-            if let Some(why) = self.frame_mismatch(&result.base_link) {
+        for (camera, result) in &results {
+            if let Some(why) = self.frame_mismatch(camera.as_deref(), &result.base_link) {
                 return Err(refuse(&record, "result.json base_link", why));
             }
         }

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use axum::body::{Body, Bytes};
-use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::extract::{DefaultBodyLimit, Path, RawQuery, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event as SseEvent, KeepAlive, Sse};
@@ -33,7 +33,7 @@ use super::store::{
 use super::validate::{id_number, id_problem, inside};
 use super::{bump, overlays, Busy, Daemon, Event, Refusal, StartOptions, FINISHED_STATES};
 use crate::geometry::from_rows;
-use crate::run::{RunFile, ViewEntry};
+use crate::run::ViewEntry;
 
 /// The web page (embedded; no build step).
 const INDEX_HTML: &str = include_str!("web/index.html");
@@ -547,13 +547,15 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
 }
 
 /// View `n` with the robot drawn at the calibration's current estimate (green: agreement,
-/// red: robot the render misses, blue: render the mask lacks).
+/// red: robot the render misses, blue: render the mask lacks). In a cell of several cameras,
+/// `?camera=NAME` picks the camera, drawn under its own estimate.
 #[utoipa::path(get, path = "/api/v1/calibrations/{id}/views/{n}/overlay.png", tag = "calibrations",
     params(("id" = String, Path, description = "A calibration id, `cal-NNNN`"),
-        ("n" = usize, Path, description = "A view index (0, 1, …)")),
+        ("n" = usize, Path, description = "A view index (0, 1, …)"),
+        ("camera" = Option<String>, Query, description = "The camera's name: required in a cell of `[[camera]]` tables, refused in a cell of one `[camera]`")),
     responses(
         (status = 200, description = "The overlay", content_type = "image/png", body = Png),
-        (status = 400, description = "`n` is not a view index", body = ErrorBody),
+        (status = 400, description = "`n` is not a view index, or `camera` is missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration or view", body = ErrorBody),
         (status = 409, description = "No estimate yet, or a file leaves the data folder", body = ErrorBody),
@@ -562,18 +564,22 @@ async fn events(State(d): State<Shared>, Path(id): Path<String>) -> Result<Respo
 async fn overlay(
     State(d): State<Shared>,
     Path((id, n)): Path<(String, String)>,
+    RawQuery(query): RawQuery,
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let n = path_index(&n, "view")?;
+    let target = overlays::target(d.cell(), query.as_deref())?;
     let record = record_of(&d, &id)?;
-    let (run_dir, view) = overlay_view(&d, &record, n)?;
-    let rows = record.camera_from_base.ok_or_else(|| {
-        Refusal::Conflict(format!(
-            "calibration {id} has no estimate yet: retry after its first round"
-        ))
-    })?;
+    let (run_dir, view) = overlay_view(&d, &record, &target, n)?;
+    let rows =
+        overlays::estimate(&record, &target, &run_dir.join("rounds.json")).ok_or_else(|| {
+            Refusal::Conflict(format!(
+                "calibration {id} has no estimate yet: retry after its first round"
+            ))
+        })?;
     let key = overlays::Key::new(
         &id,
+        target.name.as_deref(),
         n,
         &rows,
         overlays::mask_path(&run_dir, &view).as_deref(),
@@ -583,7 +589,7 @@ async fn overlay(
             d.metrics.overlay_hits.fetch_add(1, Ordering::Relaxed);
             png
         }
-        None => render_overlay(&d, run_dir, n, view, &rows, key).await?,
+        None => render_overlay(&d, (target, run_dir), n, view, &rows, key).await?,
     };
     Ok((
         [
@@ -595,19 +601,23 @@ async fn overlay(
         .into_response())
 }
 
-/// The run directory and view `n` of a calibration, with the view's files checked to lie
-/// inside the data folder (`run.json` is read back from disk, so it is not trusted).
+/// The run directory and view `n` of a calibration (of camera `target`), with the view's
+/// files checked to lie inside the data folder (`run.json` is read back from disk, so it is
+/// not trusted).
 fn overlay_view(
     d: &Daemon,
     record: &CalibrationRecord,
+    target: &overlays::Target,
     n: usize,
 ) -> Result<(std::path::PathBuf, ViewEntry), Refusal> {
     let id = &record.id;
     let store = d.store();
     let run_dir = inside(store.dir(), store.canonical_dir(), &record.run_dir)
         .map_err(|m| Refusal::Conflict(format!("calibration {id}: run_dir: {m}")))?;
-    let run = RunFile::read(&run_dir.join("run.json"))
-        .map_err(|_| Refusal::NotFound(format!("calibration {id} has no views yet")))?;
+    let run = overlays::camera_run(&run_dir.join("run.json"), target)
+        .ok()
+        .flatten()
+        .ok_or_else(|| Refusal::NotFound(format!("calibration {id} has no views yet")))?;
     let Some(view) = run.views.get(n).cloned() else {
         return Err(Refusal::NotFound(format!(
             "calibration {id} has {} views; view {n} does not exist",
@@ -631,10 +641,11 @@ fn overlay_view(
     Ok((run_dir, view))
 }
 
-/// Renders an overlay on a blocking thread and keeps it in the cache.
+/// Renders an overlay of a camera's view in its run folder on a blocking thread and keeps
+/// it in the cache.
 async fn render_overlay(
     d: &Shared,
-    run_dir: std::path::PathBuf,
+    (target, run_dir): (overlays::Target, std::path::PathBuf),
     n: usize,
     view: ViewEntry,
     rows: &[[f64; 4]; 4],
@@ -642,10 +653,11 @@ async fn render_overlay(
 ) -> Result<Bytes, Refusal> {
     let pose = from_rows(rows).map_err(Refusal::Internal)?;
     let cell = d.cell().clone();
-    let png =
-        tokio::task::spawn_blocking(move || overlays::render(&cell, &run_dir, n, &view, &pose))
-            .await
-            .map_err(|e| Refusal::Internal(format!("overlay task: {e}")))??;
+    let png = tokio::task::spawn_blocking(move || {
+        overlays::render(&cell, &target, &run_dir, n, &view, &pose)
+    })
+    .await
+    .map_err(|e| Refusal::Internal(format!("overlay task: {e}")))??;
     d.metrics.overlay_renders.fetch_add(1, Ordering::Relaxed);
     let png = Bytes::from(png);
     d.overlays.put(key, png.clone());
@@ -672,7 +684,12 @@ async fn plan_overlay(
     let id = daemon_id(id)?;
     let k = path_index(&k, "pose")?;
     let record = record_of(&d, &id)?;
-    let (run_dir, mut view) = overlay_view(&d, &record, 0)?;
+    // A dry run's plan is drawn over the first camera's first view.
+    let first = overlays::Target {
+        index: 0,
+        name: None,
+    };
+    let (run_dir, mut view) = overlay_view(&d, &record, &first, 0)?;
     let rows = record.camera_from_base.ok_or_else(|| {
         Refusal::Conflict(format!(
             "calibration {id} has no estimate to draw its plan with"
@@ -683,7 +700,7 @@ async fn plan_overlay(
     let cell = d.cell().clone();
     let png = tokio::task::spawn_blocking(move || {
         view.joints = super::plan::pose(&plan, k, cell.robot.actuated.len())?;
-        overlays::render(&cell, &run_dir, 0, &view, &pose)
+        overlays::render(&cell, &first, &run_dir, 0, &view, &pose)
     })
     .await
     .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
@@ -913,7 +930,7 @@ async fn cameras(State(d): State<Shared>) -> Json<Cameras> {
             }
         })
         .collect();
-    Json(Cameras { cameras })
+    Json(Cameras { listed, cameras })
 }
 
 /// Runs a bump check now: moves to the check pose, captures, compares with the active

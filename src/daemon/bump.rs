@@ -218,9 +218,8 @@ fn check_robot_in_view(
     pose: &Isometry3<f64>,
 ) -> Result<()> {
     use crate::calibrate::VisibilityRule;
-    // Only a camera on a link can lose sight of the robot, and only a single [camera] may
-    // be mounted on one.
-    let rule = VisibilityRule::of(cell);
+    // Only a camera on a link can lose sight of the robot.
+    let rule = VisibilityRule::of(cell, unit.config.mount());
     if matches!(rule, VisibilityRule::InImage(_)) {
         return Ok(());
     }

@@ -825,7 +825,7 @@ impl Daemon {
     /// solved for another frame than this cell's camera pose refers to (the mount changed).
     pub fn active_pose(&self) -> Option<(String, Isometry3<f64>)> {
         let a = self.store.active()?;
-        if self.frame_mismatch(&a.result.base_link).is_some() {
+        if self.frame_mismatch(None, &a.result.base_link).is_some() {
             return None;
         }
         let pose = from_rows(&a.result.camera_from_base).ok()?;
@@ -838,7 +838,10 @@ impl Daemon {
         self.store
             .active_all()
             .into_iter()
-            .filter(|a| self.frame_mismatch(&a.result.base_link).is_none())
+            .filter(|a| {
+                self.frame_mismatch(a.camera.as_deref(), &a.result.base_link)
+                    .is_none()
+            })
             .filter_map(|a| {
                 let pose = from_rows(&a.result.camera_from_base).ok()?;
                 Some((a.camera, a.id, pose))
@@ -846,18 +849,35 @@ impl Daemon {
             .collect()
     }
 
-    /// Why a result solved from frame `base_link` does not fit this cell's camera mount, if it
-    /// does not: a camera on a link needs a result for that link, and a fixed camera one for
-    /// a frame that no joint moves (the base link or a frame fixed to it).
-    pub fn frame_mismatch(&self, base_link: &str) -> Option<String> {
+    /// Why a result solved from frame `base_link` does not fit the mount of camera `camera`
+    /// (the first, or only, camera when `None`), if it does not: a camera on a link needs a
+    /// result for that link, and a fixed camera one for a frame that no joint moves (the base
+    /// link or a frame fixed to it).
+    pub fn frame_mismatch(&self, camera: Option<&str>, base_link: &str) -> Option<String> {
         let robot = &self.cell.robot;
-        match self.cell.config.camera.mount().link() {
+        let cameras = self.cell.cameras();
+        let index = camera
+            .and_then(|name| cameras.iter().position(|c| c.name == name))
+            .unwrap_or(0);
+        let unit = &cameras[index];
+        let (table, key) = if self.cell.config.camera.is_listed() {
+            (
+                format!("camera '{}'", unit.name),
+                format!("camera[{index}].mount"),
+            )
+        } else {
+            (
+                "this cell's camera".to_string(),
+                "[camera] mount".to_string(),
+            )
+        };
+        match unit.config.mount().link() {
             Some(link) if base_link != link => Some(format!(
-                "is '{base_link}', but this cell's camera is on link '{link}' ([camera] mount): calibrate again for this mount"
+                "is '{base_link}', but {table} is on link '{link}' ({key}): calibrate again for this mount"
             )),
             None if robot.link_index(base_link).is_some_and(|i| robot.link_moves(i)) => {
                 Some(format!(
-                    "is '{base_link}', a link the arm moves: that result is for a camera on the arm, and this cell's camera is fixed ([camera] mount): calibrate again for this mount"
+                    "is '{base_link}', a link the arm moves: that result is for a camera on the arm, and {table} is fixed ({key}): calibrate again for this mount"
                 ))
             }
             _ => None,

@@ -145,6 +145,9 @@ pub struct CameraState {
 /// `GET /api/v1/cameras`: every camera of the cell, in config order.
 #[derive(Serialize, ToSchema)]
 pub struct Cameras {
+    /// Whether the config lists `[[camera]]` tables: each camera then has its own active
+    /// calibration, and view overlays take `?camera=NAME`.
+    pub listed: bool,
     /// One entry per camera.
     pub cameras: Vec<CameraState>,
 }

@@ -7,6 +7,9 @@
 //! drawn under (bit for bit) and the mask file's size and modification time (the builtin
 //! segmenter rewrites masks). A new round's estimate is therefore a new entry, never a stale
 //! image. The cache holds at most [`CACHE_BYTES`] of PNGs and drops the oldest first.
+//!
+//! In a cell of several cameras, an overlay is one camera's frame (`?camera=NAME`), drawn with
+//! that camera's lens and the robot as it sees it, under that camera's estimate.
 
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
@@ -16,12 +19,15 @@ use std::time::SystemTime;
 use axum::body::Bytes;
 use nalgebra::Isometry3;
 
+use super::store::CalibrationRecord;
 use super::Refusal;
 use crate::camera::LensWarp;
 use crate::cell::Cell;
 use crate::mask::Mask;
 use crate::overlay::overlay_image;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+use crate::run::rig::RigRunFile;
+use crate::run::RunFile;
 use crate::run::ViewEntry;
 
 /// Bytes of PNG the cache keeps at most (about 200 overlays of a 640×480 camera).
@@ -31,19 +37,28 @@ pub const CACHE_BYTES: usize = 64 << 20;
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct Key {
     id: String,
+    camera: Option<String>,
     view: usize,
     pose: [[u64; 4]; 4],
     mask: Option<(SystemTime, u64)>,
 }
 
 impl Key {
-    /// The key of view `view` of calibration `id` under `rows`, with mask file `mask`.
-    pub fn new(id: &str, view: usize, rows: &[[f64; 4]; 4], mask: Option<&Path>) -> Key {
+    /// The key of view `view` of calibration `id` (camera `camera` of a list) under `rows`,
+    /// with mask file `mask`.
+    pub fn new(
+        id: &str,
+        camera: Option<&str>,
+        view: usize,
+        rows: &[[f64; 4]; 4],
+        mask: Option<&Path>,
+    ) -> Key {
         let stamp = mask
             .and_then(|p| std::fs::metadata(p).ok())
             .and_then(|m| Some((m.modified().ok()?, m.len())));
         Key {
             id: id.to_string(),
+            camera: camera.map(str::to_string),
             view,
             pose: rows.map(|r| r.map(f64::to_bits)),
             mask: stamp,
@@ -93,18 +108,135 @@ impl Cache {
     }
 }
 
+/// Which camera an overlay draws: its index in [`Cell::cameras`], and its name in a list of
+/// cameras (a cell of one `[camera]` table has none).
+#[derive(Clone, Debug)]
+pub struct Target {
+    /// Index in [`Cell::cameras`].
+    pub index: usize,
+    /// The camera's name, for a list.
+    pub name: Option<String>,
+}
+
+/// Longest query value read back into a message.
+const MAX_QUERY_VALUE: usize = 64;
+
+/// The camera a request's query picks: `camera=NAME` is required for a list of cameras and
+/// refused for a cell of one, so no overlay silently shows another camera than asked.
+pub fn target(cell: &Cell, query: Option<&str>) -> Result<Target, Refusal> {
+    let cameras = cell.cameras();
+    let names: Vec<&str> = cameras.iter().map(|c| c.name).collect();
+    let asked = match query {
+        Some(q) => camera_query(q)?,
+        None => None,
+    };
+    match (cell.config.camera.is_listed(), asked) {
+        (false, None) => Ok(Target {
+            index: 0,
+            name: None,
+        }),
+        (false, Some(_)) => Err(Refusal::BadRequest(
+            "camera: this cell has one [camera] table; leave the query out".into(),
+        )),
+        (true, None) => Err(Refusal::BadRequest(format!(
+            "camera: name the camera, ?camera=NAME; allowed: {names:?}"
+        ))),
+        (true, Some(name)) => match names.iter().position(|n| *n == name) {
+            Some(index) => Ok(Target {
+                index,
+                name: Some(name),
+            }),
+            None => Err(Refusal::BadRequest(format!(
+                "camera: {name:?} is no camera of this cell; allowed: {names:?}"
+            ))),
+        },
+    }
+}
+
+/// `camera=NAME` from a query string: the only key allowed, at most once.
+fn camera_query(query: &str) -> Result<Option<String>, Refusal> {
+    let mut camera = None;
+    for pair in query.split('&').filter(|p| !p.is_empty()) {
+        match pair.split_once('=') {
+            Some(("camera", _)) if camera.is_some() => {
+                return Err(Refusal::BadRequest(
+                    "camera: given twice; allowed: once".into(),
+                ))
+            }
+            Some(("camera", v)) if v.len() <= MAX_QUERY_VALUE => camera = Some(v.to_string()),
+            Some(("camera", _)) => {
+                return Err(Refusal::BadRequest(format!(
+                    "camera: longer than {MAX_QUERY_VALUE} characters; allowed: a camera's name"
+                )))
+            }
+            _ => {
+                return Err(Refusal::BadRequest(
+                    "query: only camera=NAME is allowed".into(),
+                ))
+            }
+        }
+    }
+    Ok(camera)
+}
+
+/// The views of `target` in the run at `json`: the run itself for one camera, that camera's
+/// part of an `easyhec-run/2` for a list.
+pub fn camera_run(json: &Path, target: &Target) -> crate::error::Result<Option<RunFile>> {
+    let Some(name) = &target.name else {
+        return RunFile::read(json).map(Some);
+    };
+    let rig = RigRunFile::read(json)?;
+    Ok(rig
+        .cameras
+        .iter()
+        .position(|c| &c.name == name)
+        .map(|k| rig.camera_run(k)))
+}
+
+/// The estimate an overlay of `target` is drawn under: the record's own for one camera; for
+/// a list, the camera's final result, or while the run goes on its estimate in the latest
+/// round of `rounds.json` (the record keeps only the first camera's live estimate).
+pub fn estimate(
+    record: &CalibrationRecord,
+    target: &Target,
+    rounds: &Path,
+) -> Option<[[f64; 4]; 4]> {
+    let Some(name) = &target.name else {
+        return record.camera_from_base;
+    };
+    if let Some(done) = &record.camera_results {
+        return done
+            .iter()
+            .find(|c| &c.camera == name)
+            .map(|c| c.camera_from_base);
+    }
+    let text = crate::io::read_text_input(rounds).ok()?;
+    let log: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let last = log["rounds"].as_array()?.last()?;
+    let camera = last["cameras"]
+        .as_array()?
+        .iter()
+        .find(|c| c["name"] == name.as_str())?;
+    serde_json::from_value(camera["camera_from_base"].clone()).ok()
+}
+
 /// Renders view `n` (recorded in `run_dir` as `view`) under `pose` and encodes it as PNG:
 /// green where render and mask agree, red where only the mask shows robot, blue where only
 /// the render does, over the dimmed colour frame (over the grey mask when the lens distorts,
 /// since the frame is in the distorted image).
 pub fn render(
     cell: &Cell,
+    target: &Target,
     run_dir: &Path,
     n: usize,
     view: &ViewEntry,
     pose: &Isometry3<f64>,
 ) -> Result<Vec<u8>, Refusal> {
-    let camera = cell.camera.intrinsics().clone();
+    let cameras = cell.cameras();
+    let unit = cameras
+        .get(target.index)
+        .ok_or_else(|| Refusal::Internal(format!("no camera {}", target.index)))?;
+    let camera = unit.device.intrinsics().clone();
     let mask_rel = view
         .mask
         .as_ref()
@@ -119,7 +251,7 @@ pub fn render(
     }
     let rendered = CpuRenderer
         .render(
-            &PosedRobot::new(&cell.seen, &view.joints),
+            &PosedRobot::new(unit.seen, &view.joints),
             &camera.undistorted(),
             pose,
             None,
@@ -151,7 +283,7 @@ mod tests {
     fn the_cache_keeps_what_fits_and_drops_the_oldest() {
         let cache = Cache::default();
         let rows = [[0.0; 4]; 4];
-        let key = |v| Key::new("cal-0001", v, &rows, None);
+        let key = |v| Key::new("cal-0001", None, v, &rows, None);
         let big = Bytes::from(vec![0u8; CACHE_BYTES / 2]);
         cache.put(key(0), big.clone());
         cache.put(key(1), big.clone());
@@ -161,6 +293,10 @@ mod tests {
         assert!(cache.get(&key(1)).is_some() && cache.get(&key(2)).is_some());
         let mut moved = rows;
         moved[0][3] = 0.001;
-        assert!(cache.get(&Key::new("cal-0001", 1, &moved, None)).is_none());
+        assert!(cache
+            .get(&Key::new("cal-0001", None, 1, &moved, None))
+            .is_none());
+        let other_camera = Key::new("cal-0001", Some("side"), 1, &rows, None);
+        assert!(cache.get(&other_camera).is_none());
     }
 }

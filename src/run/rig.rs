@@ -69,6 +69,13 @@ pub struct RigRunFile {
 }
 
 impl RigRunFile {
+    /// Reads and parses a rig's `run.json` (format version and camera list checked).
+    pub fn read(path: &Path) -> Result<RigRunFile> {
+        let text = crate::io::read_text_input(path)?;
+        let value = super::parse_tagged_json(&text, path, RIG_RUN_FORMAT)?;
+        RigRunFile::from_value(path, value)
+    }
+
     /// Parses a rig `run.json` value (format already read), checking the camera list.
     pub fn from_value(path: &Path, value: serde_json::Value) -> Result<RigRunFile> {
         let rig: RigRunFile = from_value_at(path, value)?;

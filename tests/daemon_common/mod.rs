@@ -16,6 +16,23 @@ use serde_json::Value;
 /// The token every test daemon uses.
 pub const TOKEN: &str = "test-token-1234";
 
+/// Writes `DIR/cell.toml`: the shipped config `name` (a list of cameras, say), four views per
+/// calibration, a light planner, bump recalibration on.
+pub fn write_shipped_config(dir: &Path, name: &str) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = read_config(&root.join("config").join(name)).expect("shipped config");
+    cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
+    cfg.calibration.max_views = 4;
+    cfg.calibration.min_views = 4;
+    cfg.calibration.joint_samples = 1000;
+    cfg.calibration.candidates = 24;
+    cfg.daemon.token = Some(TOKEN.into());
+    cfg.daemon.recalibrate_on_bump = true;
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
+    path
+}
+
 /// Writes `DIR/cell.toml`: the shipped simulated xArm6 cell at 320x240 with a light planner
 /// (each calibration takes a second or two), `tweak`ed.
 pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf {

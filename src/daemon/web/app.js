@@ -15,6 +15,9 @@ let pinned = null; // a past calibration the user picked in the history, shown u
 const EXPORT_FORMATS = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
 const rounds = []; // per-round points of the calibration in the chart
 let chartId = null;
+// The cell's camera names when its config lists [[camera]] tables (each camera then has its
+// own active calibration and overlays); null for a single [camera].
+let cameraNames = null;
 
 function token() {
   return sessionStorage.getItem(TOKEN_KEY);
@@ -103,9 +106,14 @@ function resetOverlays(id) {
   $("overlays").replaceChildren();
 }
 
-async function loadOverlay(id, n) {
-  const url = "/api/v1/calibrations/" + encodeURIComponent(id) + "/views/" + n + "/overlay.png";
-  await loadImage(id, n, "view " + n, url);
+async function loadOverlay(id, n, camera) {
+  let url = "/api/v1/calibrations/" + encodeURIComponent(id) + "/views/" + n + "/overlay.png";
+  if (camera === null) {
+    await loadImage(id, n, "view " + n, url);
+    return;
+  }
+  url += "?camera=" + encodeURIComponent(camera);
+  await loadImage(id, camera + "/" + n, camera + " · view " + n, url);
 }
 
 // A dry run's planned pose `k`, drawn over its first view.
@@ -142,8 +150,12 @@ async function loadImage(id, key, caption, url) {
 async function showOverlays(s, reloadAll) {
   if (shownId !== s.id) resetOverlays(s.id);
   if (!s.camera_from_base) return;
+  const cameras = cameraNames || [null];
   for (let n = 0; n < s.views; n++) {
-    if (reloadAll || !overlayViews.has(n)) await loadOverlay(s.id, n);
+    for (const camera of cameras) {
+      const key = camera === null ? n : camera + "/" + n;
+      if (reloadAll || !overlayViews.has(key)) await loadOverlay(s.id, n, camera);
+    }
   }
   const planned = s.dry_run && s.planned_poses ? s.planned_poses : 0;
   for (let k = 0; k < planned; k++) {
@@ -158,6 +170,14 @@ function showDownloads(s) {
   if (box.dataset.id === s.id && box.dataset.ready === String(ready)) return;
   box.dataset.id = s.id;
   box.dataset.ready = String(ready);
+  if (cameraNames) {
+    // The export route serves a run of one camera; easyhec export writes every camera.
+    const note = document.createElement("span");
+    note.className = "muted";
+    note.textContent = "Several cameras: export them with `easyhec export RUN/result.json`.";
+    box.replaceChildren(note);
+    return;
+  }
   if (!ready) {
     const note = document.createElement("span");
     note.className = "muted";
@@ -329,6 +349,48 @@ function showActive(a) {
   $("result-reason").textContent = r.stop_reason;
 }
 
+// A cell of several cameras: one row per camera with its active calibration and last check.
+function showCameras(list) {
+  $("no-result").hidden = true;
+  $("result-body").hidden = true;
+  $("cameras-body").hidden = false;
+  const rows = list.map((c) => {
+    const tr = document.createElement("tr");
+    tr.dataset.camera = c.camera;
+    const a = c.active;
+    const u = a && a.result.uncertainty;
+    const check = a && a.last_check;
+    const cells = [
+      c.camera,
+      a ? a.id : "none yet",
+      a ? (a.stale ? "stale: camera moved" : "fits") : "—",
+      u && u.camera_centre_95_mm != null ? "within " + u.camera_centre_95_mm.toFixed(2) + " mm" : "—",
+      check ? check.at + ": " + (check.stale ? "moved" : "not moved") + ", IoU " + fmt(check.iou, 4) : "—",
+    ];
+    for (const [i, text] of cells.entries()) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      if (i === 2 && a) td.className = "badge " + (a.stale ? "bad" : "ok");
+      tr.append(td);
+    }
+    return tr;
+  });
+  $("cameras").replaceChildren(...rows);
+}
+
+// The verdict of a check of several cameras: which moved, if any.
+function showChecks(list) {
+  if (!list || !list.length) return;
+  const moved = list.filter((c) => c.stale).map((c) => c.camera);
+  const v = $("check-verdict");
+  v.textContent = moved.length ? "bump detected: " + moved.join(", ") + " stale" : "no camera has moved";
+  v.className = "badge " + (moved.length ? "bad" : "ok");
+  $("check-at").textContent = list[0].at + " (" + list[0].trigger + ")";
+  $("check-iou").textContent = list.map((c) => c.camera + " " + fmt(c.iou, 4)).join(", ");
+  $("check-boundary").textContent = list.map((c) => c.camera + " " + fmt(c.boundary_px, 2) + " px").join(", ");
+  $("check-recal").textContent = list[0].recalibration || "—";
+}
+
 function showCheck(c) {
   if (!c) return;
   const v = $("check-verdict");
@@ -388,15 +450,25 @@ function showHistory(list, activeId) {
 
 async function refresh() {
   try {
-    const [hist, active, checks] = await Promise.all([
+    const [hist, active, checks, cams] = await Promise.all([
       json("/api/v1/calibrations"),
       json("/api/v1/calibration"),
       json("/api/v1/checks"),
+      json("/api/v1/cameras"),
     ]);
     const list = (hist.body && hist.body.calibrations) || [];
+    const listed = Boolean(cams.body && cams.body.listed);
+    cameraNames = listed ? cams.body.cameras.map((c) => c.camera) : null;
     showHistory(list, hist.body && hist.body.active);
-    showActive(active.status === 200 ? active.body : null);
-    showCheck(checks.body && checks.body.checks && checks.body.checks[0]);
+    const recent = (checks.body && checks.body.checks) || [];
+    if (listed) {
+      showCameras(cams.body.cameras);
+      // The newest check's records: one per camera, all taken at the same time.
+      showChecks(recent.filter((c) => recent.length && c.at === recent[0].at));
+    } else {
+      showActive(active.status === 200 ? active.body : null);
+      showCheck(recent[0]);
+    }
     const live = list.find((c) => c.state === "running" || c.state === "queued");
     const picked = pinned && list.find((c) => c.id === pinned);
     if (live) {
@@ -460,7 +532,8 @@ async function check() {
   $("message").textContent = "";
   try {
     const { status, body } = await json("/api/v1/checks", { method: "POST" });
-    if (status === 200) showCheck(body);
+    if (status === 200 && body.checks) showChecks(body.checks);
+    else if (status === 200) showCheck(body);
     else $("message").textContent = (body && body.error) || "HTTP " + status;
   } finally {
     $("check").disabled = false;
