@@ -368,6 +368,20 @@ fn a_fixed_and_a_wrist_camera_calibrate_from_one_motion() {
     // Exported, each camera hangs from its own mount's frame.
     let exported = dir.path().join("urdf");
     export_urdf(&out.join("result.json"), &exported);
+    // One parent for every camera would hang the wrist camera from the wrong frame.
+    let refused = std::process::Command::new(common::easyhec_bin())
+        .arg("export")
+        .arg(out.join("result.json"))
+        .args(["--format", "urdf", "--frame-id", "world", "--out"])
+        .arg(dir.path().join("refused"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        !refused.status.success() && stderr.contains("--frame-id"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("refused").exists());
     for (name, frame) in ["front", "wrist"].iter().zip(frames) {
         let urdf = std::fs::read_to_string(exported.join(format!("{name}.urdf"))).unwrap();
         assert!(

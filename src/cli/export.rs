@@ -57,8 +57,10 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
         ))
         .into());
     };
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    // Every camera's file is made before the folder or any file is written: a refused
+    // camera leaves nothing half-exported.
     let edges = a.frames.rig_edges(&rig)?;
+    let mut files = Vec::with_capacity(edges.len());
     for ((k, cam), edge) in rig.cameras.iter().enumerate().zip(&edges) {
         let result = cam.as_result(&rig.timings_s);
         check_frame_name(&result.base_link).map_err(|m| {
@@ -70,9 +72,13 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
         })?;
         let text = export(&result, a.format, edge)?;
         let path = dir.join(format!("{}.{}", cam.name, extension(a.format)));
+        files.push((&cam.name, &edge.child, path, text));
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for (name, child, path, text) in files {
         easyhec::io::write_atomic(&path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
-        println!("{}: {} -> {}", cam.name, edge.child, path.display());
+        println!("{name}: {child} -> {}", path.display());
     }
     Ok(())
 }

@@ -48,12 +48,21 @@ impl FrameArgs {
 impl FrameArgs {
     /// One edge per camera of a rig result, each to the camera's own child frame
     /// ([`camera_frame`]). A driver's `--optical-from-child` belongs to one camera, so it is
-    /// refused here: publish or export that camera's frame chain by itself.
+    /// refused here: publish or export that camera's frame chain by itself. So is
+    /// `--frame-id` when the cameras hang from different frames (a wrist camera's link beside
+    /// the fixed cameras' base).
     pub fn rig_edges(&self, rig: &RigResultFile) -> easyhec::error::Result<Vec<TfEdge>> {
         if self.optical_from_child.is_some() {
             return Err(easyhec::error::Error::Usage(format!(
                 "--optical-from-child: the result holds {} cameras, and a driver's offset belongs to one; allowed: only for a result of one camera",
                 rig.cameras.len()
+            )));
+        }
+        let bases: std::collections::BTreeSet<&str> =
+            rig.cameras.iter().map(|c| c.base_link.as_str()).collect();
+        if self.frame_id.is_some() && bases.len() > 1 {
+            return Err(easyhec::error::Error::Usage(format!(
+                "--frame-id: the result's cameras hang from different frames ({bases:?}: a camera on a link beside fixed ones), and one parent cannot serve them; allowed: leave --frame-id out"
             )));
         }
         rig.cameras

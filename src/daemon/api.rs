@@ -684,11 +684,9 @@ async fn plan_overlay(
     let id = daemon_id(id)?;
     let k = path_index(&k, "pose")?;
     let record = record_of(&d, &id)?;
-    // A dry run's plan is drawn over the first camera's first view.
-    let first = overlays::Target {
-        index: 0,
-        name: None,
-    };
+    // A dry run's plan is drawn over the first view of the first camera it calibrated,
+    // under that camera's estimate (the record's own).
+    let first = overlays::first_calibrated(d.cell(), &record);
     let (run_dir, mut view) = overlay_view(&d, &record, &first, 0)?;
     let rows = record.camera_from_base.ok_or_else(|| {
         Refusal::Conflict(format!(

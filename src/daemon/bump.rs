@@ -228,9 +228,10 @@ fn check_robot_in_view(
     let posed = PosedRobot::new(unit.seen, joints).decimated(0.01);
     match rule.shows(&posed, &camera, &low, pose) {
         Some(_) => Ok(()),
-        None => Err(Error::Hardware(
-            "the camera on the arm does not see enough of the robot at the arm's pose to check it: set [daemon] check_pose to a pose that shows the robot (calibration.min_robot_image_fraction)".into(),
-        )),
+        None => Err(Error::Hardware(format!(
+            "camera '{}' on the arm does not see enough of the robot at the arm's pose to check it, so no camera was checked: set [daemon] check_pose to a pose that shows the robot (calibration.min_robot_image_fraction)",
+            unit.name
+        ))),
     }
 }
 

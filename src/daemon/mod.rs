@@ -856,9 +856,17 @@ impl Daemon {
     pub fn frame_mismatch(&self, camera: Option<&str>, base_link: &str) -> Option<String> {
         let robot = &self.cell.robot;
         let cameras = self.cell.cameras();
-        let index = camera
-            .and_then(|name| cameras.iter().position(|c| c.name == name))
-            .unwrap_or(0);
+        let index = match camera {
+            None => 0,
+            Some(name) => match cameras.iter().position(|c| c.name == name) {
+                Some(i) => i,
+                None => {
+                    return Some(format!(
+                        "belongs to camera '{name}', which this cell's config does not list"
+                    ))
+                }
+            },
+        };
         let unit = &cameras[index];
         let (table, key) = if self.cell.config.camera.is_listed() {
             (

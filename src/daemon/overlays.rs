@@ -194,8 +194,9 @@ pub fn camera_run(json: &Path, target: &Target) -> crate::error::Result<Option<R
 }
 
 /// The estimate an overlay of `target` is drawn under: the record's own for one camera; for
-/// a list, the camera's final result, or while the run goes on its estimate in the latest
-/// round of `rounds.json` (the record keeps only the first camera's live estimate).
+/// a list, the camera's final result, or while the run goes on the record's live estimate
+/// for the first camera it calibrates and the latest round of `rounds.json` for the others
+/// (a run of one camera writes no per-camera rounds).
 pub fn estimate(
     record: &CalibrationRecord,
     target: &Target,
@@ -210,6 +211,10 @@ pub fn estimate(
             .find(|c| &c.camera == name)
             .map(|c| c.camera_from_base);
     }
+    let first = record.cameras.as_ref().and_then(|c| c.first());
+    if first == Some(name) {
+        return record.camera_from_base;
+    }
     let text = crate::io::read_text_input(rounds).ok()?;
     let log: serde_json::Value = serde_json::from_str(&text).ok()?;
     let last = log["rounds"].as_array()?.last()?;
@@ -218,6 +223,19 @@ pub fn estimate(
         .iter()
         .find(|c| c["name"] == name.as_str())?;
     serde_json::from_value(camera["camera_from_base"].clone()).ok()
+}
+
+/// The camera a dry run's plan is drawn for: the first camera the run calibrated (its
+/// estimate is the record's own), or the cell's only one.
+pub fn first_calibrated(cell: &Cell, record: &CalibrationRecord) -> Target {
+    let name = record.cameras.as_ref().and_then(|c| c.first());
+    let index = name
+        .and_then(|n| cell.cameras().iter().position(|c| c.name == n))
+        .unwrap_or(0);
+    Target {
+        index,
+        name: name.filter(|_| cell.config.camera.is_listed()).cloned(),
+    }
 }
 
 /// Renders view `n` (recorded in `run_dir` as `view`) under `pose` and encodes it as PNG:
@@ -278,6 +296,62 @@ pub fn mask_path(run_dir: &Path, view: &ViewEntry) -> Option<PathBuf> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 4x4 pose, translated by `x` metres.
+    fn rows(x: f64) -> [[f64; 4]; 4] {
+        [
+            [1.0, 0.0, 0.0, x],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 1.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    }
+
+    #[test]
+    fn each_camera_of_a_list_is_drawn_under_its_own_latest_estimate() {
+        let dir = tempfile::tempdir().unwrap();
+        let rounds = dir.path().join("rounds.json");
+        let write_rounds = |round: serde_json::Value| {
+            let log = serde_json::json!({"format": "easyhec-rounds/1", "rounds": [round]});
+            std::fs::write(&rounds, log.to_string()).unwrap();
+        };
+        let mut record: CalibrationRecord = serde_json::from_value(serde_json::json!({
+            "id": "cal-0002", "state": "running", "trigger": "api", "dry_run": false,
+            "max_views": 4, "created_at": "2026-11-27T00:00:00Z", "run_dir": "runs/cal-0002",
+            "views": 2, "camera_from_base": rows(0.1), "cameras": ["side", "high"]
+        }))
+        .unwrap();
+        let target = |n: &str| Target {
+            index: 0,
+            name: Some(n.into()),
+        };
+        // Running: the first camera's is the record's own, the others' the latest round's.
+        write_rounds(serde_json::json!({"cameras": [
+            {"name": "side", "camera_from_base": rows(0.3)},
+            {"name": "high", "camera_from_base": rows(0.2)}
+        ]}));
+        assert_eq!(estimate(&record, &target("side"), &rounds), Some(rows(0.1)));
+        assert_eq!(estimate(&record, &target("high"), &rounds), Some(rows(0.2)));
+        assert_eq!(estimate(&record, &target("front"), &rounds), None);
+        // A run of one camera writes no per-camera rounds: the record's estimate serves it.
+        record.cameras = Some(vec!["high".into()]);
+        write_rounds(serde_json::json!({"round": 1}));
+        assert_eq!(estimate(&record, &target("high"), &rounds), Some(rows(0.1)));
+        assert_eq!(estimate(&record, &target("side"), &rounds), None);
+        // Finished: each camera's own result, whatever the record's top level says.
+        record.camera_results = Some(vec![serde_json::from_value(serde_json::json!({
+            "camera": "high", "camera_from_base": rows(0.4), "mean_iou": 0.98,
+            "stop_reason": "converged"
+        }))
+        .unwrap()]);
+        assert_eq!(estimate(&record, &target("high"), &rounds), Some(rows(0.4)));
+        // One [camera]: the record's own.
+        let single = Target {
+            index: 0,
+            name: None,
+        };
+        assert_eq!(estimate(&record, &single, &rounds), Some(rows(0.1)));
+    }
 
     #[test]
     fn the_cache_keeps_what_fits_and_drops_the_oldest() {

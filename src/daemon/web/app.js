@@ -150,7 +150,8 @@ async function loadImage(id, key, caption, url) {
 async function showOverlays(s, reloadAll) {
   if (shownId !== s.id) resetOverlays(s.id);
   if (!s.camera_from_base) return;
-  const cameras = cameraNames || [null];
+  // The cameras this run calibrated (a recalibration after a bump takes only the stale ones).
+  const cameras = (cameraNames && s.cameras) || cameraNames || [null];
   for (let n = 0; n < s.views; n++) {
     for (const camera of cameras) {
       const key = camera === null ? n : camera + "/" + n;
@@ -174,7 +175,7 @@ function showDownloads(s) {
     // The export route serves a run of one camera; easyhec export writes every camera.
     const note = document.createElement("span");
     note.className = "muted";
-    note.textContent = "Several cameras: export them with `easyhec export RUN/result.json`.";
+    note.textContent = "Several cameras: export them with `easyhec export RUN/result.json --format F --out DIR`.";
     box.replaceChildren(note);
     return;
   }
