@@ -178,6 +178,15 @@ impl Cell {
         })
     }
 
+    /// The index in [`Cell::cameras`] of the camera named `name`.
+    pub fn camera_index(&self, name: &str) -> Option<usize> {
+        self.config
+            .camera
+            .cameras()
+            .iter()
+            .position(|c| c.name == name)
+    }
+
     /// Every camera, the first from this struct's own fields.
     pub fn cameras(&self) -> Vec<CameraRef<'_>> {
         let named = &self.config.camera.cameras()[0];

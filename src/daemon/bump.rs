@@ -318,13 +318,9 @@ async fn move_to_check_pose(daemon: &Daemon, cell: &Cell) -> Result<bool> {
 fn camera_index(cell: &Cell, camera: Option<&str>) -> Result<usize> {
     match camera {
         None => Ok(0),
-        Some(name) => cell
-            .cameras()
-            .iter()
-            .position(|c| c.name == name)
-            .ok_or_else(|| {
-                Error::Solve(format!("camera '{name}' is active but not in the config"))
-            }),
+        Some(name) => cell.camera_index(name).ok_or_else(|| {
+            Error::Solve(format!("camera '{name}' is active but not in the config"))
+        }),
     }
 }
 

@@ -735,10 +735,10 @@ impl Daemon {
             .cameras
             .iter()
             .map(|c| {
-                let truth = units
-                    .iter()
-                    .find(|u| u.name == c.name)
-                    .and_then(|u| u.sim.camera_from_base_now())
+                let truth = self
+                    .cell
+                    .camera_index(&c.name)
+                    .and_then(|k| units[k].sim.camera_from_base_now())
                     .map(|t| truth_error_of(&c.result.camera_from_base(), &t));
                 store::CameraRecord {
                     camera: c.name.clone(),
@@ -858,7 +858,7 @@ impl Daemon {
         let cameras = self.cell.cameras();
         let index = match camera {
             None => 0,
-            Some(name) => match cameras.iter().position(|c| c.name == name) {
+            Some(name) => match self.cell.camera_index(name) {
                 Some(i) => i,
                 None => {
                     return Some(format!(

@@ -141,7 +141,7 @@ pub fn target(cell: &Cell, query: Option<&str>) -> Result<Target, Refusal> {
         (true, None) => Err(Refusal::BadRequest(format!(
             "camera: name the camera, ?camera=NAME; allowed: {names:?}"
         ))),
-        (true, Some(name)) => match names.iter().position(|n| *n == name) {
+        (true, Some(name)) => match cell.camera_index(&name) {
             Some(index) => Ok(Target {
                 index,
                 name: Some(name),
@@ -229,9 +229,7 @@ pub fn estimate(
 /// estimate is the record's own), or the cell's only one.
 pub fn first_calibrated(cell: &Cell, record: &CalibrationRecord) -> Target {
     let name = record.cameras.as_ref().and_then(|c| c.first());
-    let index = name
-        .and_then(|n| cell.cameras().iter().position(|c| c.name == n))
-        .unwrap_or(0);
+    let index = name.and_then(|n| cell.camera_index(n)).unwrap_or(0);
     Target {
         index,
         name: name.filter(|_| cell.config.camera.is_listed()).cloned(),
