@@ -336,8 +336,8 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
 }
 
 /// A cell of several cameras: one click calibrates every camera, the page lists each camera
-/// with its active calibration, draws every camera's views at that camera's size, points to
-/// `easyhec export`, and a bump check gives one verdict over all cameras.
+/// with its active calibration, draws every camera's views at that camera's size, fetches
+/// every camera's downloads, and a bump check gives one verdict over all cameras.
 #[test]
 fn web_page_follows_every_camera_of_a_list() {
     let Some((chromium, chromedriver)) = browser() else {
@@ -371,14 +371,18 @@ fn web_page_follows_every_camera_of_a_list() {
             "every camera's overlays",
         );
         assert_eq!(sizes.as_str(), Some("front 640,high 512,side 800"));
-        let downloads = js(
+        // One row of downloads per camera; every button fetches its camera's file.
+        js(
             session,
-            "return document.getElementById('downloads').textContent",
+            "document.querySelectorAll('#downloads button').forEach(b => b.click()); return true",
         );
-        assert!(
-            downloads.as_str().unwrap().contains("easyhec export"),
-            "{downloads}"
+        let fetched = wait_js(
+            session,
+            "const b = [...document.querySelectorAll('#downloads button')]; return b.length === 15 && b.every(x => x.dataset.status === '200' && Number(x.dataset.bytes) > 0) && [...document.querySelectorAll('#downloads > div')].map(r => r.dataset.camera).join(',')",
+            Duration::from_secs(30),
+            "every camera's downloads",
         );
+        assert_eq!(fetched.as_str(), Some("front,side,high"));
         click(session, "#check");
         wait_js(
             session,

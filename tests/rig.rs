@@ -217,16 +217,33 @@ fn configs_a_rig_cannot_serve_are_refused_naming_the_key() {
 }
 
 #[test]
-fn the_daemon_serves_camera_lists_but_refuses_their_tf_broadcast() {
+fn the_daemon_serves_camera_lists_and_refuses_tf_settings_that_fit_one_camera() {
     // One camera written as a [[camera]] table is a list too: the daemon keeps its active
-    // calibration by name. Its own /tf_static broadcast carries one camera, so a list with
-    // `[ros2] publish_tf` is refused before the data folder is touched.
+    // calibration by name. Its /tf_static broadcast sends one edge per camera, so a driver's
+    // optical_from_child (one camera's) and a frame_id over a wrist camera beside fixed ones
+    // are refused before the data folder is touched.
     let dir = tempfile::tempdir().unwrap();
     let three = common::shipped_config_text(RIG);
     let cut = three.find("[[camera]]\nname = \"side\"").unwrap();
     let rest = three[cut..].find("[segmenter]").unwrap() + cut;
     let one = format!("{}{}", &three[..cut], &three[rest..]);
-    for (i, (text, n)) in [(three.clone(), 3), (one, 1)].into_iter().enumerate() {
+    let wrist = common::shipped_config_text("sim-xarm6-fixed-and-wrist.toml");
+    let cases = [
+        (
+            three.clone(),
+            3,
+            "optical_from_child = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+            "ros2.optical_from_child",
+        ),
+        (
+            one,
+            1,
+            "optical_from_child = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+            "ros2.optical_from_child",
+        ),
+        (wrist, 2, "frame_id = \"world\"", "ros2.frame_id"),
+    ];
+    for (i, (text, n, ros2, field)) in cases.into_iter().enumerate() {
         let path = dir.path().join(format!("rig{i}.toml"));
         std::fs::write(&path, &text).unwrap();
         let cell = Cell::open(&path).unwrap();
@@ -235,18 +252,16 @@ fn the_daemon_serves_camera_lists_but_refuses_their_tf_broadcast() {
         assert!(easyhec::daemon::Daemon::open(cell, &data, "token".into()).is_ok());
 
         let path = dir.path().join(format!("rig{i}-ros2.toml"));
-        std::fs::write(&path, format!("{text}\n[ros2]\n")).unwrap();
+        std::fs::write(&path, format!("{text}\n[ros2]\n{ros2}\n")).unwrap();
         let cell = Cell::open(&path).unwrap();
         let data = dir.path().join(format!("data{i}-ros2"));
         std::fs::create_dir(&data).unwrap();
         let e = match easyhec::daemon::Daemon::open(cell, &data, "token".into()) {
-            Ok(_) => panic!("a daemon broadcast tf for {n} listed camera(s)"),
+            Ok(_) => panic!("a daemon took `{ros2}` for {n} listed camera(s)"),
             Err(e) => e.to_string(),
         };
-        assert!(
-            e.contains(&format!("rig{i}-ros2.toml: ros2.publish_tf")),
-            "{e}"
-        );
+        assert!(e.contains(&format!("rig{i}-ros2.toml: {field}")), "{e}");
+        assert!(!e.contains('\n'), "{e}");
         assert_eq!(std::fs::read_dir(&data).unwrap().count(), 0);
     }
 }

@@ -2,7 +2,8 @@
 //! camera from one motion and activates each; a bump check compares every camera; a knocked
 //! camera alone is marked stale and recalibrated, warm-started from its stale pose, while the
 //! other two keep their active calibrations untouched, across a restart too. A wrist camera
-//! beside a fixed one is activated and checked against its own mount.
+//! beside a fixed one is activated and checked against its own mount, and each camera's
+//! downloads are what `easyhec export` writes for it.
 
 mod daemon_common;
 
@@ -34,6 +35,51 @@ fn cameras(base: &str) -> Vec<(String, Value)> {
             )
         })
         .collect()
+}
+
+/// Every camera's download in every format is byte for byte what `easyhec export` writes
+/// for that camera of the run's result.json; the camera must be named, and be one of the
+/// cell's.
+fn assert_exports_match_the_cli(base: &str, data: &Path, id: &str, names: &[&str]) {
+    let out = data.parent().unwrap().join("exported");
+    let result = data.join("runs").join(id).join("result.json");
+    for (format, ext) in [
+        ("opencv", "yaml"),
+        ("ros", "launch.py"),
+        ("easy-handeye", "calib"),
+        ("easy-handeye-ros1", "yaml"),
+        ("urdf", "urdf"),
+    ] {
+        let cli = std::process::Command::new(env!("CARGO_BIN_EXE_easyhec"))
+            .args([
+                "export",
+                result.to_str().unwrap(),
+                "--format",
+                format,
+                "--out",
+            ])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            cli.status.success(),
+            "{}",
+            String::from_utf8_lossy(&cli.stderr)
+        );
+        for name in names {
+            let url = format!("{base}/api/v1/calibrations/{id}/export/{format}?camera={name}");
+            let (code, _, body) = get_bytes(&url);
+            assert_eq!(code, 200, "{url}: {}", String::from_utf8_lossy(&body));
+            let want = std::fs::read(out.join(format!("{name}.{ext}"))).unwrap();
+            assert_eq!(body, want, "{url}");
+        }
+    }
+    let url = format!("{base}/api/v1/calibrations/{id}/export/urdf");
+    for (query, needle) in [("", "name the camera"), ("?camera=nope", "is no camera")] {
+        let (code, body) = call("GET", &format!("{url}{query}"), None);
+        assert_eq!(code, 400, "{query}: {body}");
+        assert!(body["error"].as_str().unwrap().contains(needle), "{body}");
+    }
 }
 
 /// An active entry's pose.
@@ -125,9 +171,9 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         &format!("{base}/api/v1/calibrations/{first}/export/opencv"),
         None,
     );
-    assert_eq!(code, 409, "{body}");
+    assert_eq!(code, 400, "a download names its camera: {body}");
     assert!(
-        body["error"].as_str().unwrap().contains("easyhec export"),
+        body["error"].as_str().unwrap().contains("name the camera"),
         "{body}"
     );
     let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
@@ -210,6 +256,19 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         }
     };
     check_after(&base);
+    // A download names a camera the run calibrated: the recalibration took only `side`.
+    let url = format!("{base}/api/v1/calibrations/{second}/export/urdf");
+    let (code, body) = call("GET", &format!("{url}?camera=front"), None);
+    assert_eq!(code, 404, "{body}");
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap()
+            .contains("did not calibrate camera \"front\""),
+        "{body}"
+    );
+    let (code, _, urdf) = get_bytes(&format!("{url}?camera=side"));
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&urdf));
     let active: Value =
         serde_json::from_str(&std::fs::read_to_string(data.join("active.json")).unwrap()).unwrap();
     assert_eq!(active["format"], "easyhec-daemon-active/2");
@@ -273,4 +332,5 @@ fn a_wrist_camera_beside_a_fixed_one_is_activated_against_its_own_mount() {
     assert_eq!(checked, ["front", "wrist"], "{ok}");
     assert!(checks.iter().all(|c| c["stale"] == false), "{ok}");
     assert_overlays_per_camera(&base, &id, &[(640, 480), (640, 480)]);
+    assert_exports_match_the_cli(&base, &dir.path().join("data"), &id, &["front", "wrist"]);
 }

@@ -2,7 +2,7 @@
 //! becomes.
 
 use clap::Args;
-use easyhec::interop::tf_edge::{parse_transform, DEFAULT_CHILD_FRAME};
+use easyhec::interop::tf_edge::{camera_frame, parse_transform, DEFAULT_CHILD_FRAME};
 use easyhec::interop::TfEdge;
 use easyhec::run::rig::RigResultFile;
 use easyhec::run::ResultFile;
@@ -73,15 +73,5 @@ impl FrameArgs {
                 frames.edge(&cam.as_result(&rig.timings_s))
             })
             .collect()
-    }
-}
-
-/// A rig camera's child frame from the `--child-frame-id` pattern: `{name}` replaced by the
-/// camera's name, or, without `{name}`, the name and `_` put in front.
-pub fn camera_frame(pattern: &str, name: &str) -> String {
-    if pattern.contains("{name}") {
-        pattern.replace("{name}", name)
-    } else {
-        format!("{name}_{pattern}")
     }
 }

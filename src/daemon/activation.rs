@@ -47,7 +47,7 @@ impl Daemon {
         }
         // One write for every camera: a failure leaves the previous active set whole.
         let activated = self.store.activate_cameras(id, results, &now())?;
-        activated.iter().for_each(|a| self.announce_active(a));
+        self.announce_active();
         Ok(activated)
     }
 }

@@ -767,10 +767,11 @@ async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
 /// `easyhec export`; the ROS forms use the config's `[ros2]` frames when it has them).
 #[utoipa::path(get, path = "/api/v1/calibrations/{id}/export/{format}", tag = "calibrations",
     params(("id" = String, Path, description = "A calibration id, `cal-NNNN`"),
-        ("format" = String, Path, description = "opencv, ros, easy-handeye, easy-handeye-ros1 or urdf")),
+        ("format" = String, Path, description = "opencv, ros, easy-handeye, easy-handeye-ros1 or urdf"),
+        ("camera" = Option<String>, Query, description = "The camera's name: required in a cell of `[[camera]]` tables, refused in a cell of one `[camera]`")),
     responses(
         (status = 200, description = "The file, with Content-Disposition naming it", content_type = "text/plain", body = String),
-        (status = 400, description = "Unknown format", body = ErrorBody),
+        (status = 400, description = "Unknown format; `camera` missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration, or it has no result", body = ErrorBody),
         (status = 409, description = "The run directory leaves the data folder, or a frame name cannot be written", body = ErrorBody),
@@ -779,6 +780,7 @@ async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
 async fn export_file(
     State(d): State<Shared>,
     Path((id, format)): Path<(String, String)>,
+    RawQuery(query): RawQuery,
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let format = <crate::interop::ExportFormat as clap::ValueEnum>::from_str(&format, false)
@@ -787,21 +789,16 @@ async fn export_file(
                 "format {format:?}: allowed: opencv, ros, easy-handeye, easy-handeye-ros1, urdf"
             ))
         })?;
+    let camera = overlays::target(d.cell(), query.as_deref())?.name;
     let record = record_of(&d, &id)?;
-    if d.cell().config.camera.is_listed() {
-        return Err(Refusal::Conflict(format!(
-            "calibration {id}: its result.json holds a list of cameras (easyhec-result/2), which this route does not export; use `easyhec export DATA/runs/{id}/result.json --out DIR` (one file per camera)"
-        )));
-    }
     let path = run_file(&d, &record, "result.json")?;
     let settings = d.cell().config.ros2.clone();
     let (name, text) = tokio::task::spawn_blocking(move || {
         if !path.is_file() {
             return Err(Refusal::NotFound(format!("calibration {id} has no result")));
         }
-        let result = crate::run::ResultFile::read(&path)
-            .map_err(|e| Refusal::Internal(format!("calibration {id}: {e}")))?;
-        super::exports::render(&id, settings.as_ref(), &result, format)
+        let result = read_camera_result(&id, &path, camera.as_deref())?;
+        super::exports::render(&id, settings.as_ref(), camera.as_deref(), &result, format)
             .map_err(|e| Refusal::Conflict(format!("calibration {id}: {e}")))
     })
     .await
@@ -820,6 +817,33 @@ async fn export_file(
         text,
     )
         .into_response())
+}
+
+/// The result a download exports: the run's own for one camera, or camera `camera`'s of a
+/// run of a list (404 when that run did not calibrate it).
+fn read_camera_result(
+    id: &str,
+    path: &std::path::Path,
+    camera: Option<&str>,
+) -> Result<crate::run::ResultFile, Refusal> {
+    let unreadable = |e: crate::error::Error| Refusal::Internal(format!("calibration {id}: {e}"));
+    let Some(name) = camera else {
+        return crate::run::ResultFile::read(path).map_err(unreadable);
+    };
+    let rig = crate::run::rig::RigResultFile::read(path).map_err(unreadable)?;
+    rig.cameras
+        .iter()
+        .find(|c| c.name == name)
+        .map(|c| c.as_result(&rig.timings_s))
+        .ok_or_else(|| {
+            Refusal::NotFound(format!(
+                "calibration {id} did not calibrate camera {name:?}; it calibrated {:?}",
+                rig.cameras
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+            ))
+        })
 }
 
 /// Cancels a running calibration: the arm is stopped first.

@@ -1,10 +1,10 @@
 //! A calibration's result in the forms other tools read, as the page downloads them
-//! (`GET /api/v1/calibrations/{id}/export/{format}`). The ROS forms use the daemon's `[ros2]`
+//! (`GET /api/v1/calibrations/{id}/export/{format}`, `?camera=NAME` in a list of cameras). The ROS forms use the daemon's `[ros2]`
 //! frames when the config has that table, so a download matches what the daemon publishes.
 
 use crate::config::ros2::Ros2Settings;
 use crate::error::{Error, Result};
-use crate::interop::tf_edge::{transform_from_parts, TfEdge, DEFAULT_CHILD_FRAME};
+use crate::interop::tf_edge::{camera_frame, transform_from_parts, TfEdge, DEFAULT_CHILD_FRAME};
 use crate::interop::{export, ExportFormat};
 use crate::run::ResultFile;
 
@@ -34,15 +34,47 @@ pub fn edge(settings: Option<&Ros2Settings>, result: &ResultFile) -> Result<TfEd
     )
 }
 
-/// `result` rendered in `format`, with the file name a download should get.
+/// The tf edge for one active entry: [`edge`] for a cell of one camera; for a camera of a
+/// list, the child frame is the camera's own (the configured one with the camera's name and `_`
+/// in front, [`camera_frame`]), as
+/// `easyhec publish` names it for a result of several cameras.
+pub fn camera_edge(
+    settings: Option<&Ros2Settings>,
+    camera: Option<&str>,
+    result: &ResultFile,
+) -> Result<TfEdge> {
+    let Some(name) = camera else {
+        return edge(settings, result);
+    };
+    let Some(settings) = settings else {
+        return TfEdge::from_result(
+            result,
+            None,
+            &camera_frame(DEFAULT_CHILD_FRAME, name),
+            None,
+            ["ros2.frame_id", "ros2.child_frame_id"],
+        );
+    };
+    let mut own = settings.clone();
+    own.child_frame_id = camera_frame(&settings.child_frame_id, name);
+    edge(Some(&own), result)
+}
+
+/// `result` (of `camera`, in a list) rendered in `format`, with the file name a download
+/// should get (`cal-0003-front.urdf` for a camera of a list).
 pub fn render(
     id: &str,
     settings: Option<&Ros2Settings>,
+    camera: Option<&str>,
     result: &ResultFile,
     format: ExportFormat,
 ) -> Result<(String, String)> {
-    let text = export(result, format, &edge(settings, result)?)?;
-    Ok((file_name(id, format), text))
+    let text = export(result, format, &camera_edge(settings, camera, result)?)?;
+    let stem = match camera {
+        Some(name) => format!("{id}-{name}"),
+        None => id.to_string(),
+    };
+    Ok((file_name(&stem, format), text))
 }
 
 /// `cal-0003.yaml`, `cal-0003.launch.py`, `cal-0003.calib`, `cal-0003.urdf`.

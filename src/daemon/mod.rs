@@ -50,7 +50,7 @@ use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use crate::time::rfc3339;
 
 use crate::config::DaemonSettings;
-use store::{ActiveFile, CalibrationRecord, Recovery, State, Store, TruthError};
+use store::{CalibrationRecord, Recovery, State, Store, TruthError};
 
 /// The current time as RFC 3339.
 fn now() -> String {
@@ -242,18 +242,44 @@ fn some_count<'de, D: serde::Deserializer<'de>>(
     <usize as serde::Deserialize>::deserialize(d).map(Some)
 }
 
+/// For a list of cameras, `[ros2]`'s frames give one edge per camera (published with
+/// `publish_tf`, and in the export route's downloads), each to its own child frame: a
+/// driver's fixed `optical_from_child` belongs to one camera, and one `frame_id` cannot parent
+/// a camera on a link beside fixed ones, so those are refused.
+fn check_tf_for_list(cell: &Cell) -> Result<()> {
+    let Some(ros2) = cell.config.ros2.as_ref() else {
+        return Ok(());
+    };
+    if !cell.config.camera.is_listed() {
+        return Ok(());
+    }
+    if ros2.optical_from_child.is_some() {
+        return Err(Error::input(
+            &cell.config_path,
+            "ros2.optical_from_child",
+            "set with a list of cameras, and a driver's offset belongs to one camera; allowed: absent here (each camera's edge goes to its own child frame, NAME_ followed by child_frame_id)",
+        ));
+    }
+    let mounts: std::collections::BTreeSet<Option<&str>> = cell
+        .cameras()
+        .iter()
+        .map(|c| c.config.mount().link())
+        .collect();
+    if ros2.frame_id.is_some() && mounts.len() > 1 {
+        return Err(Error::input(
+            &cell.config_path,
+            "ros2.frame_id",
+            "set, and the listed cameras hang from different frames (a camera on a link beside fixed ones); allowed: absent here (each edge's parent is its camera's result base_link)",
+        ));
+    }
+    Ok(())
+}
+
 impl Daemon {
     /// Opens the data folder at `data_dir` (repairing what a crash left) for `cell`, serving
     /// API calls that carry `token`.
     pub fn open(cell: Cell, data_dir: &Path, token: String) -> Result<Arc<Daemon>> {
-        if cell.config.camera.is_listed() && cell.config.ros2.as_ref().is_some_and(|r| r.publish_tf)
-        {
-            return Err(Error::input(
-                &cell.config_path,
-                "ros2.publish_tf",
-                "true with a list of cameras: the daemon publishes one camera's edge; allowed: false here, and `easyhec publish` of a calibration's result.json sends every camera",
-            ));
-        }
+        check_tf_for_list(&cell)?;
         if cell.config.camera.is_listed() {
             if let Some(c) = cell.cameras().iter().find(|c| c.segmenter.uses_context()) {
                 return Err(Error::input(
@@ -302,20 +328,25 @@ impl Daemon {
             #[cfg(feature = "ros2")]
             tf,
         });
-        if let Some(active) = daemon.store.active() {
-            daemon.announce_active(&active);
-        }
+        daemon.announce_active();
         Ok(daemon)
     }
 
-    /// Hands what became active to the ROS 2 broadcaster, when `[ros2]` asks for one.
-    fn announce_active(&self, active: &ActiveFile) {
+    /// Hands every camera's active calibration to the ROS 2 broadcaster, when `[ros2]` asks
+    /// for one (nothing while none is active).
+    fn announce_active(&self) {
         #[cfg(feature = "ros2")]
         if let Some(tf) = &self.tf {
-            tf.announce(&active.id, &active.result);
+            let active: Vec<tf_broadcast::Announced> = self
+                .store
+                .active_all()
+                .into_iter()
+                .map(|a| (a.id, a.camera, a.result))
+                .collect();
+            if !active.is_empty() {
+                tf.announce(active);
+            }
         }
-        #[cfg(not(feature = "ros2"))]
-        let _ = active;
     }
 
     /// The cell.
@@ -704,7 +735,7 @@ impl Daemon {
             results.push((Some(c.name.clone()), c.result.clone()));
         }
         match self.store.activate_cameras(id, results, &now()) {
-            Ok(active) => active.iter().for_each(|a| self.announce_active(a)),
+            Ok(_) => self.announce_active(),
             Err(e) => tracing::error!("easyhec daemon: {id}: cannot activate: {e}"),
         }
     }
@@ -720,7 +751,7 @@ impl Daemon {
             .store
             .activate_camera(camera, id, result.clone(), &now())
         {
-            Ok(active) => self.announce_active(&active),
+            Ok(_) => self.announce_active(),
             Err(e) => tracing::error!("easyhec daemon: {id}: cannot activate: {e}"),
         }
     }

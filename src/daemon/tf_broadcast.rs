@@ -2,6 +2,10 @@
 //! again whenever another calibration becomes active. One thread owns the ROS 2 node, so a
 //! slow graph (the listening window before each publication) never holds up the HTTP API;
 //! activations queue to it and only the newest is published.
+//!
+//! In a cell of several cameras every camera's active edge goes out in one message, each to
+//! its own child frame: a `/tf_static` writer keeps only its last message for late joiners,
+//! so recalibrating one camera must send the others' edges again too.
 
 use std::sync::mpsc;
 use std::time::Duration;
@@ -13,9 +17,13 @@ use crate::ros2::tf::{StaticTfPublisher, TfListener};
 use crate::ros2::{domain_id_from_env, join, GraphPlace};
 use crate::run::ResultFile;
 
-/// The handle the daemon keeps: send it what became active.
+/// One camera's active calibration: its id, the camera's name in a list (none for a cell
+/// of one camera), and its result.
+pub type Announced = (String, Option<String>, ResultFile);
+
+/// The handle the daemon keeps: send it the whole active set after each change.
 pub struct TfBroadcast {
-    tx: mpsc::Sender<(String, ResultFile)>,
+    tx: mpsc::Sender<Vec<Announced>>,
     /// Set once a send found the thread gone, so that is logged once.
     lost: std::sync::atomic::AtomicBool,
 }
@@ -24,7 +32,7 @@ impl TfBroadcast {
     /// Joins the graph on its own thread; fails (before the daemon listens) when the node
     /// cannot be made.
     pub fn start(settings: Ros2Settings) -> Result<Self> {
-        let (tx, rx) = mpsc::channel::<(String, ResultFile)>();
+        let (tx, rx) = mpsc::channel::<Vec<Announced>>();
         let (ready_tx, ready_rx) = mpsc::channel::<Result<()>>();
         std::thread::Builder::new()
             .name("easyhec-ros2".into())
@@ -39,18 +47,18 @@ impl TfBroadcast {
         })
     }
 
-    /// Queues calibration `id`'s result for publication.
-    pub fn announce(&self, id: &str, result: &ResultFile) {
-        let sent = self.tx.send((id.to_string(), result.clone()));
+    /// Queues the active set (every camera's entry) for publication.
+    pub fn announce(&self, active: Vec<Announced>) {
+        let sent = self.tx.send(active);
         if sent.is_err() && !self.lost.swap(true, std::sync::atomic::Ordering::SeqCst) {
-            tracing::warn!("easyhec daemon: ros2: the ROS 2 thread has ended; {id} and later calibrations are not published");
+            tracing::warn!("easyhec daemon: ros2: the ROS 2 thread has ended; this and later calibrations are not published");
         }
     }
 }
 
 fn serve(
     settings: Ros2Settings,
-    rx: mpsc::Receiver<(String, ResultFile)>,
+    rx: mpsc::Receiver<Vec<Announced>>,
     ready: mpsc::Sender<Result<()>>,
 ) {
     let opened = open(&settings);
@@ -68,14 +76,24 @@ fn serve(
         while let Ok(newer) = rx.try_recv() {
             next = newer;
         }
-        let (id, result) = next;
-        match publish(&settings, &mut listener, &publisher, &result) {
-            Ok(edge) => tracing::info!(
-                "easyhec daemon: ros2: {id}: {} -> {} on /tf_static",
-                edge.parent, edge.child
-            ),
+        let ids = next
+            .iter()
+            .map(|(id, camera, _)| match camera {
+                Some(name) => format!("{id} ({name})"),
+                None => id.clone(),
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        match publish(&settings, &mut listener, &publisher, &next) {
+            Ok(edges) => edges.iter().zip(&next).for_each(|(edge, (id, _, _))| {
+                tracing::info!(
+                    "easyhec daemon: ros2: {id}: {} -> {} on /tf_static",
+                    edge.parent,
+                    edge.child
+                )
+            }),
             Err(e) => tracing::warn!(
-                "easyhec daemon: ros2: {id} not published (/tf_static keeps what this daemon published before, if anything): {e}"
+                "easyhec daemon: ros2: {ids} not published (/tf_static keeps what this daemon published before, if anything): {e}"
             ),
         }
     }
@@ -103,20 +121,27 @@ fn open(settings: &Ros2Settings) -> Result<Parts> {
     Ok((context, node, listener, publisher))
 }
 
-/// The configured edge for `result`, checked against what the graph already holds (leaving
-/// out the daemon's own earlier edge), then latched.
+/// The configured edge of every entry of `active`, each checked against what the graph
+/// already holds (leaving out the daemon's own earlier edges), then latched in one message.
 fn publish(
     settings: &Ros2Settings,
     listener: &mut TfListener,
     publisher: &StaticTfPublisher,
-    result: &ResultFile,
-) -> Result<TfEdge> {
-    let edge = super::exports::edge(Some(settings), result)?;
+    active: &[Announced],
+) -> Result<Vec<TfEdge>> {
+    let edges = active
+        .iter()
+        .map(|(_, camera, result)| {
+            super::exports::camera_edge(Some(settings), camera.as_deref(), result)
+        })
+        .collect::<Result<Vec<_>>>()?;
     let tree = listener.gather(
         Duration::from_secs_f64(settings.listen_s),
         Some(publisher.gid()),
     )?;
-    tree.check_can_add(&edge)?;
-    publisher.send(std::slice::from_ref(&edge))?;
-    Ok(edge)
+    for edge in &edges {
+        tree.check_can_add(edge)?;
+    }
+    publisher.send(&edges)?;
+    Ok(edges)
 }

@@ -127,6 +127,17 @@ pub fn transform_from_parts(
     ))
 }
 
+/// A listed camera's child frame from a child frame pattern (`--child-frame-id`, `[ros2]
+/// child_frame_id`): `{name}` replaced by the camera's name, or, without `{name}`, the name
+/// and `_` put in front.
+pub fn camera_frame(pattern: &str, name: &str) -> String {
+    if pattern.contains("{name}") {
+        pattern.replace("{name}", name)
+    } else {
+        format!("{name}_{pattern}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

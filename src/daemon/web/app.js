@@ -171,14 +171,6 @@ function showDownloads(s) {
   if (box.dataset.id === s.id && box.dataset.ready === String(ready)) return;
   box.dataset.id = s.id;
   box.dataset.ready = String(ready);
-  if (cameraNames) {
-    // The export route serves a run of one camera; easyhec export writes every camera.
-    const note = document.createElement("span");
-    note.className = "muted";
-    note.textContent = "Several cameras: export them with `easyhec export RUN/result.json --format F --out DIR`.";
-    box.replaceChildren(note);
-    return;
-  }
   if (!ready) {
     const note = document.createElement("span");
     note.className = "muted";
@@ -186,21 +178,30 @@ function showDownloads(s) {
     box.replaceChildren(note);
     return;
   }
+  // One row of buttons per camera the run calibrated in a list, each file named by its camera.
+  const cameras = (cameraNames && s.cameras) || cameraNames || [null];
   box.replaceChildren(
-    ...EXPORT_FORMATS.map((format) => {
-      const b = document.createElement("button");
-      b.textContent = format;
-      b.dataset.format = format;
-      b.onclick = () => download(s.id, format, b);
-      return b;
+    ...cameras.map((camera) => {
+      const row = document.createElement("div");
+      if (camera !== null) row.append(camera + ": ");
+      row.dataset.camera = camera === null ? "" : camera;
+      for (const format of EXPORT_FORMATS) {
+        const b = document.createElement("button");
+        b.textContent = format;
+        b.dataset.format = format;
+        b.onclick = () => download(s.id, format, b, camera);
+        row.append(b);
+      }
+      return row;
     }),
   );
 }
 
-// Fetches an export with the token (a plain link cannot send it) and saves it under the
-// name the daemon gives.
-async function download(id, format, button) {
-  const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/export/" + format);
+// Fetches an export (of `camera` in a list) with the token (a plain link cannot send it) and
+// saves it under the name the daemon gives.
+async function download(id, format, button, camera) {
+  const query = camera === null ? "" : "?camera=" + encodeURIComponent(camera);
+  const resp = await api("/api/v1/calibrations/" + encodeURIComponent(id) + "/export/" + format + query);
   button.dataset.status = String(resp.status);
   if (!resp.ok) {
     const body = await resp.json().catch(() => null);
