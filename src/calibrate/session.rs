@@ -27,7 +27,7 @@ use crate::render::PosedRobot;
 use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
 use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
 use crate::safety::CheckedMove;
-use crate::solve::{solve, SolveOptions, SolveReport, View};
+use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
 /// starting pose (a fixed camera: below [`POOR_FIT_IOU`]). A fixed camera sees the whole arm,
@@ -790,6 +790,59 @@ impl<'a> Session<'a> {
         Ok(())
     }
 
+    /// Several cameras saw every view: each view's joint correction is estimated from all of
+    /// them together and every camera is re-solved with it (docs/cameras.md, "Shared joint
+    /// correction"); one camera alone cannot tell a joint's error from its own pose error.
+    fn correct_shared_joints(&mut self) {
+        if self.tracks.len() < 2 || self.solve_opts.joint_noise_rad <= 0.0 {
+            return;
+        }
+        let started = Instant::now();
+        let cameras: Vec<CameraSolve> = self
+            .tracks
+            .iter()
+            .map(|t| CameraSolve {
+                name: t.unit.name,
+                seen: t.unit.seen,
+                camera: &t.camera,
+                views: &t.views,
+                report: t.report().clone(),
+            })
+            .collect();
+        let shared = solve_with_shared_joints(
+            self.renderer.as_ref(),
+            cameras,
+            &self.taken,
+            &self.solve_opts,
+        );
+        let largest = shared
+            .corrections
+            .iter()
+            .flatten()
+            .fold(0.0, |m: f64, d| m.max(d.abs()));
+        for (t, r) in self.tracks.iter_mut().zip(shared.reports) {
+            t.report = Some(r);
+        }
+        self.solve_s += started.elapsed().as_secs_f64();
+        let cameras = self.camera_rounds();
+        let first = self.report().clone();
+        let last = self.last_round();
+        last.camera_from_base = to_rows(&first.camera_from_base);
+        last.mean_iou = first.mean_iou();
+        last.loss = first.loss;
+        last.cameras = cameras;
+        let kept = match shared.kept.is_empty() {
+            true => String::new(),
+            false => format!(
+                "; kept its own solve, the re-solve fitting worse: {}",
+                shared.kept.join(", ")
+            ),
+        };
+        last.events.push(format!(
+            "re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}"
+        ));
+    }
+
     /// Re-segments once more when that helps, then writes the result (not on a dry run):
     /// `easyhec-result/1` for a `[camera]` table, `easyhec-result/2` for `[[camera]]`
     /// tables.
@@ -797,6 +850,7 @@ impl<'a> Session<'a> {
         self.pb.finish_and_clear();
         if !self.opts.dry_run && !self.cancelled {
             self.resegment_final()?;
+            self.correct_shared_joints();
         }
         self.rec.write_rounds(&self.rounds)?;
         if !self.opts.dry_run && !self.cancelled {

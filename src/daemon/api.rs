@@ -773,7 +773,7 @@ async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
         (status = 200, description = "The file, with Content-Disposition naming it", content_type = "text/plain", body = String),
         (status = 400, description = "Unknown format; `camera` missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
-        (status = 404, description = "No such calibration, or it has no result", body = ErrorBody),
+        (status = 404, description = "No such calibration, it has no result, or it did not calibrate the camera asked for", body = ErrorBody),
         (status = 409, description = "The run directory leaves the data folder, or a frame name cannot be written", body = ErrorBody),
         (status = 500, description = "result.json does not read back", body = ErrorBody)),
     security((), ("bearer" = [])))]

@@ -333,19 +333,22 @@ impl Daemon {
     }
 
     /// Hands every camera's active calibration to the ROS 2 broadcaster, when `[ros2]` asks
-    /// for one (nothing while none is active).
+    /// for one (nothing while none is active). An entry whose frame no longer fits its
+    /// camera's mount is left out, as [`Daemon::active_poses`] leaves it out.
     fn announce_active(&self) {
         #[cfg(feature = "ros2")]
         if let Some(tf) = &self.tf {
-            let active: Vec<tf_broadcast::Announced> = self
-                .store
-                .active_all()
-                .into_iter()
-                .map(|a| (a.id, a.camera, a.result))
-                .collect();
-            if !active.is_empty() {
-                tf.announce(active);
-            }
+            tf.announce(|| {
+                self.store
+                    .active_all()
+                    .into_iter()
+                    .filter(|a| {
+                        self.frame_mismatch(a.camera.as_deref(), &a.result.base_link)
+                            .is_none()
+                    })
+                    .map(|a| (a.id, a.camera, a.result))
+                    .collect()
+            });
         }
     }
 

@@ -5,7 +5,9 @@
 //!
 //! In a cell of several cameras every camera's active edge goes out in one message, each to
 //! its own child frame: a `/tf_static` writer keeps only its last message for late joiners,
-//! so recalibrating one camera must send the others' edges again too.
+//! so recalibrating one camera must send the others' edges again too. For the same reason a
+//! set with one refused edge is not sent at all: a message without that camera would take
+//! its earlier edge off `/tf_static`.
 
 use std::sync::mpsc;
 use std::time::Duration;
@@ -24,6 +26,9 @@ pub type Announced = (String, Option<String>, ResultFile);
 /// The handle the daemon keeps: send it the whole active set after each change.
 pub struct TfBroadcast {
     tx: mpsc::Sender<Vec<Announced>>,
+    /// Held from reading the active set to queueing it, so two activations that overlap
+    /// cannot queue their sets in the opposite order (the older set would be published last).
+    queueing: std::sync::Mutex<()>,
     /// Set once a send found the thread gone, so that is logged once.
     lost: std::sync::atomic::AtomicBool,
 }
@@ -43,12 +48,19 @@ impl TfBroadcast {
             .map_err(|_| Error::Ros2("the ROS 2 thread ended while starting".into()))??;
         Ok(Self {
             tx,
+            queueing: Default::default(),
             lost: Default::default(),
         })
     }
 
-    /// Queues the active set (every camera's entry) for publication.
-    pub fn announce(&self, active: Vec<Announced>) {
+    /// Queues the active set `read` returns (every camera's entry) for publication; nothing
+    /// while it is empty.
+    pub fn announce(&self, read: impl FnOnce() -> Vec<Announced>) {
+        let _queueing = self.queueing.lock().unwrap_or_else(|e| e.into_inner());
+        let active = read();
+        if active.is_empty() {
+            return;
+        }
         let sent = self.tx.send(active);
         if sent.is_err() && !self.lost.swap(true, std::sync::atomic::Ordering::SeqCst) {
             tracing::warn!("easyhec daemon: ros2: the ROS 2 thread has ended; this and later calibrations are not published");

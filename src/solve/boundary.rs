@@ -91,7 +91,7 @@ pub(super) struct ObservedLevel {
 }
 
 impl ObservedLevel {
-    fn new(observed: &Mask, factor: u32) -> ObservedLevel {
+    pub(super) fn new(observed: &Mask, factor: u32) -> ObservedLevel {
         let mask = observed.downsample(factor);
         let outline = mask
             .outline_crossings()

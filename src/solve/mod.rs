@@ -31,9 +31,14 @@ mod covariance;
 mod lm;
 mod refine;
 mod search;
+mod shared_joints;
 mod uncertainty;
 
 pub use search::coarse_search;
+pub use shared_joints::{
+    refine_with_joint_corrections, solve_with_shared_joints, CameraSolve, SharedCamera,
+    SharedRefinement, SharedSolve,
+};
 pub use uncertainty::{translation_covariance, uncertainty_of, Uncertainty};
 
 use adam::solve_adam;
