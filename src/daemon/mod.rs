@@ -339,13 +339,8 @@ impl Daemon {
         #[cfg(feature = "ros2")]
         if let Some(tf) = &self.tf {
             tf.announce(|| {
-                self.store
-                    .active_all()
+                self.fitting_active()
                     .into_iter()
-                    .filter(|a| {
-                        self.frame_mismatch(a.camera.as_deref(), &a.result.base_link)
-                            .is_none()
-                    })
                     .map(|a| (a.id, a.camera, a.result))
                     .collect()
             });
@@ -866,9 +861,8 @@ impl Daemon {
         Some((a.id, pose))
     }
 
-    /// Every camera's active calibration that fits its mount, for bump checks: the one
-    /// camera's, or each camera's of a list.
-    pub fn active_poses(&self) -> Vec<ActivePose> {
+    /// Every active entry whose result's frame fits its camera's mount ([`Daemon::frame_mismatch`]).
+    fn fitting_active(&self) -> Vec<store::ActiveFile> {
         self.store
             .active_all()
             .into_iter()
@@ -876,6 +870,14 @@ impl Daemon {
                 self.frame_mismatch(a.camera.as_deref(), &a.result.base_link)
                     .is_none()
             })
+            .collect()
+    }
+
+    /// Every camera's active calibration that fits its mount, for bump checks: the one
+    /// camera's, or each camera's of a list.
+    pub fn active_poses(&self) -> Vec<ActivePose> {
+        self.fitting_active()
+            .into_iter()
             .filter_map(|a| {
                 let pose = from_rows(&a.result.camera_from_base).ok()?;
                 Some((a.camera, a.id, pose))
