@@ -433,6 +433,23 @@ fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: 
     }
     let (code, _, body) = get_bytes(&format!("{}/api/v1/calibrations/{id}/export/yaml", d.base));
     assert_eq!(code, 400, "{}", String::from_utf8_lossy(&body));
+    // A cell of one camera has no camera to pick.
+    let (code, body) = call(
+        "GET",
+        &format!(
+            "{}/api/v1/calibrations/{id}/export/urdf?camera=front",
+            d.base
+        ),
+        None,
+    );
+    assert_eq!(code, 400, "{body}");
+    assert!(
+        body["error"]
+            .as_str()
+            .unwrap()
+            .contains("one [camera] table"),
+        "{body}"
+    );
 }
 
 /// After a newer (dry) run, picking the first run in the history shows its overlays again.

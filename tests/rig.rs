@@ -264,6 +264,19 @@ fn the_daemon_serves_camera_lists_and_refuses_tf_settings_that_fit_one_camera() 
         assert!(!e.contains('\n'), "{e}");
         assert_eq!(std::fs::read_dir(&data).unwrap().count(), 0);
     }
+    // One parent for cameras that all hang from the base is fine: whatever refuses this
+    // config (a build without ROS 2), it is not the frames.
+    let path = dir.path().join("rig-frame.toml");
+    std::fs::write(
+        &path,
+        format!("{three}\n[ros2]\nframe_id = \"world\"\npublish_tf = false\n"),
+    )
+    .unwrap();
+    let cell = Cell::open(&path).unwrap();
+    let data = dir.path().join("data-frame");
+    if let Err(e) = easyhec::daemon::Daemon::open(cell, &data, "token".into()) {
+        assert!(!e.to_string().contains("ros2.frame_id"), "{e}");
+    }
 }
 
 /// Each camera stops asking for views once its estimate settles; the loop stops when all
