@@ -780,14 +780,28 @@ impl<'a> Session<'a> {
         )?;
         t.report = Some(report);
         self.solve_s += started.elapsed().as_secs_f64();
-        let report = self.tracks[0].report().clone();
-        let last = self.last_round();
-        last.camera_from_base = to_rows(&report.camera_from_base);
-        last.mean_iou = report.mean_iou();
-        last.loss = report.loss;
-        last.events
-            .push("re-segmented every view under the final estimate and re-solved".into());
+        self.record_final_solve(
+            "re-segmented every view under the final estimate and re-solved".into(),
+        );
         Ok(())
+    }
+
+    /// The last round records the solve that the end of the loop changed (a re-segmentation
+    /// or the shared joint correction), so rounds.json ends on the result it reports.
+    fn record_final_solve(&mut self, event: String) {
+        let cameras = self.camera_rounds();
+        let first = self.tracks[0].report();
+        let (camera_from_base, mean_iou, loss) = (
+            to_rows(&first.camera_from_base),
+            first.mean_iou(),
+            first.loss,
+        );
+        let last = self.last_round();
+        last.camera_from_base = camera_from_base;
+        last.mean_iou = mean_iou;
+        last.loss = loss;
+        last.cameras = cameras;
+        last.events.push(event);
     }
 
     /// Several cameras saw every view: each view's joint correction is estimated from all of
@@ -824,13 +838,6 @@ impl<'a> Session<'a> {
             t.report = Some(r);
         }
         self.solve_s += started.elapsed().as_secs_f64();
-        let cameras = self.camera_rounds();
-        let first = self.report().clone();
-        let last = self.last_round();
-        last.camera_from_base = to_rows(&first.camera_from_base);
-        last.mean_iou = first.mean_iou();
-        last.loss = first.loss;
-        last.cameras = cameras;
         let kept = match shared.kept.is_empty() {
             true => String::new(),
             false => format!(
@@ -838,7 +845,7 @@ impl<'a> Session<'a> {
                 shared.kept.join(", ")
             ),
         };
-        last.events.push(format!(
+        self.record_final_solve(format!(
             "re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}"
         ));
     }

@@ -11,53 +11,51 @@ use crate::run::ResultFile;
 /// The tf edge for `result`: the `[ros2]` table's frames and fixed optical transform, or the
 /// result's base link and [`DEFAULT_CHILD_FRAME`] without one.
 pub fn edge(settings: Option<&Ros2Settings>, result: &ResultFile) -> Result<TfEdge> {
-    let Some(settings) = settings else {
-        return TfEdge::from_result(
-            result,
-            None,
-            DEFAULT_CHILD_FRAME,
-            None,
-            ["ros2.frame_id", "ros2.child_frame_id"],
-        );
-    };
-    let optical_from_child = settings
-        .optical_from_child
-        .map(|v| transform_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]))
-        .transpose()
-        .map_err(|m| Error::Usage(format!("ros2.optical_from_child {m}")))?;
-    TfEdge::from_result(
-        result,
-        settings.frame_id.as_deref(),
-        &settings.child_frame_id,
-        optical_from_child.as_ref(),
-        ["ros2.frame_id", "ros2.child_frame_id"],
-    )
+    edge_to_child(settings, configured_child(settings), result)
 }
 
 /// The tf edge for one active entry: [`edge`] for a cell of one camera; for a camera of a
 /// list, the child frame is the camera's own (the configured one with the camera's name and `_`
-/// in front, [`camera_frame`]), as
-/// `easyhec publish` names it for a result of several cameras.
+/// in front, [`camera_frame`]), as `easyhec publish` names it for a result of several cameras.
 pub fn camera_edge(
     settings: Option<&Ros2Settings>,
     camera: Option<&str>,
     result: &ResultFile,
 ) -> Result<TfEdge> {
-    let Some(name) = camera else {
-        return edge(settings, result);
-    };
-    let Some(settings) = settings else {
-        return TfEdge::from_result(
+    match camera {
+        None => edge(settings, result),
+        Some(name) => edge_to_child(
+            settings,
+            &camera_frame(configured_child(settings), name),
             result,
-            None,
-            &camera_frame(DEFAULT_CHILD_FRAME, name),
-            None,
-            ["ros2.frame_id", "ros2.child_frame_id"],
-        );
-    };
-    let mut own = settings.clone();
-    own.child_frame_id = camera_frame(&settings.child_frame_id, name);
-    edge(Some(&own), result)
+        ),
+    }
+}
+
+/// `[ros2] child_frame_id`, or the default without a `[ros2]` table.
+fn configured_child(settings: Option<&Ros2Settings>) -> &str {
+    settings.map_or(DEFAULT_CHILD_FRAME, |s| s.child_frame_id.as_str())
+}
+
+/// The edge from `[ros2] frame_id` (or the result's own parent) to `child`, with the
+/// configured `optical_from_child` when there is one.
+fn edge_to_child(
+    settings: Option<&Ros2Settings>,
+    child: &str,
+    result: &ResultFile,
+) -> Result<TfEdge> {
+    let optical_from_child = settings
+        .and_then(|s| s.optical_from_child)
+        .map(|v| transform_from_parts([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]))
+        .transpose()
+        .map_err(|m| Error::Usage(format!("ros2.optical_from_child {m}")))?;
+    TfEdge::from_result(
+        result,
+        settings.and_then(|s| s.frame_id.as_deref()),
+        child,
+        optical_from_child.as_ref(),
+        ["ros2.frame_id", "ros2.child_frame_id"],
+    )
 }
 
 /// `result` (of `camera`, in a list) rendered in `format`, with the file name a download

@@ -22,7 +22,9 @@ use crate::render::PosedRobot;
 use crate::run::{
     load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
-use crate::solve::{Optimizer, SolveOptions, SolveReport, View};
+use crate::solve::{
+    solve_with_shared_joints, CameraSolve, Optimizer, SolveOptions, SolveReport, View,
+};
 
 /// What to solve and how (`easyhec solve`'s flags).
 #[derive(Clone, Debug)]
@@ -85,8 +87,21 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
     let (run, k) = load_requested(req)?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
-    let folders = (req.overlays.clone(), req.masks_out.clone());
-    let solved = solve_loaded(req, run, k, renderer.as_ref(), &folders, started, note)?;
+    let fitted = fit_loaded(
+        req,
+        run,
+        k,
+        renderer.as_ref(),
+        req.masks_out.as_deref(),
+        note,
+    )?;
+    let solved = finish_fit(
+        req,
+        fitted,
+        renderer.as_ref(),
+        req.overlays.as_deref(),
+        started,
+    )?;
     let out = req
         .out
         .clone()
@@ -134,9 +149,10 @@ pub fn is_rig_run(run: &Path) -> Result<bool> {
     Ok(crate::run::rig::format_of(&json)?.as_deref() == Some(crate::run::rig::RIG_RUN_FORMAT))
 }
 
-/// Solves every camera of an `easyhec-run/2` run as [`solve_run`] solves one, and writes one
-/// `easyhec-result/2`. Overlays and masks go to a folder per camera (`DIR/<name>/`), as each
-/// camera is solved; the result is written only when every camera's solve passes.
+/// Solves every camera of an `easyhec-run/2` run as [`solve_run`] solves one, corrects each
+/// view's joints from all cameras together and re-solves them as the calibration loop does,
+/// and writes one `easyhec-result/2`. Masks and overlays go to a folder per camera
+/// (`DIR/<name>/`); the result is written only when every camera's solve passes.
 pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<RigOfflineOutcome> {
     use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
     let started = Instant::now();
@@ -147,26 +163,28 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
         .collect::<Result<Vec<_>>>()?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
-    let mut entries = Vec::with_capacity(cameras.len());
-    let mut solved_cameras = Vec::with_capacity(cameras.len());
-    let mut run_dir = PathBuf::new();
+    let mut fitted = Vec::with_capacity(cameras.len());
     for ((name, run), k) in cameras.into_iter().zip(views) {
-        let per = |d: &Option<PathBuf>| d.as_ref().map(|d| d.join(&name));
-        let folders = (per(&req.overlays), per(&req.masks_out));
+        let masks_out = req.masks_out.as_ref().map(|d| d.join(&name));
         let mut camera_note = |line: &str| note(&format!("{name}: {line}"));
-        let solved = solve_loaded(
+        let fit = fit_loaded(
             req,
             run,
             k,
             renderer.as_ref(),
-            &folders,
-            started,
+            masks_out.as_deref(),
             &mut camera_note,
         )
-        .map_err(|e| match e {
-            Error::Solve(m) => Error::Solve(format!("camera '{name}': {m}")),
-            other => other,
-        })?;
+        .map_err(|e| in_camera(&name, e))?;
+        fitted.push((name, fit));
+    }
+    correct_shared_joints(req, renderer.as_ref(), &mut fitted, note);
+    let mut entries = Vec::with_capacity(fitted.len());
+    let mut solved_cameras = Vec::with_capacity(fitted.len());
+    let mut run_dir = PathBuf::new();
+    for (name, fit) in fitted {
+        let overlays = req.overlays.as_ref().map(|d| d.join(&name));
+        let solved = finish_fit(req, fit, renderer.as_ref(), overlays.as_deref(), started)?;
         run_dir = solved.run_dir.clone();
         entries.push(CameraResult::of(&name, &solved.result));
         solved_cameras.push(CameraSolved {
@@ -196,6 +214,92 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
     })
 }
 
+/// A solve error names the camera of a list it happened in.
+fn in_camera(name: &str, e: Error) -> Error {
+    match e {
+        Error::Solve(m) => Error::Solve(format!("camera '{name}': {m}")),
+        other => other,
+    }
+}
+
+/// Every camera of a list saw the same views from the same arm, so each view's joint
+/// correction is estimated from all of them together and every camera re-solved with it, as
+/// the calibration loop does (docs/cameras.md, "Shared joint correction"). Skipped, with a
+/// note, when the cameras' solves rest on different views.
+fn correct_shared_joints(
+    req: &OfflineSolve,
+    renderer: &dyn Backend,
+    fitted: &mut [(String, Fitted)],
+    note: &mut dyn FnMut(&str),
+) {
+    if fitted.len() < 2 || req.joint_noise_rad <= 0.0 {
+        return;
+    }
+    let order = fitted[0].1.order.clone();
+    if fitted.iter().any(|(_, f)| f.order != order) {
+        note("the cameras' solves rest on different views; each camera keeps its own solve, without the shared joint correction");
+        return;
+    }
+    let t = Instant::now();
+    let used: Vec<Vec<View>> = fitted
+        .iter()
+        .map(|(_, f)| order.iter().map(|&i| f.pool[i].clone()).collect())
+        .collect();
+    let joints: Vec<Vec<f64>> = order
+        .iter()
+        .map(|&i| fitted[0].1.run.views[i].joints.clone())
+        .collect();
+    let cameras = fitted
+        .iter()
+        .zip(&used)
+        .map(|((name, f), views)| CameraSolve {
+            name,
+            seen: &f.run.robot,
+            camera: &f.run.camera,
+            views,
+            report: f.report.clone(),
+        })
+        .collect();
+    let shared = solve_with_shared_joints(renderer, cameras, &joints, &solve_options(req));
+    let largest = shared
+        .corrections
+        .iter()
+        .flatten()
+        .fold(0.0, |m: f64, d| m.max(d.abs()));
+    let seconds = t.elapsed().as_secs_f64();
+    for ((_, f), report) in fitted.iter_mut().zip(shared.reports) {
+        // The loop's keep rule allows a small drop in fit; never below the poor-fit line.
+        if report.mean_iou() >= POOR_FIT_IOU || req.allow_poor_fit {
+            f.report = report;
+        }
+        f.timings.solve_s += seconds;
+    }
+    let kept = match shared.kept.is_empty() {
+        true => String::new(),
+        false => format!(" ({} kept its own solve)", shared.kept.join(", ")),
+    };
+    note(&format!("re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}"));
+}
+
+/// One camera's judged solve, before its overlays and result.
+struct Fitted {
+    run: LoadedRun,
+    pool: Vec<View>,
+    order: Vec<usize>,
+    report: SolveReport,
+    stop_reason: String,
+    timings: Timings,
+}
+
+/// The options of every solve of the request.
+fn solve_options(req: &OfflineSolve) -> SolveOptions {
+    SolveOptions {
+        optimizer: req.optimizer,
+        joint_noise_rad: req.joint_noise_rad,
+        ..SolveOptions::default()
+    }
+}
+
 /// One camera's judged solve, not yet written.
 struct Solved {
     result: ResultFile,
@@ -206,22 +310,21 @@ struct Solved {
     solve_s: f64,
 }
 
-/// Segments, initialises, selects, judges and describes one camera's loaded run; `folders`
-/// are where its overlays and made masks go.
-fn solve_loaded(
+/// Segments, initialises, selects and judges one camera's loaded run; `masks_out` is where
+/// the masks a segmenter made go.
+fn fit_loaded(
     req: &OfflineSolve,
     mut run: LoadedRun,
     k: usize,
     renderer: &dyn Backend,
-    folders: &(Option<PathBuf>, Option<PathBuf>),
-    started: Instant,
+    masks_out: Option<&Path>,
     note: &mut dyn FnMut(&str),
-) -> Result<Solved> {
+) -> Result<Fitted> {
     let mut timings = Timings::default();
     let mut settled = None;
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
-        settled = segment_run(&mut run, config, renderer, folders.1.as_deref(), note)?;
+        settled = segment_run(&mut run, config, renderer, masks_out, note)?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
@@ -241,11 +344,7 @@ fn solve_loaded(
         Some(start) => start,
         None => auto_initial(renderer, &run, &pool, note)?,
     };
-    let solve_opts = SolveOptions {
-        optimizer: req.optimizer,
-        joint_noise_rad: req.joint_noise_rad,
-        ..SolveOptions::default()
-    };
+    let solve_opts = solve_options(req);
     let explore_opts = ExploreOptions {
         seed: req.seed,
         ..ExploreOptions::default()
@@ -271,7 +370,33 @@ fn solve_loaded(
     if !req.allow_poor_fit {
         judge_fit(&order, &report, k)?;
     }
-    if let Some(dir) = &folders.0 {
+    Ok(Fitted {
+        run,
+        pool,
+        order,
+        report,
+        stop_reason,
+        timings,
+    })
+}
+
+/// Writes one judged solve's overlays (into `overlays`) and describes it as a result.
+fn finish_fit(
+    req: &OfflineSolve,
+    fitted: Fitted,
+    renderer: &dyn Backend,
+    overlays: Option<&Path>,
+    started: Instant,
+) -> Result<Solved> {
+    let Fitted {
+        run,
+        pool,
+        order,
+        report,
+        stop_reason,
+        mut timings,
+    } = fitted;
+    if let Some(dir) = overlays {
         write_overlays(renderer, &run, &pool, &order, &report, dir)?;
     }
     timings.total_s = started.elapsed().as_secs_f64();
