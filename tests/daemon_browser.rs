@@ -348,6 +348,8 @@ fn web_page_follows_every_camera_of_a_list() {
     let d = start(&config, &dir.path().join("data"));
     with_page(&chromium, &chromedriver, |session| {
         open_page(session, &d.base);
+        previews_every_camera(session);
+        draws_every_cameras_plan(session, &d);
         click(session, "#start");
         let rows = wait_js(
             session,
@@ -517,10 +519,54 @@ fn previews_the_camera(session: &str) {
     click(session, "#preview-button");
     wait_js(
         session,
-        "const i = document.getElementById('preview'); return !i.hidden && i.complete && i.naturalWidth === 320",
+        "const i = document.getElementById('preview'); return !!i && i.complete && i.naturalWidth === 320",
         Duration::from_secs(20),
         "the camera preview",
     );
+}
+
+/// In a list, "Preview camera" shows one live frame per camera, each at its own size.
+fn previews_every_camera(session: &str) {
+    click(session, "#preview-button");
+    let sizes = wait_js(
+        session,
+        "const imgs = [...document.querySelectorAll('#previews img')]; return imgs.length === 3 && imgs.every(i => i.complete && i.naturalWidth > 0) && imgs.map(i => i.dataset.camera + ' ' + i.naturalWidth).join(',')",
+        Duration::from_secs(30),
+        "every camera's preview",
+    );
+    assert_eq!(sizes.as_str(), Some("front 640,side 800,high 512"));
+}
+
+/// In a list, a dry run's planned poses are drawn over every camera's first view, each under
+/// that camera's estimate (a camera without one would give no image), and nothing moves.
+fn draws_every_cameras_plan(session: &str, d: &daemon_common::Running) {
+    let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
+    let before = arm.commands().len();
+    click(session, "#dry-run");
+    click(session, "#start");
+    let drawn = wait_js(
+        session,
+        "const imgs = [...document.querySelectorAll('#overlays img')].filter(i => i.dataset.key.includes('/plan-')); \
+         return document.getElementById('state').textContent === 'succeeded' && imgs.length > 0 \
+         && imgs.every(i => i.complete && i.naturalWidth > 0) \
+         && [...new Set(imgs.map(i => i.dataset.key.split('/')[0] + ' ' + i.naturalWidth))].join(',') + ' ' + imgs.length",
+        Duration::from_secs(60),
+        "every camera's planned poses",
+    );
+    let planned = d
+        .daemon
+        .store()
+        .records()
+        .iter()
+        .find(|r| r.dry_run)
+        .and_then(|r| r.planned_poses)
+        .unwrap();
+    assert_eq!(
+        drawn.as_str().map(str::to_string),
+        Some(format!("front 640,side 800,high 512 {}", 3 * planned))
+    );
+    assert_eq!(arm.commands().len(), before, "a dry run moved the arm");
+    click(session, "#dry-run");
 }
 
 /// With "dry run" ticked, Calibrate plans and draws each planned pose over the first view,

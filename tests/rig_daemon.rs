@@ -93,6 +93,12 @@ fn pose_of(active: &Value) -> Isometry3<f64> {
 /// required, and must name a camera of the cell.
 fn assert_overlays_per_camera(base: &str, id: &str, sizes: &[(u32, u32)]) {
     let url = format!("{base}/api/v1/calibrations/{id}/views/0/overlay.png");
+    assert_png_per_camera(base, &url, sizes);
+}
+
+/// Each camera's image from `url?camera=NAME` decodes at that camera's own size; the query
+/// is required, and must name a camera of the cell.
+fn assert_png_per_camera(base: &str, url: &str, sizes: &[(u32, u32)]) {
     for ((name, _), size) in cameras(base).iter().zip(sizes) {
         let (code, ctype, png) = get_bytes(&format!("{url}?camera={name}"));
         assert_eq!((code, ctype.as_str()), (200, "image/png"), "{name}");
@@ -182,7 +188,10 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
         "a list of cameras has no single active calibration"
     );
 
-    assert_overlays_per_camera(&base, &first, &[(640, 480), (800, 600), (512, 384)]);
+    let sizes = [(640, 480), (800, 600), (512, 384)];
+    assert_overlays_per_camera(&base, &first, &sizes);
+    // The live preview grabs the camera named, at its own size.
+    assert_png_per_camera(&base, &format!("{base}/api/v1/camera/preview.png"), &sizes);
 
     let before = cameras(&base);
     for ((name, active), (_, scene)) in before.iter().zip(&scenes) {

@@ -7,13 +7,14 @@ use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
 
+use super::coverage::errors_in_sigmas;
 use super::{median, Report};
 use crate::calibrate::VisibilityRule;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::{read_config, CameraConfig, CellConfig, InitialGuess};
 use crate::error::{Error, Result};
-use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
+use crate::geometry::{camera_centre_error_mm, rotation_error_deg, to_rows, translation_error_mm};
 
 /// Several cameras in one run against each alone (docs/benchmarks.md).
 #[derive(clap::Args, Clone, Debug)]
@@ -32,12 +33,27 @@ pub struct RigBench {
     pub views: usize,
 }
 
-/// One calibration's errors per camera (degrees, mm), its wall time, and the time its moves
-/// take on an arm at the commanded speed.
+/// One calibration's errors per camera (degrees, mm) and against its reported uncertainty,
+/// its wall time, and the time its moves take on an arm at the commanded speed.
 struct Trial {
     errors: Vec<(f64, f64)>,
+    honesty: Vec<Honesty>,
     wall_s: f64,
     motion_s: f64,
+}
+
+/// One camera's true error against what it reported.
+struct Honesty {
+    /// True error per camera axis in units of the reported 1σ.
+    z: [f64; 6],
+    /// Whether the true camera centre lies within the reported 95% bound.
+    centre_inside: bool,
+}
+
+impl Honesty {
+    fn axes_within_2_sigma(&self) -> usize {
+        self.z.iter().filter(|z| **z <= 2.0).count()
+    }
 }
 
 impl Trial {
@@ -87,9 +103,11 @@ impl RigBench {
                         .collect::<Vec<_>>()
                         .join(", ");
                     let single = alone.iter().map(|t| t.wall_s).sum::<f64>() / alone.len() as f64;
+                    let single_motion =
+                        alone.iter().map(|t| t.motion_s).sum::<f64>() / alone.len() as f64;
                     log(&format!(
-                        "seed {seed}: {line}; wall {:.1} s, one camera {:.1} s",
-                        rig.wall_s, single
+                        "seed {seed}: {line}; wall {:.1} s + motion {:.1} s, one camera {:.1} s + {:.1} s",
+                        rig.wall_s, rig.motion_s, single, single_motion
                     ));
                     rig_trials.push(rig);
                     alone_trials.push(alone);
@@ -149,6 +167,7 @@ impl RigBench {
                 in_rig.0, in_rig.1, by_itself.0, by_itself.1
             ));
         }
+        self.honesty_table(names, rig, alone, &mut report);
         let ratio = |f: &dyn Fn(&Trial) -> f64| -> Vec<f64> {
             rig.iter()
                 .zip(alone)
@@ -179,6 +198,39 @@ impl RigBench {
     }
 }
 
+impl RigBench {
+    /// Per camera, how often its reported uncertainty covered the true error, in the rig and
+    /// alone (the promise: 95.4% of axes within 2σ, 95% of centres within the bound).
+    fn honesty_table(
+        &self,
+        names: &[String],
+        rig: &[Trial],
+        alone: &[Vec<Trial>],
+        report: &mut Report,
+    ) {
+        report.line(
+            "| camera | axes within 2σ, rig / alone | centres within the 95% bound, rig / alone |",
+        );
+        report.line("|---|---|---|");
+        let share = |of: Vec<&Honesty>| {
+            let n = of.len().max(1) as f64;
+            (
+                100.0 * of.iter().map(|h| h.axes_within_2_sigma()).sum::<usize>() as f64
+                    / (6.0 * n),
+                100.0 * of.iter().filter(|h| h.centre_inside).count() as f64 / n,
+            )
+        };
+        for (k, n) in names.iter().enumerate() {
+            let r = share(rig.iter().map(|t| &t.honesty[k]).collect());
+            let a = share(alone.iter().map(|a| &a[k].honesty[0]).collect());
+            report.line(format!(
+                "| {n} | {:.1}% / {:.1}% | {:.1}% / {:.1}% |",
+                r.0, a.0, r.1, a.1
+            ));
+        }
+    }
+}
+
 /// Calibrates `cfg` and measures each camera's error against the simulator's truth.
 fn trial(cfg: &CellConfig, path: &Path) -> Result<Trial> {
     let started = Instant::now();
@@ -194,24 +246,27 @@ fn trial(cfg: &CellConfig, path: &Path) -> Result<Trial> {
         &RunOptions::default(),
     ))?;
     let wall_s = started.elapsed().as_secs_f64();
-    let errors = cell
-        .cameras()
-        .iter()
-        .zip(&outcome.cameras)
-        .map(|(unit, cam)| {
-            let truth = unit
-                .sim
-                .camera_from_base
-                .ok_or_else(|| Error::Solve("bench rig needs simulated cameras".into()))?;
-            let estimate = cam.result.camera_from_base();
-            Ok((
-                rotation_error_deg(&estimate, &truth),
-                translation_error_mm(&estimate, &truth),
-            ))
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let mut errors = Vec::new();
+    let mut honesty = Vec::new();
+    for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
+        let truth = unit
+            .sim
+            .camera_from_base
+            .ok_or_else(|| Error::Solve("bench rig needs simulated cameras".into()))?;
+        let estimate = cam.result.camera_from_base();
+        errors.push((
+            rotation_error_deg(&estimate, &truth),
+            translation_error_mm(&estimate, &truth),
+        ));
+        let u = &cam.report.uncertainty;
+        honesty.push(Honesty {
+            z: errors_in_sigmas(&estimate, &truth, u),
+            centre_inside: camera_centre_error_mm(&estimate, &truth) <= u.camera_centre_95_mm,
+        });
+    }
     Ok(Trial {
         errors,
+        honesty,
         wall_s,
         motion_s: commanded_motion_s(&cell),
     })

@@ -668,10 +668,11 @@ async fn render_overlay(
 /// red where it stands now, green where both are (the estimate of the dry run's view).
 #[utoipa::path(get, path = "/api/v1/calibrations/{id}/plan/{k}/overlay.png", tag = "calibrations",
     params(("id" = String, Path, description = "A dry run's id, `cal-NNNN`"),
-        ("k" = usize, Path, description = "A planned pose's index (0, 1, …)")),
+        ("k" = usize, Path, description = "A planned pose's index (0, 1, …)"),
+        ("camera" = Option<String>, Query, description = "The camera's name: required in a cell of `[[camera]]` tables, refused in a cell of one `[camera]`")),
     responses(
-        (status = 200, description = "The planned pose over the first view", content_type = "image/png", body = Png),
-        (status = 400, description = "`k` is not an index", body = ErrorBody),
+        (status = 200, description = "The planned pose over the camera's first view", content_type = "image/png", body = Png),
+        (status = 400, description = "`k` is not an index, or `camera` is missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration, plan or pose", body = ErrorBody),
         (status = 409, description = "No estimate to draw with, or a file leaves the data folder", body = ErrorBody),
@@ -680,25 +681,26 @@ async fn render_overlay(
 async fn plan_overlay(
     State(d): State<Shared>,
     Path((id, k)): Path<(String, String)>,
+    RawQuery(query): RawQuery,
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let k = path_index(&k, "pose")?;
+    let target = overlays::target(d.cell(), query.as_deref())?;
     let record = record_of(&d, &id)?;
-    // A dry run's plan is drawn over the first view of the first camera it calibrated,
-    // under that camera's estimate (the record's own).
-    let first = overlays::first_calibrated(d.cell(), &record);
-    let (run_dir, mut view) = overlay_view(&d, &record, &first, 0)?;
-    let rows = record.camera_from_base.ok_or_else(|| {
-        Refusal::Conflict(format!(
-            "calibration {id} has no estimate to draw its plan with"
-        ))
-    })?;
+    // A dry run's plan is drawn over the camera's first view, under its estimate.
+    let (run_dir, mut view) = overlay_view(&d, &record, &target, 0)?;
+    let rows =
+        overlays::estimate(&record, &target, &run_dir.join("rounds.json")).ok_or_else(|| {
+            Refusal::Conflict(format!(
+                "calibration {id} has no estimate to draw its plan with"
+            ))
+        })?;
     let plan = run_file(&d, &record, "plan.json")?;
     let pose = from_rows(&rows).map_err(Refusal::Internal)?;
     let cell = d.cell().clone();
     let png = tokio::task::spawn_blocking(move || {
         view.joints = super::plan::pose(&plan, k, cell.robot.actuated.len())?;
-        overlays::render(&cell, &first, &run_dir, 0, &view, &pose)
+        overlays::render(&cell, &target, &run_dir, 0, &view, &pose)
     })
     .await
     .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
@@ -713,22 +715,35 @@ async fn plan_overlay(
 }
 
 /// One live camera frame, to frame the camera before a run. It takes the arm-and-camera
-/// lease for the grab, so it never competes with a run's or a check's capture (409 then).
+/// lease for the grab, so it never competes with a run's or a check's capture (409 then). In
+/// a cell of several cameras, `?camera=NAME` picks the camera.
 #[utoipa::path(get, path = "/api/v1/camera/preview.png", tag = "service",
+    params(("camera" = Option<String>, Query, description = "The camera's name: required in a cell of `[[camera]]` tables, refused in a cell of one `[camera]`")),
     responses(
         (status = 200, description = "The frame", content_type = "image/png", body = Png),
+        (status = 400, description = "`camera` is missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (always needed: it shows the cell and holds the camera)", body = ErrorBody),
         (status = 409, description = "The camera is in use; `running` names the holder", body = ErrorBody),
         (status = 500, description = "The camera failed", body = ErrorBody),
         (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
     security(("bearer" = [])))]
-async fn camera_preview(State(d): State<Shared>) -> Result<Response, Refusal> {
+async fn camera_preview(
+    State(d): State<Shared>,
+    RawQuery(query): RawQuery,
+) -> Result<Response, Refusal> {
+    let target = overlays::target(d.cell(), query.as_deref())?;
+    let device = d
+        .cell()
+        .cameras()
+        .get(target.index)
+        .map(|c| c.device.clone())
+        .ok_or_else(|| Refusal::Internal(format!("no camera {}", target.index)))?;
     d.lease(Busy::Preview)?;
     // On its own task, released by a guard: a client that hangs up, a grab that panics or
     // one that never returns must not leave the lease taken.
     let lease = PreviewLease(d.clone());
     let frame = tokio::spawn(async move {
-        let grabbed = tokio::time::timeout(PREVIEW_GRAB, lease.0.cell().camera.grab()).await;
+        let grabbed = tokio::time::timeout(PREVIEW_GRAB, device.grab()).await;
         drop(lease);
         grabbed
     })

@@ -225,17 +225,6 @@ pub fn estimate(
     serde_json::from_value(camera["camera_from_base"].clone()).ok()
 }
 
-/// The camera a dry run's plan is drawn for: the first camera the run calibrated (its
-/// estimate is the record's own), or the cell's only one.
-pub fn first_calibrated(cell: &Cell, record: &CalibrationRecord) -> Target {
-    let name = record.cameras.as_ref().and_then(|c| c.first());
-    let index = name.and_then(|n| cell.camera_index(n)).unwrap_or(0);
-    Target {
-        index,
-        name: name.filter(|_| cell.config.camera.is_listed()).cloned(),
-    }
-}
-
 /// Renders view `n` (recorded in `run_dir` as `view`) under `pose` and encodes it as PNG:
 /// green where render and mask agree, red where only the mask shows robot, blue where only
 /// the render does, over the dimmed colour frame (over the grey mask when the lens distorts,

@@ -14,11 +14,11 @@
 //! poses come from the same solver (and its posterior refinement) as a single camera's: the
 //! Gauss–Newton end-game on quantised outline residuals is rougher than that.
 
-use nalgebra::{DMatrix, DVector, Isometry3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6};
 use rayon::prelude::*;
 
 use super::boundary::{view_residuals, ObservedLevel};
-use super::{SolveOptions, SolveReport, View};
+use super::{uncertainty_of, SolveOptions, SolveReport, View};
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
 use crate::geometry::{exp_se3, Twist};
@@ -48,6 +48,9 @@ pub struct SharedRefinement {
     pub camera_from_base: Vec<Isometry3<f64>>,
     /// Each view's joint correction (true minus recorded), radians.
     pub joint_corrections: Vec<Vec<f64>>,
+    /// Each camera's pose covariance (left increment) from the joint error the corrections
+    /// leave, when the normal equations could be inverted.
+    pub left_joint_covariance: Option<Vec<Matrix6<f64>>>,
 }
 
 /// Most Gauss–Newton iterations of the refinement (each renders every camera's every view).
@@ -123,6 +126,15 @@ pub fn solve_with_shared_joints(
             .collect();
         let refined =
             refine_with_joint_corrections(renderer, &shared, joints, opts, opts.joint_noise_rad);
+        // The re-solve's covariance counts no encoder noise when the joint error the
+        // corrections leave can be added instead; otherwise it counts all of it.
+        let resolve_opts = SolveOptions {
+            joint_noise_rad: match refined.left_joint_covariance {
+                Some(_) => 0.0,
+                None => opts.joint_noise_rad,
+            },
+            ..opts.clone()
+        };
         let corrected: Vec<Vec<f64>> = joints
             .iter()
             .zip(&refined.joint_corrections)
@@ -131,7 +143,8 @@ pub fn solve_with_shared_joints(
         let resolved: Vec<Option<SolveReport>> = cameras
             .par_iter()
             .zip(&refined.camera_from_base)
-            .map(|(c, start)| {
+            .enumerate()
+            .map(|(k, (c, start))| {
                 let views: Vec<View> = c
                     .views
                     .iter()
@@ -141,7 +154,14 @@ pub fn solve_with_shared_joints(
                         observed: v.observed.clone(),
                     })
                     .collect();
-                super::solve(renderer, c.camera, &views, start, opts).ok()
+                let mut report =
+                    super::solve(renderer, c.camera, &views, start, &resolve_opts).ok()?;
+                if let Some(left) = &refined.left_joint_covariance {
+                    report.covariance += left[k];
+                    report.uncertainty =
+                        uncertainty_of(&report.covariance, &report.camera_from_base);
+                }
+                Some(report)
             })
             .collect();
         for (c, r) in cameras.iter_mut().zip(resolved) {
@@ -238,7 +258,10 @@ pub fn refine_with_joint_corrections(
             }
         }
     }
-    state.into_refinement()
+    let left = problem.left_joint_covariance(&current.h);
+    let mut out = state.into_refinement();
+    out.left_joint_covariance = left;
+    out
 }
 
 impl State {
@@ -246,6 +269,7 @@ impl State {
         SharedRefinement {
             camera_from_base: self.poses,
             joint_corrections: self.corrections,
+            left_joint_covariance: None,
         }
     }
 }
@@ -271,6 +295,31 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
+    /// Each camera's pose covariance from the joint error the corrections leave. A camera
+    /// solved at the corrected joints moves by `-A⁻¹ B e` for a joint error `e` (`A` its pose
+    /// block of `h`, `B` its pose–joint block), and `e` has the corrections' posterior
+    /// covariance `P` (the joint block of `h⁻¹`, the prior included): `A⁻¹ B P Bᵀ A⁻¹`.
+    /// A joint error no camera can see (one offset of the first joint in every view turns
+    /// every camera alike) keeps its prior variance in `P`, and so in the term.
+    fn left_joint_covariance(&self, h: &DMatrix<f64>) -> Option<Vec<Matrix6<f64>>> {
+        let at = self.joint_index(0);
+        let nj = h.nrows() - at;
+        let p = h
+            .clone()
+            .cholesky()?
+            .inverse()
+            .view((at, at), (nj, nj))
+            .into_owned();
+        (0..self.cameras.len())
+            .map(|c| {
+                let a = h.view((6 * c, 6 * c), (6, 6)).into_owned().try_inverse()?;
+                let s = a * h.view((6 * c, at), (6, nj));
+                let term = &s * &p * s.transpose();
+                Some(Matrix6::from_iterator(term.iter().copied()))
+            })
+            .collect()
+    }
+
     fn nq(&self) -> usize {
         self.joints.first().map_or(0, Vec::len)
     }
@@ -406,7 +455,8 @@ mod tests {
 
     /// Three cameras watch four views whose recorded joints are off the true ones by about a
     /// milliradian: the refinement moves each view's joints most of the way back and keeps the
-    /// cameras, which start at their truth, near it.
+    /// cameras, which start at their truth, near it; the joint error it leaves weighs on each
+    /// camera's covariance, less under a tighter prior.
     #[test]
     fn joint_errors_seen_by_three_cameras_are_recovered() {
         let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
@@ -484,6 +534,16 @@ mod tests {
             let deg = crate::geometry::rotation_error_deg(est, truth);
             let mm = crate::geometry::translation_error_mm(est, truth);
             assert!(deg < 0.05 && mm < 0.5, "{deg:.4} deg / {mm:.3} mm");
+        }
+        // What the corrections leave weighs on every camera, less than the whole prior would.
+        let left = out.left_joint_covariance.expect("normal equations invert");
+        let whole = refine_with_joint_corrections(&CpuRenderer, &cameras, &joints, &opts, 0.02)
+            .left_joint_covariance
+            .expect("normal equations invert");
+        for (l, w) in left.iter().zip(&whole) {
+            let eig = l.symmetric_eigen().eigenvalues;
+            assert!(eig.iter().all(|e| *e > -1e-18) && l.trace() > 0.0, "{l}");
+            assert!(l.trace() < w.trace(), "{} vs {}", l.trace(), w.trace());
         }
     }
 }

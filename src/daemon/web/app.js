@@ -116,10 +116,15 @@ async function loadOverlay(id, n, camera) {
   await loadImage(id, camera + "/" + n, camera + " · view " + n, url);
 }
 
-// A dry run's planned pose `k`, drawn over its first view.
-async function loadPlanned(id, k) {
+// A dry run's planned pose `k`, drawn over the first view (of `camera` in a list).
+async function loadPlanned(id, k, camera) {
   const url = "/api/v1/calibrations/" + encodeURIComponent(id) + "/plan/" + k + "/overlay.png";
-  await loadImage(id, "plan-" + k, "planned pose " + (k + 1), url);
+  if (camera === null) {
+    await loadImage(id, "plan-" + k, "planned pose " + (k + 1), url);
+    return;
+  }
+  const query = "?camera=" + encodeURIComponent(camera);
+  await loadImage(id, camera + "/plan-" + k, camera + " · planned pose " + (k + 1), url + query);
 }
 
 async function loadImage(id, key, caption, url) {
@@ -160,7 +165,10 @@ async function showOverlays(s, reloadAll) {
   }
   const planned = s.dry_run && s.planned_poses ? s.planned_poses : 0;
   for (let k = 0; k < planned; k++) {
-    if (reloadAll || !overlayViews.has("plan-" + k)) await loadPlanned(s.id, k);
+    for (const camera of cameras) {
+      const key = camera === null ? "plan-" + k : camera + "/plan-" + k;
+      if (reloadAll || !overlayViews.has(key)) await loadPlanned(s.id, k, camera);
+    }
   }
 }
 
@@ -507,20 +515,44 @@ async function start() {
   }
 }
 
-// One live frame from the camera, to frame it before a run.
+// One live frame from each camera, to frame them before a run.
 async function preview() {
   $("message").textContent = "";
-  const resp = await api("/api/v1/camera/preview.png");
-  if (!resp.ok) {
-    const body = await resp.json().catch(() => null);
-    $("message").textContent = (body && body.error) || "HTTP " + resp.status;
-    return;
+  const figures = [];
+  for (const camera of cameraNames || [null]) {
+    let url = "/api/v1/camera/preview.png";
+    if (camera !== null) url += "?camera=" + encodeURIComponent(camera);
+    const resp = await api(url);
+    if (!resp.ok) {
+      const body = await resp.json().catch(() => null);
+      const why = (body && body.error) || "HTTP " + resp.status;
+      $("message").textContent = camera === null ? why : camera + ": " + why;
+      return;
+    }
+    figures.push(previewFigure(camera, await resp.blob()));
   }
-  const img = $("preview");
-  const old = img.src;
-  img.src = URL.createObjectURL(await resp.blob());
-  img.hidden = false;
-  if (old && old.startsWith("blob:")) URL.revokeObjectURL(old);
+  const box = $("previews");
+  for (const img of box.querySelectorAll("img")) URL.revokeObjectURL(img.src);
+  box.replaceChildren(...figures);
+}
+
+// A preview frame, captioned with its camera's name in a list.
+function previewFigure(camera, blob) {
+  const fig = document.createElement("figure");
+  const img = document.createElement("img");
+  img.src = URL.createObjectURL(blob);
+  if (camera === null) {
+    img.id = "preview";
+    img.alt = "camera preview";
+    fig.append(img);
+    return fig;
+  }
+  img.dataset.camera = camera;
+  img.alt = camera + " preview";
+  const cap = document.createElement("figcaption");
+  cap.textContent = camera;
+  fig.append(img, cap);
+  return fig;
 }
 
 async function cancel() {
