@@ -150,8 +150,8 @@ impl RigBench {
             self.views,
             self.config.display()
         ));
-        report.line("| camera | median in the rig (deg / mm) | median alone (deg / mm) |");
-        report.line("|---|---|---|");
+        report.line("| camera | median in the rig (deg / mm) | median alone (deg / mm) | cells the rig is better in (rotation / translation) |");
+        report.line("|---|---|---|---|");
         for (k, n) in names.iter().enumerate() {
             let col = |v: Vec<f64>| median(&v);
             let in_rig = (
@@ -162,12 +162,26 @@ impl RigBench {
                 col(alone.iter().map(|a| a[k].errors[0].0).collect()),
                 col(alone.iter().map(|a| a[k].errors[0].1).collect()),
             );
+            let better = |axis: fn(&(f64, f64)) -> f64| {
+                rig.iter()
+                    .zip(alone)
+                    .filter(|(r, a)| axis(&r.errors[k]) < axis(&a[k].errors[0]))
+                    .count()
+            };
             report.line(format!(
-                "| {n} | {:.4} / {:.3} | {:.4} / {:.3} |",
-                in_rig.0, in_rig.1, by_itself.0, by_itself.1
+                "| {n} | {:.4} / {:.3} | {:.4} / {:.3} | {} / {} of {} |",
+                in_rig.0,
+                in_rig.1,
+                by_itself.0,
+                by_itself.1,
+                better(|e| e.0),
+                better(|e| e.1),
+                rig.len()
             ));
         }
+        report.line("");
         self.honesty_table(names, rig, alone, &mut report);
+        report.line("");
         let ratio = |f: &dyn Fn(&Trial) -> f64| -> Vec<f64> {
             rig.iter()
                 .zip(alone)

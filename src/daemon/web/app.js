@@ -527,6 +527,7 @@ async function preview() {
       const body = await resp.json().catch(() => null);
       const why = (body && body.error) || "HTTP " + resp.status;
       $("message").textContent = camera === null ? why : camera + ": " + why;
+      for (const fig of figures) URL.revokeObjectURL(fig.querySelector("img").src);
       return;
     }
     figures.push(previewFigure(camera, await resp.blob()));
