@@ -9,7 +9,9 @@ mod daemon_common;
 
 use std::path::{Path, PathBuf};
 
-use daemon_common::{call, get_bytes, start, wait_final, write_shipped_config, TOKEN};
+use daemon_common::{
+    assert_refused, call, get_bytes, start, wait_final, write_shipped_config, TOKEN,
+};
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
@@ -76,9 +78,7 @@ fn assert_exports_match_the_cli(base: &str, data: &Path, id: &str, names: &[&str
     }
     let url = format!("{base}/api/v1/calibrations/{id}/export/urdf");
     for (query, needle) in [("", "name the camera"), ("?camera=nope", "is no camera")] {
-        let (code, body) = call("GET", &format!("{url}{query}"), None);
-        assert_eq!(code, 400, "{query}: {body}");
-        assert!(body["error"].as_str().unwrap().contains(needle), "{body}");
+        assert_refused("GET", &format!("{url}{query}"), None, needle);
     }
 }
 
@@ -111,12 +111,7 @@ fn assert_png_per_camera(base: &str, url: &str, sizes: &[(u32, u32)]) {
         ("?camera=front&camera=front", "given twice"),
         ("?view=1", "only camera=NAME"),
     ] {
-        let (code, body) = call("GET", &format!("{url}{query}"), None);
-        assert_eq!(code, 400, "{query}: {body}");
-        assert!(
-            body["error"].as_str().unwrap().contains(needle),
-            "{query}: {body}"
-        );
+        assert_refused("GET", &format!("{url}{query}"), None, needle);
     }
 }
 
@@ -172,16 +167,9 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
     assert_eq!(s["state"], "succeeded", "{s}");
     assert_eq!(s["cameras"], json!(["front", "side", "high"]), "{s}");
     assert_eq!(s["camera_results"].as_array().unwrap().len(), 3, "{s}");
-    let (code, body) = call(
-        "GET",
-        &format!("{base}/api/v1/calibrations/{first}/export/opencv"),
-        None,
-    );
-    assert_eq!(code, 400, "a download names its camera: {body}");
-    assert!(
-        body["error"].as_str().unwrap().contains("name the camera"),
-        "{body}"
-    );
+    // A download names its camera.
+    let url = format!("{base}/api/v1/calibrations/{first}/export/opencv");
+    assert_refused("GET", &url, None, "name the camera");
     let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(
         code, 409,

@@ -829,25 +829,12 @@ impl<'a> Session<'a> {
             &self.taken,
             &self.solve_opts,
         );
-        let largest = shared
-            .corrections
-            .iter()
-            .flatten()
-            .fold(0.0, |m: f64, d| m.max(d.abs()));
+        let summary = shared.summary(&[]);
         for (t, r) in self.tracks.iter_mut().zip(shared.reports) {
             t.report = Some(r);
         }
         self.solve_s += started.elapsed().as_secs_f64();
-        let kept = match shared.kept.is_empty() {
-            true => String::new(),
-            false => format!(
-                "; kept its own solve, the re-solve fitting worse: {}",
-                shared.kept.join(", ")
-            ),
-        };
-        self.record_final_solve(format!(
-            "re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}"
-        ));
+        self.record_final_solve(summary);
     }
 
     /// Re-segments once more when that helps, then writes the result (not on a dry run):

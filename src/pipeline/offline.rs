@@ -261,31 +261,19 @@ fn correct_shared_joints(
         })
         .collect();
     let shared = solve_with_shared_joints(renderer, cameras, &joints, &solve_options(req));
-    let largest = shared
-        .corrections
-        .iter()
-        .flatten()
-        .fold(0.0, |m: f64, d| m.max(d.abs()));
     // Each camera's timings carry its share of the joint solve.
     let seconds = t.elapsed().as_secs_f64() / fitted.len() as f64;
-    let mut kept = shared.kept;
-    for ((name, f), report) in fitted.iter_mut().zip(shared.reports) {
+    let mut below_poor_fit = Vec::new();
+    for ((name, f), report) in fitted.iter_mut().zip(&shared.reports) {
         // The loop's keep rule allows a small drop in fit; never below the poor-fit line.
         if report.mean_iou() >= POOR_FIT_IOU || req.allow_poor_fit {
-            f.report = report;
-        } else if !kept.contains(name) {
-            kept.push(name.clone());
+            f.report = report.clone();
+        } else {
+            below_poor_fit.push(name.clone());
         }
         f.timings.solve_s += seconds;
     }
-    let kept = match kept.is_empty() {
-        true => String::new(),
-        false => format!(
-            "; kept its own solve, the re-solve fitting worse: {}",
-            kept.join(", ")
-        ),
-    };
-    note(&format!("re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}"));
+    note(&shared.summary(&below_poor_fit));
 }
 
 /// One camera's judged solve, before its overlays and result.

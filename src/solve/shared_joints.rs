@@ -91,6 +91,33 @@ pub struct SharedSolve {
     pub kept: Vec<String>,
 }
 
+impl SharedSolve {
+    /// The one line a run's log and notes carry about the correction: its largest joint
+    /// correction and which cameras kept their own solve (those of `kept`, then
+    /// `extra_kept`: cameras the caller's own rules dropped the re-solve of).
+    pub fn summary(&self, extra_kept: &[String]) -> String {
+        let largest = self
+            .corrections
+            .iter()
+            .flatten()
+            .fold(0.0, |m: f64, d| m.max(d.abs()));
+        let mut kept = self.kept.clone();
+        for name in extra_kept {
+            if !kept.contains(name) {
+                kept.push(name.clone());
+            }
+        }
+        let kept = match kept.is_empty() {
+            true => String::new(),
+            false => format!(
+                "; kept its own solve, the re-solve fitting worse: {}",
+                kept.join(", ")
+            ),
+        };
+        format!("re-solved every camera with each view's joint correction, estimated from all cameras together (largest {largest:.5} rad){kept}")
+    }
+}
+
 /// Every camera re-solved from its views with each view's joints corrected by what all the
 /// cameras saw together ([`refine_with_joint_corrections`]), in [`ROUNDS`] rounds. A camera
 /// whose re-solve fails or fits worse keeps its earlier solve. Nothing changes without a

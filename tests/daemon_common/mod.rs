@@ -220,6 +220,19 @@ pub fn call(method: &str, url: &str, body: Option<&Value>) -> (u16, Value) {
     call_as(method, url, Some(TOKEN), body)
 }
 
+/// Asserts a request with the test token is refused with 400 and an error message that
+/// contains `needle`; returns the body.
+pub fn assert_refused(method: &str, url: &str, body: Option<&Value>, needle: &str) -> Value {
+    let (code, reply) = call(method, url, body);
+    assert_eq!(code, 400, "{method} {url}: {reply}");
+    let error = reply["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains(needle),
+        "{method} {url}: want {needle:?} in {reply}"
+    );
+    reply
+}
+
 /// GET with the token; status, content type and raw body.
 pub fn get_bytes(url: &str) -> (u16, String, Vec<u8>) {
     let resp = match agent()

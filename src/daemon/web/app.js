@@ -515,11 +515,19 @@ async function start() {
   }
 }
 
+// The cell's camera names for a list of cameras, [null] for one [camera] table; asked of
+// the daemon, so a click before the page's first refresh still names every camera.
+async function cellCameras() {
+  const { status, body } = await json("/api/v1/cameras");
+  if (status === 200 && body && body.listed) return body.cameras.map((c) => c.camera);
+  return [null];
+}
+
 // One live frame from each camera, to frame them before a run.
 async function preview() {
   $("message").textContent = "";
   const figures = [];
-  for (const camera of cameraNames || [null]) {
+  for (const camera of await cellCameras()) {
     let url = "/api/v1/camera/preview.png";
     if (camera !== null) url += "?camera=" + encodeURIComponent(camera);
     const resp = await api(url);
