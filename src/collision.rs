@@ -27,6 +27,9 @@ pub struct CollisionElement {
     pub centre: Point3<f64>,
     /// Radius of the bounding sphere, metres (cheap rejection before GJK).
     pub radius_m: f64,
+    /// The name of a body the config attached to the link (`[[safety.attached]]`); `None`
+    /// for the URDF's own pieces.
+    pub attached: Option<String>,
 }
 
 impl std::fmt::Debug for CollisionElement {
@@ -34,6 +37,7 @@ impl std::fmt::Debug for CollisionElement {
         f.debug_struct("CollisionElement")
             .field("link", &self.link)
             .field("radius_m", &self.radius_m)
+            .field("attached", &self.attached)
             .finish()
     }
 }
@@ -69,7 +73,8 @@ pub fn hull_of(points: &[Point3<f64>]) -> Option<SharedShape> {
     )]))
 }
 
-fn bounding_sphere(points: &[Point3<f64>]) -> (Point3<f64>, f64) {
+/// A ball around `points` (centred on their bounding box; not the smallest, but cheap).
+pub fn bounding_sphere(points: &[Point3<f64>]) -> (Point3<f64>, f64) {
     let mut lo = points[0];
     let mut hi = points[0];
     for p in points {
@@ -138,10 +143,30 @@ impl CollisionModel {
                     shape,
                     centre,
                     radius_m,
+                    attached: None,
                 });
             }
         }
         Ok(model)
+    }
+
+    /// Adds a body fixed to `link`: `shape` in the link frame, bounded by the ball
+    /// `(centre, radius_m)` there. It then moves, and is checked, as a piece of that link.
+    pub fn attach(
+        &mut self,
+        link: usize,
+        name: &str,
+        shape: SharedShape,
+        bound: (Point3<f64>, f64),
+    ) {
+        self.link_elements[link].push(self.elements.len());
+        self.elements.push(CollisionElement {
+            link,
+            shape,
+            centre: bound.0,
+            radius_m: bound.1,
+            attached: Some(name.to_string()),
+        });
     }
 
     /// Largest distance from a link's origin to any of its collision points, per link.

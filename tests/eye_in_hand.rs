@@ -21,7 +21,6 @@ fn config_path(name: &str) -> PathBuf {
 fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
     cfg.calibration.max_views = views;
     cfg.calibration.min_views = views;
-    cfg.calibration.joint_samples = 1000;
     cfg.calibration.candidates = 24;
     cfg
 }

@@ -33,9 +33,9 @@ use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, S
 /// starting pose (a fixed camera: below [`POOR_FIT_IOU`]). A fixed camera sees the whole arm,
 /// whose outline fits far worse than that anywhere but near the right pose. A wrist camera
 /// sees a few round links from close by: a right estimate fits at 0.97 or better under
-/// segmenter-like noise, yet one that slid into a wrong basin can still fit at 0.9 (seeded
-/// cell 0 of `bench rig --config config/sim-xarm6-fixed-and-wrist.toml`, the wrist camera
-/// alone: 4.2° / 38 mm off at IoU 0.90, under a 95% bound of 0.2 mm).
+/// segmenter-like noise, yet one that slid into a wrong basin can still fit at 0.9 (seen in
+/// a seeded fixed-and-wrist cell: the wrist camera alone 4.2° / 38 mm off at IoU 0.90, under
+/// a 95% bound of 0.2 mm).
 const REFIT_IOU: f64 = 0.95;
 /// Why a move did not bring a new view.
 enum MoveOutcome {

@@ -9,7 +9,7 @@ use std::path::Path;
 use super::{
     ArmConfig, CalibrationSettings, CameraConfig, CellConfig, NoiseModel, SegmenterConfig,
 };
-use super::{ObstacleConfig, SafetyConfig};
+use super::{AttachedConfig, ObstacleConfig, SafetyConfig};
 use crate::error::{Error, Result};
 
 /// Upper bounds of every count a cell config sets. Each keeps one plan or solve within a few
@@ -42,6 +42,8 @@ pub mod bounds {
     pub const MARGIN_M: f64 = 0.5;
     /// Obstacle and workspace sizes, metres.
     pub const OBSTACLE_SIZE_M: f64 = 100.0;
+    /// `[[safety.attached]]` bodies (each is checked against every link and obstacle).
+    pub const ATTACHED: usize = 64;
 }
 
 /// A checker that names `path` in every message.
@@ -383,22 +385,68 @@ fn check_safety(c: &Check, s: &SafetyConfig) -> Result<()> {
     for (i, o) in s.obstacles.iter().enumerate() {
         check_obstacle(c, &format!("safety.obstacles[{i}]"), o)?;
     }
+    c.count("safety.attached", s.attached.len(), 0, bounds::ATTACHED)?;
+    for (i, a) in s.attached.iter().enumerate() {
+        let at = format!("safety.attached[{i}]");
+        check_attached(c, &at, a)?;
+        if s.attached[..i].iter().any(|b| b.name() == a.name()) {
+            return Err(c.fail(
+                format!("{at}.name"),
+                format!("{:?} again", a.name()),
+                "a name no other attached body has",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Positive sizes up to [`bounds::OBSTACLE_SIZE_M`], per element of `v`.
+fn check_sizes(c: &Check, at: &str, field: &str, v: &[f64]) -> Result<()> {
+    for (k, x) in v.iter().enumerate() {
+        let name = match v.len() {
+            1 => format!("{at}.{field}"),
+            _ => format!("{at}.{field}[{k}]"),
+        };
+        c.within(&name, *x, 0.0, bounds::OBSTACLE_SIZE_M, true)?;
+    }
+    Ok(())
+}
+
+fn check_attached(c: &Check, at: &str, a: &AttachedConfig) -> Result<()> {
+    if a.name().trim().is_empty() {
+        return Err(c.fail(format!("{at}.name"), "empty", "a label for messages"));
+    }
+    if a.link().trim().is_empty() {
+        return Err(c.fail(format!("{at}.link"), "empty", "a link of the URDF"));
+    }
+    match a {
+        AttachedConfig::Box {
+            size, xyz, rpy_deg, ..
+        } => {
+            check_sizes(c, at, "size", size)?;
+            c.finite(&format!("{at}.xyz"), xyz)?;
+            c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
+        }
+        AttachedConfig::Sphere { radius_m, xyz, .. } => {
+            check_sizes(c, at, "radius_m", &[*radius_m])?;
+            c.finite(&format!("{at}.xyz"), xyz)?;
+        }
+        AttachedConfig::Mesh {
+            xyz,
+            rpy_deg,
+            scale,
+            ..
+        } => {
+            check_sizes(c, at, "scale", scale)?;
+            c.finite(&format!("{at}.xyz"), xyz)?;
+            c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
+        }
+    }
     Ok(())
 }
 
 fn check_obstacle(c: &Check, at: &str, o: &ObstacleConfig) -> Result<()> {
-    let size_range = |field: &str, v: &[f64]| -> Result<()> {
-        for (k, x) in v.iter().enumerate() {
-            c.within(
-                &format!("{at}.{field}[{k}]"),
-                *x,
-                0.0,
-                bounds::OBSTACLE_SIZE_M,
-                true,
-            )?;
-        }
-        Ok(())
-    };
+    let size_range = |field: &str, v: &[f64]| check_sizes(c, at, field, v);
     match o {
         ObstacleConfig::Plane {
             normal, offset_m, ..

@@ -39,7 +39,7 @@ pub use cameras::{CameraSet, NamedCamera};
 pub use daemon::DaemonSettings;
 pub use mount::Mount;
 pub use robot::RobotConfig;
-pub use safety::{ObstacleConfig, SafetyConfig, WorkspaceConfig};
+pub use safety::{AttachedConfig, ObstacleConfig, SafetyConfig, WorkspaceConfig};
 pub use scene::{
     ClutterSettings, DistractorSettings, ExposureSettings, PaletteSettings, SceneEffects,
     ScenePreset, SceneSettings, ShadowSettings,

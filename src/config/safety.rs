@@ -31,6 +31,10 @@ pub struct SafetyConfig {
     /// Environment obstacles and keep-out zones, in the base frame.
     #[serde(default)]
     pub obstacles: Vec<ObstacleConfig>,
+    /// Bodies rigidly fixed to a link that the URDF lacks (a wrist camera, a gripper), each
+    /// checked as part of its link.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub attached: Vec<AttachedConfig>,
     /// Least fraction of the robot that must project inside the image under the current
     /// estimate for a pose to be worth visiting.
     #[serde(default = "default_min_in_image")]
@@ -74,6 +78,7 @@ impl Default for SafetyConfig {
             srdf: None,
             workspace: None,
             obstacles: Vec::new(),
+            attached: Vec::new(),
             min_in_image: default_min_in_image(),
         }
     }
@@ -154,6 +159,82 @@ pub enum ObstacleConfig {
         /// Highest corner.
         max: [f64; 3],
     },
+}
+
+/// One `[[safety.attached]]` entry: a body the URDF lacks, rigidly fixed to `link` (a wrist
+/// camera's housing, a gripper, a cable loom), posed in that link's frame, metres.
+///
+/// Why: a wrist camera sticks out of the flange; when the arm turns to look back at itself
+/// the housing is what comes closest to the table and the arm's own links, so a check that
+/// knows only the URDF's links would let it hit them.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum AttachedConfig {
+    /// A box.
+    Box {
+        /// Label in messages.
+        name: String,
+        /// The link it is fixed to.
+        link: String,
+        /// Edge lengths.
+        size: [f64; 3],
+        /// Centre, link frame.
+        #[serde(default)]
+        xyz: [f64; 3],
+        /// Orientation (roll, pitch, yaw), degrees.
+        #[serde(default)]
+        rpy_deg: [f64; 3],
+    },
+    /// A sphere.
+    Sphere {
+        /// Label in messages.
+        name: String,
+        /// The link it is fixed to.
+        link: String,
+        /// Radius.
+        radius_m: f64,
+        /// Centre, link frame.
+        #[serde(default)]
+        xyz: [f64; 3],
+    },
+    /// A mesh (its convex hull), e.g. the camera maker's housing model.
+    Mesh {
+        /// Label in messages.
+        name: String,
+        /// The link it is fixed to.
+        link: String,
+        /// STL/DAE/OBJ file, relative to the config.
+        file: PathBuf,
+        /// Position, link frame.
+        #[serde(default)]
+        xyz: [f64; 3],
+        /// Orientation (roll, pitch, yaw), degrees.
+        #[serde(default)]
+        rpy_deg: [f64; 3],
+        /// Per-axis scale (e.g. 0.001 for millimetre meshes).
+        #[serde(default = "unit_scale")]
+        scale: [f64; 3],
+    },
+}
+
+impl AttachedConfig {
+    /// The body's label.
+    pub fn name(&self) -> &str {
+        match self {
+            AttachedConfig::Box { name, .. }
+            | AttachedConfig::Sphere { name, .. }
+            | AttachedConfig::Mesh { name, .. } => name,
+        }
+    }
+
+    /// The link it is fixed to.
+    pub fn link(&self) -> &str {
+        match self {
+            AttachedConfig::Box { link, .. }
+            | AttachedConfig::Sphere { link, .. }
+            | AttachedConfig::Mesh { link, .. } => link,
+        }
+    }
 }
 
 fn unit_scale() -> [f64; 3] {

@@ -9,8 +9,8 @@ use parry3d_f64::shape::{Ball, Cuboid, HalfSpace, SharedShape};
 use rand::{Rng, SeedableRng};
 
 use super::{EnvShape, SafetyChecker};
-use crate::collision::{hull_of, CollisionModel};
-use crate::config::{ObstacleConfig, SafetyConfig};
+use crate::collision::{bounding_sphere, hull_of, CollisionModel};
+use crate::config::{AttachedConfig, ObstacleConfig, SafetyConfig};
 use crate::error::{Error, Result};
 use crate::mesh::load_mesh_file;
 use crate::robot::{JointKind, RobotModel};
@@ -62,7 +62,8 @@ impl SafetyChecker {
     ) -> Result<SafetyChecker> {
         let config_dir = config_path.parent().unwrap_or(Path::new("."));
         check_margin_and_speed(cfg, config_path)?;
-        let collision = CollisionModel::load(&robot)?;
+        let mut collision = CollisionModel::load(&robot)?;
+        attach_bodies(&mut collision, &robot, cfg, config_path, config_dir)?;
         let names: Vec<String> = robot.joint_names().iter().map(|s| s.to_string()).collect();
         let (limits, velocity_caps) =
             joint_limits_and_caps(&robot, cfg, controller_limits, &names, config_path)?;
@@ -141,7 +142,7 @@ impl SafetyChecker {
                 .iter()
                 .filter(|q| {
                     let poses = self.robot.base_from_links(q);
-                    self.link_distance(&poses, a, b) < self.margin_m
+                    self.link_distance(&poses, (a, b), false).0 < self.margin_m
                 })
                 .count();
             if hits >= 95 {
@@ -316,6 +317,93 @@ fn skip_table(
         }
     }
     Ok(skip)
+}
+
+/// Farthest an attached body may reach from its link's origin, metres. Why: the path check
+/// samples a move finely enough for its farthest piece, so a body given in millimetres by
+/// mistake would make every move thousands of samples long instead of failing.
+const ATTACHED_REACH_M: f64 = 2.0;
+
+/// Adds every `[[safety.attached]]` body to its link's pieces, before the pair table and the
+/// joints' reach are worked out, so both count it.
+fn attach_bodies(
+    collision: &mut CollisionModel,
+    robot: &RobotModel,
+    cfg: &SafetyConfig,
+    config_path: &Path,
+    config_dir: &Path,
+) -> Result<()> {
+    for (i, body) in cfg.attached.iter().enumerate() {
+        let at = |f: &str| field(&format!("attached[{i}].{f}"));
+        let link = robot.link_index(body.link()).ok_or_else(|| {
+            Error::input(
+                config_path,
+                at("link"),
+                format!("no link named '{}' in the URDF", body.link()),
+            )
+        })?;
+        let (shape, bound) = attached_shape(body, config_dir)?
+            .ok_or_else(|| Error::input(config_path, at("file"), "mesh has no vertices"))?;
+        let reach_m = bound.0.coords.norm() + bound.1;
+        if reach_m > ATTACHED_REACH_M {
+            return Err(Error::input(
+                config_path,
+                field(&format!("attached[{i}]")),
+                format!("reaches {reach_m:.3} m from the origin of link '{}'; allowed: at most {ATTACHED_REACH_M} m (a millimetre mesh needs scale = [0.001, 0.001, 0.001])", body.link()),
+            ));
+        }
+        collision.attach(link, body.name(), shape, bound);
+    }
+    Ok(())
+}
+
+/// A piece's shape in its link's frame and its bounding ball there.
+type LinkPiece = (SharedShape, (Point3<f64>, f64));
+
+/// An attached body's shape in its link's frame and its bounding ball there (`None` for a
+/// mesh without vertices).
+fn attached_shape(body: &AttachedConfig, config_dir: &Path) -> Result<Option<LinkPiece>> {
+    let placed = |pose: Isometry3<f64>, points: Vec<Point3<f64>>| {
+        let points: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
+        Ok(hull_of(&points).map(|hull| (hull, bounding_sphere(&points))))
+    };
+    match body {
+        AttachedConfig::Box {
+            size, xyz, rpy_deg, ..
+        } => {
+            let half = Vector3::from(*size) / 2.0;
+            let corners = (0..8)
+                .map(|k| {
+                    let s = |bit: usize| if k & bit == 0 { -1.0 } else { 1.0 };
+                    Point3::new(s(1) * half.x, s(2) * half.y, s(4) * half.z)
+                })
+                .collect();
+            placed(pose_from(*xyz, *rpy_deg), corners)
+        }
+        AttachedConfig::Sphere { radius_m, xyz, .. } => {
+            let centre = Point3::from(*xyz);
+            let ball = SharedShape::compound(vec![(
+                Isometry3::translation(xyz[0], xyz[1], xyz[2]),
+                SharedShape::new(Ball::new(*radius_m)),
+            )]);
+            Ok(Some((ball, (centre, *radius_m))))
+        }
+        AttachedConfig::Mesh {
+            file,
+            xyz,
+            rpy_deg,
+            scale,
+            ..
+        } => {
+            let mesh = load_mesh_file(&config_dir.join(file))?;
+            let scaled = mesh
+                .vertices
+                .iter()
+                .map(|p| Point3::from(p.coords.component_mul(&Vector3::from(*scale))))
+                .collect();
+            placed(pose_from(*xyz, *rpy_deg), scaled)
+        }
+    }
 }
 
 /// Obstacle `i` of the config, placed, with its bounding box (none for planes).

@@ -36,22 +36,42 @@ impl SafetyChecker {
         poses[self.collision.elements[e].link]
     }
 
-    /// Smallest distance between two links' pieces (bounding-ball shortcut first); shared
-    /// with the build step that finds always-in-contact pairs.
-    pub(super) fn link_distance(&self, poses: &[Isometry3<f64>], a: usize, b: usize) -> f64 {
-        let mut best = f64::INFINITY;
-        for &ea in &self.collision.link_elements[a] {
-            for &eb in &self.collision.link_elements[b] {
+    /// Piece `e`'s link name and attached body's name (if it is one), for messages.
+    fn piece_names(&self, e: usize) -> (String, Option<String>) {
+        let el = &self.collision.elements[e];
+        (self.robot.links[el.link].clone(), el.attached.clone())
+    }
+
+    /// Smallest distance between two links' pieces (bounding-ball shortcut first), with the
+    /// two pieces it was found between; shared with the build step that finds
+    /// always-in-contact pairs, which leaves attached bodies out (`with_attached` false).
+    pub(super) fn link_distance(
+        &self,
+        poses: &[Isometry3<f64>],
+        (a, b): (usize, usize),
+        with_attached: bool,
+    ) -> (f64, (usize, usize)) {
+        let pieces = |l: usize| {
+            self.collision.link_elements[l]
+                .iter()
+                .copied()
+                .filter(move |&e| with_attached || self.collision.elements[e].attached.is_none())
+        };
+        let mut best = (f64::INFINITY, (usize::MAX, usize::MAX));
+        for ea in pieces(a) {
+            for eb in pieces(b) {
                 let (pa, pb) = (self.element_pose(poses, ea), self.element_pose(poses, eb));
                 let (xa, xb) = (&self.collision.elements[ea], &self.collision.elements[eb]);
                 let centres = (pa * xa.centre - pb * xb.centre).norm();
                 let lower = centres - xa.radius_m - xb.radius_m;
-                if lower >= best.min(self.margin_m) {
-                    best = best.min(lower);
-                    continue;
+                let d = if lower >= best.0.min(self.margin_m) {
+                    lower
+                } else {
+                    query::distance(&pa, &*xa.shape, &pb, &*xb.shape).unwrap_or(0.0)
+                };
+                if d < best.0 {
+                    best = (d, (ea, eb));
                 }
-                let d = query::distance(&pa, &*xa.shape, &pb, &*xb.shape).unwrap_or(0.0);
-                best = best.min(d);
             }
         }
         best
@@ -92,17 +112,19 @@ impl SafetyChecker {
             environment_m: f64::INFINITY,
         };
         if let Some((centre, radius)) = self.workspace {
-            for el in &self.collision.elements {
+            for (e, el) in self.collision.elements.iter().enumerate() {
                 let d = (poses[el.link] * el.centre - centre).norm();
                 if d > radius {
+                    let (link, body) = self.piece_names(e);
                     return Err(Violation::Workspace {
-                        link: self.robot.links[el.link].clone(),
+                        link,
+                        body,
                         distance_m: d,
                     });
                 }
             }
         }
-        for el in &self.collision.elements {
+        for (e, el) in self.collision.elements.iter().enumerate() {
             if self.env_exempt_link[el.link] {
                 continue;
             }
@@ -119,8 +141,10 @@ impl SafetyChecker {
                 let d = query::distance(&pose, &*el.shape, &o.pose, &*o.shape).unwrap_or(0.0);
                 clearance.environment_m = clearance.environment_m.min(d);
                 if d < self.margin_m {
+                    let (link, body) = self.piece_names(e);
                     return Err(Violation::Environment {
-                        link: self.robot.links[el.link].clone(),
+                        link,
+                        body,
                         obstacle: o.name.clone(),
                         clearance_m: d,
                     });
@@ -128,11 +152,14 @@ impl SafetyChecker {
             }
         }
         for &(a, b) in &self.pairs {
-            let d = self.link_distance(&poses, a, b);
+            let (d, (ea, eb)) = self.link_distance(&poses, (a, b), true);
             clearance.self_m = clearance.self_m.min(d);
             if d < self.margin_m {
+                let ((link_a, body_a), (link_b, body_b)) =
+                    (self.piece_names(ea), self.piece_names(eb));
                 return Err(Violation::SelfCollision {
-                    links: (self.robot.links[a].clone(), self.robot.links[b].clone()),
+                    links: (link_a, link_b),
+                    bodies: (body_a, body_b),
                     clearance_m: d,
                 });
             }

@@ -55,6 +55,9 @@ pub enum Violation {
     SelfCollision {
         /// Link names.
         links: (String, String),
+        /// The `[[safety.attached]]` bodies of those links that came closest, if the closest
+        /// pieces were attached bodies rather than the URDF's own.
+        bodies: (Option<String>, Option<String>),
         /// Clearance, metres.
         clearance_m: f64,
     },
@@ -62,6 +65,8 @@ pub enum Violation {
     Environment {
         /// Link name.
         link: String,
+        /// The link's attached body that came too close, if it was one.
+        body: Option<String>,
         /// Obstacle label.
         obstacle: String,
         /// Clearance, metres.
@@ -71,6 +76,8 @@ pub enum Violation {
     Workspace {
         /// Link name.
         link: String,
+        /// The link's attached body that left the ball, if it was one.
+        body: Option<String>,
         /// Distance of its piece from the centre, metres.
         distance_m: f64,
     },
@@ -81,6 +88,14 @@ pub enum Violation {
         /// What.
         inner: Box<Violation>,
     },
+}
+
+/// A collision piece as messages name it: `link link3`, or `wrist camera (attached to link6)`.
+fn piece(link: &str, body: &Option<String>) -> String {
+    match body {
+        Some(body) => format!("{body} (attached to {link})"),
+        None => format!("link {link}"),
+    }
 }
 
 impl std::fmt::Display for Violation {
@@ -99,25 +114,36 @@ impl std::fmt::Display for Violation {
             Violation::Speed { requested, cap } => {
                 write!(f, "speed {requested:.3} rad/s above the cap {cap:.3}")
             }
-            Violation::SelfCollision { links, clearance_m } => write!(
+            Violation::SelfCollision {
+                links,
+                bodies,
+                clearance_m,
+            } => write!(
                 f,
-                "links {} and {} within {:.1} mm",
-                links.0,
-                links.1,
+                "{} and {} within {:.1} mm",
+                piece(&links.0, &bodies.0),
+                piece(&links.1, &bodies.1),
                 clearance_m * 1e3
             ),
             Violation::Environment {
                 link,
+                body,
                 obstacle,
                 clearance_m,
             } => write!(
                 f,
-                "link {link} within {:.1} mm of {obstacle}",
+                "{} within {:.1} mm of {obstacle}",
+                piece(link, body),
                 clearance_m * 1e3
             ),
-            Violation::Workspace { link, distance_m } => write!(
+            Violation::Workspace {
+                link,
+                body,
+                distance_m,
+            } => write!(
                 f,
-                "link {link} {:.3} m from the workspace centre",
+                "{} {:.3} m from the workspace centre",
+                piece(link, body),
                 distance_m
             ),
             Violation::Path { at_fraction, inner } => {
