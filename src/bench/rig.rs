@@ -8,7 +8,7 @@ use std::time::Instant;
 use rand::{Rng, SeedableRng};
 
 use super::coverage::errors_in_sigmas;
-use super::{median, Report};
+use super::{median, paired_median_difference, Report};
 use crate::calibrate::VisibilityRule;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
@@ -150,8 +150,8 @@ impl RigBench {
             self.views,
             self.config.display()
         ));
-        report.line("| camera | median in the rig (deg / mm) | median alone (deg / mm) | cells the rig is better in (rotation / translation) |");
-        report.line("|---|---|---|---|");
+        report.line("| camera | median in the rig (deg / mm) | median alone (deg / mm) | cells the rig is better in (rotation / translation) | rig minus alone, 95% interval (deg; mm) |");
+        report.line("|---|---|---|---|---|");
         for (k, n) in names.iter().enumerate() {
             let col = |v: Vec<f64>| median(&v);
             let in_rig = (
@@ -168,15 +168,27 @@ impl RigBench {
                     .filter(|(r, a)| axis(&r.errors[k]) < axis(&a[k].errors[0]))
                     .count()
             };
+            let difference = |axis: fn(&(f64, f64)) -> f64, digits: usize| {
+                let (d, (lo, hi)) = paired_median_difference(
+                    &rig.iter().map(|t| axis(&t.errors[k])).collect::<Vec<_>>(),
+                    &alone
+                        .iter()
+                        .map(|a| axis(&a[k].errors[0]))
+                        .collect::<Vec<_>>(),
+                );
+                format!("{d:+.digits$} [{lo:+.digits$}, {hi:+.digits$}]")
+            };
             report.line(format!(
-                "| {n} | {:.4} / {:.3} | {:.4} / {:.3} | {} / {} of {} |",
+                "| {n} | {:.4} / {:.3} | {:.4} / {:.3} | {} / {} of {} | {}; {} |",
                 in_rig.0,
                 in_rig.1,
                 by_itself.0,
                 by_itself.1,
                 better(|e| e.0),
                 better(|e| e.1),
-                rig.len()
+                rig.len(),
+                difference(|e| e.0, 4),
+                difference(|e| e.1, 3),
             ));
         }
         report.line("");
