@@ -18,13 +18,19 @@ fn xarm6() -> Arc<RobotModel> {
     )
 }
 
-fn checker(robot: &Arc<RobotModel>, cfg: &SafetyConfig) -> SafetyChecker {
+/// The checker of `cfg`, or why it was refused.
+fn try_checker(robot: &Arc<RobotModel>, cfg: &SafetyConfig) -> Result<SafetyChecker, String> {
     let limits: Vec<(f64, f64, f64)> = robot
         .joint_limits()
         .iter()
         .map(|&(lo, hi)| (lo, hi, 3.0))
         .collect();
-    SafetyChecker::new(robot.clone(), cfg, &limits, &PathBuf::from("cell.toml")).unwrap()
+    SafetyChecker::new(robot.clone(), cfg, &limits, &PathBuf::from("cell.toml"))
+        .map_err(|e| e.to_string())
+}
+
+fn checker(robot: &Arc<RobotModel>, cfg: &SafetyConfig) -> SafetyChecker {
+    try_checker(robot, cfg).unwrap()
 }
 
 #[test]
@@ -273,15 +279,9 @@ fn an_attached_body_on_a_link_the_urdf_lacks_is_refused() {
     if let AttachedConfig::Sphere { link, .. } = &mut cfg.attached[0] {
         *link = "flange".into();
     }
-    let limits: Vec<(f64, f64, f64)> = robot
-        .joint_limits()
-        .iter()
-        .map(|&(lo, hi)| (lo, hi, 3.0))
-        .collect();
-    let err = SafetyChecker::new(robot.clone(), &cfg, &limits, &PathBuf::from("cell.toml"))
+    let err = try_checker(&robot, &cfg)
         .err()
-        .expect("an unknown link is refused")
-        .to_string();
+        .expect("an unknown link is refused");
     assert!(err.contains("safety.attached[0].link"), "{err}");
     assert!(err.contains("no link named 'flange'"), "{err}");
 }
@@ -378,15 +378,9 @@ fn a_turned_box_and_a_scaled_mesh_sit_where_the_config_puts_them() {
 
     // Left in millimetres it would reach metres from the flange: refused, naming the fix.
     cfg.attached = vec![cube(1.0)];
-    let limits: Vec<(f64, f64, f64)> = robot
-        .joint_limits()
-        .iter()
-        .map(|&(lo, hi)| (lo, hi, 3.0))
-        .collect();
-    let err = SafetyChecker::new(robot.clone(), &cfg, &limits, &PathBuf::from("cell.toml"))
+    let err = try_checker(&robot, &cfg)
         .err()
-        .expect("a body metres from its link is refused")
-        .to_string();
+        .expect("a body metres from its link is refused");
     assert!(
         err.contains("safety.attached[0]") && err.contains("scale = [0.001"),
         "{err}"

@@ -357,6 +357,21 @@ fn attach_bodies(
     Ok(())
 }
 
+/// A config's mesh file (relative to the config), its vertices scaled per axis.
+fn scaled_mesh_points(
+    config_dir: &Path,
+    file: &Path,
+    scale: &[f64; 3],
+) -> Result<Vec<Point3<f64>>> {
+    let mesh = load_mesh_file(&config_dir.join(file))?;
+    let scale = Vector3::from(*scale);
+    Ok(mesh
+        .vertices
+        .iter()
+        .map(|p| Point3::from(p.coords.component_mul(&scale)))
+        .collect())
+}
+
 /// A piece's shape in its link's frame and its bounding ball there.
 type LinkPiece = (SharedShape, (Point3<f64>, f64));
 
@@ -394,15 +409,10 @@ fn attached_shape(body: &AttachedConfig, config_dir: &Path) -> Result<Option<Lin
             rpy_deg,
             scale,
             ..
-        } => {
-            let mesh = load_mesh_file(&config_dir.join(file))?;
-            let scaled = mesh
-                .vertices
-                .iter()
-                .map(|p| Point3::from(p.coords.component_mul(&Vector3::from(*scale))))
-                .collect();
-            placed(pose_from(*xyz, *rpy_deg), scaled)
-        }
+        } => placed(
+            pose_from(*xyz, *rpy_deg),
+            scaled_mesh_points(config_dir, file, scale)?,
+        ),
     }
 }
 
@@ -473,12 +483,7 @@ fn obstacle(
             rpy_deg,
             scale,
         } => {
-            let mesh = load_mesh_file(&config_dir.join(file))?;
-            let pts: Vec<Point3<f64>> = mesh
-                .vertices
-                .iter()
-                .map(|p| Point3::from(p.coords.component_mul(&Vector3::from(*scale))))
-                .collect();
+            let pts = scaled_mesh_points(config_dir, file, scale)?;
             let shape = hull_of(&pts).ok_or_else(|| bad("mesh has no vertices"))?;
             (label(name, "mesh"), pose_from(*xyz, *rpy_deg), shape)
         }
