@@ -139,6 +139,31 @@ fn write_result(path: &Path) {
     std::fs::write(path, serde_json::to_string_pretty(&v).unwrap()).unwrap();
 }
 
+/// Replaces the fixture's result by an `easyhec-result/2` of two cameras (both the
+/// fixture's transform) carrying `joint_corrections`.
+fn rig_result_with(joint_corrections: Value) -> impl Fn(&Path) + Send + Sync {
+    move |d: &Path| {
+        let path = d.join("result.json");
+        let one: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let camera = |name: &str| {
+            let mut c = one.clone();
+            let fields = c.as_object_mut().unwrap();
+            fields.remove("format");
+            fields.remove("timings_s");
+            fields.insert("name".into(), name.into());
+            c
+        };
+        let rig = json!({
+            "format": "easyhec-result/2",
+            "cameras": [camera("front"), camera("side")],
+            "stop_reason": "test",
+            "timings_s": {},
+            "joint_corrections": joint_corrections.clone(),
+        });
+        std::fs::write(&path, serde_json::to_string_pretty(&rig).unwrap()).unwrap();
+    }
+}
+
 fn copy_tree(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
@@ -1285,6 +1310,32 @@ fn export_cases() -> Vec<Case> {
                     v["uncertainty"] = json!({"rotation_deg": [0.01, 0.01, 0.01], "translation_mm": [0.1, 0.1, 0.1], "covariance": c})
                 })
             },
+        ),
+        case(
+            "rig result corrects a view twice",
+            EXPORT,
+            &[R, "joint_corrections.views[1]", "listed twice"],
+            rig_result_with(
+                json!({"views": [0, 0], "per_view_rad": [[0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0]]}),
+            ),
+        ),
+        case(
+            "rig result lists a view without a correction",
+            EXPORT,
+            &[
+                R,
+                "joint_corrections.views",
+                "lists 2 views for 1 corrections",
+            ],
+            rig_result_with(json!({"views": [0, 1], "per_view_rad": [[0, 0, 0, 0, 0, 0]]})),
+        ),
+        case(
+            "rig result correction short of a joint",
+            EXPORT,
+            &[R, "joint_corrections.per_view_rad[1]", "has 5 joints"],
+            rig_result_with(
+                json!({"views": [0, 1], "per_view_rad": [[0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0]]}),
+            ),
         ),
         case(
             "result missing",

@@ -72,6 +72,67 @@ fn export_urdf(result: &std::path::Path, dir: &std::path::Path) {
     );
 }
 
+/// `easyhec solve`'s stdout has one truth line per camera, each within 0.2° / 1.5 mm. (The
+/// tests write the truth file with the library call `easyhec calibrate` uses; the CLI's own
+/// write is not run here.)
+fn assert_truth_lines(stdout: &str, outcome: &easyhec::calibrate::Outcome) {
+    for cam in &outcome.cameras {
+        let prefix = format!("{}: error against the simulated truth: rotation ", cam.name);
+        let line = stdout
+            .lines()
+            .find_map(|l| l.strip_prefix(&prefix))
+            .unwrap_or_else(|| panic!("no truth line for {}:\n{stdout}", cam.name));
+        let numbers: Vec<f64> = line
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        assert_eq!(numbers.len(), 2, "{line}");
+        assert!(numbers[0] < 0.2 && numbers[1] < 1.5, "{}: {line}", cam.name);
+    }
+}
+
+/// The result lists every view's joint correction, and the corrections take out much of
+/// the simulated encoder error where the silhouettes show it: joints 1 and 2's (base yaw
+/// and shoulder) error from view to view. (The true joints are where each move ended, the
+/// first view's where the arm stood; the recorded ones carry 0.5 mrad of noise per joint.
+/// The base joint's error common to every view cannot show, and the wrist joints barely do.)
+fn assert_corrections_near_the_encoder_error(
+    cell: &Cell,
+    result: &RigResultFile,
+    recorded: &[Vec<f64>],
+) {
+    let corrections = result
+        .joint_corrections
+        .as_ref()
+        .expect("three cameras correct joints");
+    assert_eq!(corrections.views, [0, 1, 2, 3]);
+    let commands = cell.sim.arm.as_ref().unwrap().commands();
+    let truth: Vec<&Vec<f64>> = std::iter::once(&commands[0].from)
+        .chain(commands.iter().map(|c| &c.target))
+        .collect();
+    // RMS over joints 1 and 2 of each view's error less its mean over views.
+    let spread = |corrected: bool| {
+        let mut sum = 0.0;
+        for j in 0..2 {
+            let errors: Vec<f64> = recorded
+                .iter()
+                .zip(&truth)
+                .zip(&corrections.per_view_rad)
+                .map(|((q, t), d)| q[j] - t[j] + if corrected { d[j] } else { 0.0 })
+                .collect();
+            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+            sum += errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>();
+        }
+        (sum / (2 * recorded.len()) as f64).sqrt()
+    };
+    let (before, after) = (spread(false), spread(true));
+    assert!(before > 2e-4, "the simulated encoder noise is on: {before}");
+    assert!(
+        after < 0.7 * before,
+        "joints 1 and 2: error spread {before:.6} rad, after the corrections {after:.6}"
+    );
+}
+
 /// One motion served every camera: 3 moves for 4 views, each accepted and each path safe.
 fn assert_three_safe_moves(cell: &Cell) {
     let sim = cell.sim.arm.as_ref().unwrap();
@@ -112,9 +173,14 @@ fn three_cameras_reach_the_truth_from_one_motion() {
     }
     // The side camera's lens distortion is recorded with its part.
     assert!(parts[1].1.camera.distortion.is_some());
+    let recorded: Vec<Vec<f64>> = parts[0].1.views.iter().map(|v| v.joints.clone()).collect();
+    assert_corrections_near_the_encoder_error(&cell, &result, &recorded);
 
     // `easyhec solve` reads the rig run and, correcting each view's joints from all cameras
     // as the loop does, finds each camera's transform again.
+    // With the simulator's truth beside the run, it prints each camera's error against it.
+    let truth = easyhec::cell::sim::rig_ground_truth(&cell).unwrap();
+    easyhec::io::write_json_atomic(&out.join("ground_truth.json"), &truth).unwrap();
     let resolved = dir.path().join("resolved.json");
     let solved = common::solve_run(&out, &["--out", resolved.to_str().unwrap()]);
     assert!(
@@ -122,8 +188,19 @@ fn three_cameras_reach_the_truth_from_one_motion() {
         "{}",
         String::from_utf8_lossy(&solved.stderr)
     );
+    assert_truth_lines(&String::from_utf8_lossy(&solved.stdout), &outcome);
     let again = RigResultFile::read(&resolved).unwrap();
     assert_eq!(again.cameras.len(), 3);
+    assert_corrections_near_the_encoder_error(&cell, &again, &recorded);
+    // ... and estimates the same corrections the loop did.
+    let (loop_fix, solve_fix) = (
+        result.joint_corrections.as_ref().unwrap(),
+        again.joint_corrections.as_ref().unwrap(),
+    );
+    let apart = (loop_fix.per_view_rad.iter().flatten())
+        .zip(solve_fix.per_view_rad.iter().flatten())
+        .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(apart < 1e-7, "loop and solve corrections {apart} rad apart");
     for (a, b) in again.cameras.iter().zip(&result.cameras) {
         assert_eq!(a.name, b.name);
         let (ea, eb) = (
@@ -394,6 +471,28 @@ fn a_fixed_and_a_wrist_camera_calibrate_from_one_motion() {
         .map(|c| c.base_link.as_str())
         .collect();
     assert_eq!(bases, frames);
+    // `easyhec solve` names each camera's transform by its mount, and with the simulator's
+    // truth beside the run (the wrist camera's in link6's frame) prints each one's error.
+    let truth = easyhec::cell::sim::rig_ground_truth(&cell).unwrap();
+    assert_eq!(truth.cameras[1].transform, "camera_from_link6");
+    easyhec::io::write_json_atomic(&out.join("ground_truth.json"), &truth).unwrap();
+    let resolved = dir.path().join("resolved.json");
+    let solved = common::solve_run(&out, &["--out", resolved.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&solved.stdout);
+    assert!(
+        solved.status.success(),
+        "{}",
+        String::from_utf8_lossy(&solved.stderr)
+    );
+    assert!(
+        stdout.contains("wrist: camera_from_link6 solved from 4 views"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("front: camera_from_base solved from 4 views"),
+        "{stdout}"
+    );
+    assert_truth_lines(&stdout, &outcome);
     // Exported, each camera hangs from its own mount's frame.
     let exported = dir.path().join("urdf");
     export_urdf(&out.join("result.json"), &exported);

@@ -189,6 +189,7 @@ fn every_camera_of_a_rig_result_is_published_to_its_own_frame() {
             .collect(),
         stop_reason: String::new(),
         timings_s: Default::default(),
+        joint_corrections: None,
     };
     easyhec::io::write_json_atomic(&dir.path().join("result.json"), &rig).unwrap();
     let (ok, log) = in_private_network(

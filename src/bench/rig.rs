@@ -222,9 +222,7 @@ impl RigBench {
         ));
         report
     }
-}
 
-impl RigBench {
     /// Per camera, how often its reported uncertainty covered the true error, in the rig and
     /// alone (the promise: 95.4% of axes within 2σ, 95% of centres within the bound).
     fn honesty_table(

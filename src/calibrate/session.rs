@@ -24,7 +24,7 @@ use crate::init::{initialise, InitOptions};
 use crate::io::write_json_atomic;
 use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
 use crate::render::PosedRobot;
-use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
+use crate::run::rig::{CameraResult, JointCorrections, RigResultFile, RIG_RESULT_FORMAT};
 use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
 use crate::safety::CheckedMove;
 use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
@@ -94,6 +94,8 @@ pub(super) struct Session<'a> {
     failures: usize,
     planned: Vec<PlannedPose>,
     cancelled: bool,
+    /// Each view's joint correction from every camera together, once it ran.
+    joint_corrections: Option<JointCorrections>,
 }
 
 impl<'a> Session<'a> {
@@ -169,6 +171,7 @@ impl<'a> Session<'a> {
             failures: 0,
             planned: Vec::new(),
             cancelled: false,
+            joint_corrections: None,
         })
     }
 
@@ -830,6 +833,11 @@ impl<'a> Session<'a> {
             &self.solve_opts,
         );
         let summary = shared.summary(&[]);
+        let corrections = JointCorrections {
+            views: (0..self.taken.len()).collect(),
+            per_view_rad: shared.corrections,
+        };
+        self.joint_corrections = corrections.is_finite().then_some(corrections);
         for (t, r) in self.tracks.iter_mut().zip(shared.reports) {
             t.report = Some(r);
         }
@@ -891,6 +899,7 @@ impl<'a> Session<'a> {
                         .collect(),
                     stop_reason,
                     timings_s,
+                    joint_corrections: self.joint_corrections.take(),
                 };
                 write_json_atomic(&path, &rig)?;
             } else {

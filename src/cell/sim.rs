@@ -17,6 +17,7 @@ use crate::config::{
 };
 use crate::error::{Error, Result};
 use crate::robot::RobotModel;
+use crate::run::rig::{CameraTruth, RigGroundTruth, RIG_TRUTH_FORMAT};
 use crate::run::GroundTruth;
 use crate::scene::SimScene;
 use crate::segment::Segmenter;
@@ -287,16 +288,34 @@ pub(super) fn attach(
     Ok((segmenter, handles))
 }
 
+/// The simulator's truth for a rig run recorded on `cell` (`ground_truth.json`,
+/// `easyhec-truth/2`): each camera's true transform in its mount's frame. `None` unless every
+/// camera is simulated.
+pub fn rig_ground_truth(cell: &crate::cell::Cell) -> Option<RigGroundTruth> {
+    let cameras = cell
+        .cameras()
+        .iter()
+        .map(|c| {
+            Some(CameraTruth {
+                name: c.name.to_string(),
+                transform: c.config.mount().transform_name(),
+                camera_from_mount: crate::geometry::to_rows(&c.sim.camera_from_base?),
+            })
+        })
+        .collect::<Option<Vec<_>>>()?;
+    Some(RigGroundTruth {
+        format: RIG_TRUTH_FORMAT.into(),
+        cameras,
+        encoder_noise_rad: encoder_noise_rad(&cell.config),
+        seed: cell.config.calibration.seed,
+    })
+}
+
 /// The simulator's truth for a run recorded on `config`'s cell (`ground_truth.json`): the true
 /// camera pose, the encoder noise the arm adds (a driver-backed arm's readings count as exact)
 /// and the scene's dressing.
 pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> GroundTruth {
-    let joint_noise_rad = match &config.arm {
-        ArmConfig::Sim {
-            encoder_noise_rad, ..
-        } => *encoder_noise_rad,
-        _ => 0.0,
-    };
+    let joint_noise_rad = encoder_noise_rad(config);
     GroundTruth {
         format: "easyhec-truth/1".into(),
         camera_from_base: crate::geometry::to_rows(camera_from_base),
@@ -310,5 +329,16 @@ pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> G
             CameraConfig::Sim { scene, .. } => Some(scene.clone()),
             _ => None,
         },
+    }
+}
+
+/// The simulated arm's encoder noise, radians: 0 for a driver-backed arm, whose readings
+/// count as exact.
+fn encoder_noise_rad(config: &CellConfig) -> f64 {
+    match &config.arm {
+        ArmConfig::Sim {
+            encoder_noise_rad, ..
+        } => *encoder_noise_rad,
+        _ => 0.0,
     }
 }

@@ -99,7 +99,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
-    let rig = !cell.more_cameras.is_empty();
+    let rig = cell.config.camera.is_listed();
     // A rig's fit and bounds are per camera (`report_cameras`); the run's line has its views,
     // times and why it stopped.
     let fit = if rig {
@@ -131,10 +131,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
             tracing::info!("camera centre within {bound:.2} mm of the estimate (95%)");
         }
     }
-    if cell.more_cameras.is_empty() {
-        report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
-    } else {
+    if cell.config.camera.is_listed() {
         report_cameras(&cell, &outcome);
+        write_rig_truth(&cell, &outcome.run_dir)?;
+    } else {
+        report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
     }
     Ok(())
 }
@@ -177,6 +178,21 @@ fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyho
         rotation_error_deg(estimate, &truth),
         translation_error_mm(estimate, &truth)
     );
+    Ok(())
+}
+
+/// On a simulated rig: writes `ground_truth.json` (`easyhec-truth/2`) into the run, so a
+/// later `easyhec solve` of it prints each camera's error.
+#[cfg(feature = "sim")]
+fn write_rig_truth(cell: &Cell, run_dir: &Path) -> anyhow::Result<()> {
+    if let Some(truth) = easyhec::cell::sim::rig_ground_truth(cell) {
+        easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &truth)?;
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "sim"))]
+fn write_rig_truth(_: &Cell, _: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 

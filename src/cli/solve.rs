@@ -154,14 +154,21 @@ fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
         }
         let u = &cam.report.uncertainty;
         println!(
-            "{}: camera_from_base solved from {} views: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%)",
+            "{}: {} solved from {} views: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%)",
             cam.name,
+            cam.transform,
             cam.views,
             cam.report.mean_iou(),
             u.rotation_deg,
             u.translation_mm,
             u.camera_centre_95_mm
         );
+        if let Some((rot, trans)) = cam.truth_error {
+            println!(
+                "{}: error against the simulated truth: rotation {rot:.4} deg, translation {trans:.3} mm",
+                cam.name
+            );
+        }
     }
     println!(
         "{} cameras -> {}",

@@ -19,6 +19,7 @@ use crate::init::{initialise, InitOptions};
 use crate::overlay::write_overlay;
 use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
 use crate::render::PosedRobot;
+use crate::run::rig::{JointCorrections, RigGroundTruth};
 use crate::run::{
     load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
@@ -124,6 +125,10 @@ pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<Offli
 pub struct CameraSolved {
     /// The camera's name.
     pub name: String,
+    /// The transform solved: `camera_from_base`, or `camera_from_<link>`.
+    pub transform: String,
+    /// On a simulated rig's run, the error against its `ground_truth.json`: (degrees, mm).
+    pub truth_error: Option<(f64, f64)>,
     /// Its final solve.
     pub report: SolveReport,
     /// Views its result rests on.
@@ -178,7 +183,10 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
         .map_err(|e| in_camera(&name, e))?;
         fitted.push((name, fit));
     }
-    correct_shared_joints(req, renderer.as_ref(), &mut fitted, note);
+    let joint_corrections = correct_shared_joints(req, renderer.as_ref(), &mut fitted, note);
+    let truth = fitted
+        .first()
+        .and_then(|(_, f)| RigGroundTruth::read(&f.run.dir.join("ground_truth.json")));
     let mut entries = Vec::with_capacity(fitted.len());
     let mut solved_cameras = Vec::with_capacity(fitted.len());
     let mut run_dir = PathBuf::new();
@@ -187,7 +195,18 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
         let solved = finish_fit(req, fit, renderer.as_ref(), overlays.as_deref(), started)?;
         run_dir = solved.run_dir.clone();
         entries.push(CameraResult::of(&name, &solved.result));
+        let truth = truth
+            .as_ref()
+            .and_then(|t| t.camera_from_mount(&name, &solved.transform));
+        let estimate = &solved.report.camera_from_base;
         solved_cameras.push(CameraSolved {
+            truth_error: truth.map(|t| {
+                (
+                    rotation_error_deg(estimate, &t),
+                    translation_error_mm(estimate, &t),
+                )
+            }),
+            transform: solved.transform.clone(),
             name,
             views: solved.order.len(),
             poor_views: poor_views(&solved.order, &solved.report),
@@ -201,6 +220,7 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
         cameras: entries,
         stop_reason: "solved every camera".into(),
         timings_s,
+        joint_corrections,
     };
     let out = req
         .out
@@ -224,21 +244,21 @@ fn in_camera(name: &str, e: Error) -> Error {
 
 /// Every camera of a list saw the same views from the same arm, so each view's joint
 /// correction is estimated from all of them together and every camera re-solved with it, as
-/// the calibration loop does (docs/cameras.md, "Shared joint correction"). Skipped, with a
-/// note, when the cameras' solves rest on different views.
+/// the calibration loop does (docs/cameras.md, "Shared joint correction"); returns the
+/// corrections. Skipped, with a note, when the cameras' solves rest on different views.
 fn correct_shared_joints(
     req: &OfflineSolve,
     renderer: &dyn Backend,
     fitted: &mut [(String, Fitted)],
     note: &mut dyn FnMut(&str),
-) {
+) -> Option<JointCorrections> {
     if fitted.len() < 2 || req.joint_noise_rad <= 0.0 {
-        return;
+        return None;
     }
     let order = fitted[0].1.order.clone();
     if fitted.iter().any(|(_, f)| f.order != order) {
         note("the cameras' solves rest on different views; each camera keeps its own solve, without the shared joint correction");
-        return;
+        return None;
     }
     let t = Instant::now();
     let used: Vec<Vec<View>> = fitted
@@ -274,6 +294,11 @@ fn correct_shared_joints(
         f.timings.solve_s += seconds;
     }
     note(&shared.summary(&below_poor_fit));
+    let corrections = JointCorrections {
+        views: order,
+        per_view_rad: shared.corrections,
+    };
+    corrections.is_finite().then_some(corrections)
 }
 
 /// One camera's judged solve, before its overlays and result.

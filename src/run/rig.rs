@@ -7,6 +7,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::checks::{MAX_RUN_JOINTS, MAX_RUN_VIEWS};
 use super::{
     from_rows, from_value_at, read_tagged_json, CameraEntry, PerView, PoseEntry, ResultFile,
     RobotEntry, RunFile, UncertaintyEntry, ViewEntry, RESULT_FORMAT, RUN_FORMAT,
@@ -216,6 +217,127 @@ pub struct RigResultFile {
     pub stop_reason: String,
     /// Wall-clock timings, seconds.
     pub timings_s: BTreeMap<String, f64>,
+    /// Each view's joint correction estimated from every camera together, when it ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_corrections: Option<JointCorrections>,
+}
+
+/// Truth format tag of a simulated rig's run.
+pub const RIG_TRUTH_FORMAT: &str = "easyhec-truth/2";
+
+/// `ground_truth.json` beside a simulated rig's run (never inside `run.json`): each camera's
+/// true transform, so `easyhec solve` of the run can say how far each camera landed.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RigGroundTruth {
+    /// Always [`RIG_TRUTH_FORMAT`].
+    pub format: String,
+    /// Each camera's name and true transform.
+    pub cameras: Vec<CameraTruth>,
+    /// Standard deviation of the simulated encoder noise, radians (0 for a driver-backed arm,
+    /// whose readings count as exact).
+    pub encoder_noise_rad: f64,
+    /// The calibration's seed.
+    pub seed: u64,
+}
+
+/// `ground_truth.json` → `cameras[k]`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CameraTruth {
+    /// The camera's name.
+    pub name: String,
+    /// The transform `camera_from_mount` is: `camera_from_base`, or `camera_from_<link>` for
+    /// a camera on a link.
+    pub transform: String,
+    /// The true transform from the mount's frame to the camera's optical frame, rows of a
+    /// 4x4 matrix.
+    pub camera_from_mount: [[f64; 4]; 4],
+}
+
+impl RigGroundTruth {
+    /// The rig truth at `path`. Anything else (no file, another format, bad JSON) gives
+    /// `None`: a truth file is a simulator's extra, never an input a solve depends on.
+    pub fn read(path: &Path) -> Option<RigGroundTruth> {
+        let text = std::fs::read_to_string(path).ok()?;
+        let truth: RigGroundTruth = serde_json::from_str(&text).ok()?;
+        (truth.format == RIG_TRUTH_FORMAT).then_some(truth)
+    }
+
+    /// Camera `name`'s true transform, when the file has one for that camera and the same
+    /// `transform` (a truth about another mount says nothing about this solve).
+    pub fn camera_from_mount(
+        &self,
+        name: &str,
+        transform: &str,
+    ) -> Option<nalgebra::Isometry3<f64>> {
+        let camera = self
+            .cameras
+            .iter()
+            .find(|c| c.name == name && c.transform == transform)?;
+        from_rows(&camera.camera_from_mount).ok()
+    }
+}
+
+/// `result.json` → `joint_corrections`: each view's joint error as the cameras together saw
+/// it (docs/cameras.md, "Shared joint correction"), from the correction's last round: the
+/// joints every re-solved camera rests on (a camera that kept its own solve, as the run's
+/// notes say, rests on the recorded joints). It is not an encoder calibration: only what
+/// moves the silhouettes shows, so the wrist joints' corrections stay near 0; the base
+/// joint's error common to every view cannot show at all, and other joints' common errors
+/// only weakly.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct JointCorrections {
+    /// Indices into the run's views, in the order of `per_view_rad`.
+    pub views: Vec<usize>,
+    /// Each view's correction, true minus recorded joints, radians (one entry per joint).
+    pub per_view_rad: Vec<Vec<f64>>,
+}
+
+impl JointCorrections {
+    /// Every correction finite (a result holding anything else could not be read back).
+    pub fn is_finite(&self) -> bool {
+        self.per_view_rad.iter().flatten().all(|v| v.is_finite())
+    }
+
+    /// The first entry no solve could have written, as `(field path, problem)`: one
+    /// correction per listed view, each view listed once and within the run formats' bound,
+    /// every correction as long as the others (1 to [`MAX_RUN_JOINTS`] joints) and finite.
+    fn problem(&self) -> Option<(String, String)> {
+        let n = self.views.len();
+        if n > MAX_RUN_VIEWS || n != self.per_view_rad.len() {
+            return Some((
+                "joint_corrections.views".into(),
+                format!(
+                    "lists {n} views for {} corrections; allowed: at most {MAX_RUN_VIEWS}, one per entry of per_view_rad",
+                    self.per_view_rad.len()
+                ),
+            ));
+        }
+        for (i, &v) in self.views.iter().enumerate() {
+            let problem = if v >= MAX_RUN_VIEWS {
+                format!("is {v}; allowed: a view index below {MAX_RUN_VIEWS}")
+            } else if self.views[..i].contains(&v) {
+                format!("is {v}, listed twice; allowed: each view once")
+            } else {
+                continue;
+            };
+            return Some((format!("joint_corrections.views[{i}]"), problem));
+        }
+        let nq = self.per_view_rad.first().map_or(1, Vec::len);
+        for (i, row) in self.per_view_rad.iter().enumerate() {
+            let field = format!("joint_corrections.per_view_rad[{i}]");
+            if row.len() != nq || row.is_empty() || row.len() > MAX_RUN_JOINTS {
+                let problem = format!(
+                    "has {} joints; allowed: 1 to {MAX_RUN_JOINTS}, as many as the first entry",
+                    row.len()
+                );
+                return Some((field, problem));
+            }
+            if let Some(v) = row.iter().find(|v| !v.is_finite()) {
+                return Some((field, format!("holds {v}; allowed: finite radians")));
+            }
+        }
+        None
+    }
 }
 
 impl CameraResult {
@@ -270,6 +392,9 @@ impl RigResultFile {
                 "cameras",
                 "is empty; allowed: 1 to 8 cameras",
             ));
+        }
+        if let Some((field, problem)) = r.joint_corrections.as_ref().and_then(|j| j.problem()) {
+            return Err(Error::input(path, field, problem));
         }
         Ok(r)
     }
