@@ -80,6 +80,22 @@ pub fn to_rows(pose: &Isometry3<f64>) -> [[f64; 4]; 4] {
     rows
 }
 
+/// Largest translation a transform read from a file may hold, metres per axis. Far beyond any
+/// robot cell, and small enough that inverting and chaining such transforms stays finite (a
+/// finite 1e308 would turn into infinity in an export).
+pub const MAX_TRANSLATION_M: f64 = 1000.0;
+
+/// Why translation `t` cannot be used, if it cannot: every entry within
+/// [`MAX_TRANSLATION_M`].
+pub fn translation_problem(t: &[f64; 3]) -> Option<String> {
+    t.iter().position(|v| v.abs() > MAX_TRANSLATION_M).map(|k| {
+        format!(
+            "translation[{k}] is {}; allowed: -{MAX_TRANSLATION_M} to {MAX_TRANSLATION_M} m",
+            t[k]
+        )
+    })
+}
+
 /// Parses a row-major 4x4 into a rigid transform, re-orthonormalising the rotation.
 ///
 /// Errors name what is wrong so the caller can point at the file and field.
@@ -87,6 +103,9 @@ pub fn from_rows(rows: &[[f64; 4]; 4]) -> Result<Isometry3<f64>, String> {
     let m = Matrix4::from_fn(|r, c| rows[r][c]);
     if m.iter().any(|v| !v.is_finite()) {
         return Err("matrix has a non-finite entry".into());
+    }
+    if let Some(problem) = translation_problem(&[m[(0, 3)], m[(1, 3)], m[(2, 3)]]) {
+        return Err(problem);
     }
     if (m[(3, 0)].abs() + m[(3, 1)].abs() + m[(3, 2)].abs() + (m[(3, 3)] - 1.0).abs()) > 1e-6 {
         return Err("last row must be [0, 0, 0, 1]".into());

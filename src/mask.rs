@@ -3,6 +3,8 @@
 
 use std::path::Path;
 
+use easyhec_drivers::MAX_IMAGE_SIDE;
+
 use crate::error::{Error, Result};
 
 /// A binary image, row-major, one byte per pixel (0 or 1).
@@ -179,8 +181,30 @@ impl Mask {
         }
     }
 
+    /// The width and height a PNG/JPEG's header states, refused beyond
+    /// [`MAX_IMAGE_SIDE`]: a small file can state a huge image, so this is read before any
+    /// decode.
+    pub fn dimensions(path: &Path) -> Result<(u32, u32)> {
+        // A FIFO or a device would block the header read.
+        let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+        if !meta.is_file() {
+            return Err(Error::input(path, "mask", "is not a regular file"));
+        }
+        let (w, h) = image::image_dimensions(path)
+            .map_err(|e| Error::input(path, "mask", format!("cannot decode image: {e}")))?;
+        if w.max(h) > MAX_IMAGE_SIDE {
+            return Err(Error::input(
+                path,
+                "mask",
+                format!("is {w}x{h} px; allowed: sides up to {MAX_IMAGE_SIDE}"),
+            ));
+        }
+        Ok((w, h))
+    }
+
     /// Reads an 8-bit (or any) PNG/JPEG; a pixel >= 128 in its first channel is robot.
     pub fn load(path: &Path) -> Result<Mask> {
+        Mask::dimensions(path)?;
         let img = image::open(path)
             .map_err(|e| Error::input(path, "mask", format!("cannot decode image: {e}")))?;
         let grey = img.to_luma8();

@@ -261,6 +261,10 @@ impl TriMesh {
     }
 }
 
+/// Largest mesh file read, bytes: a robot part's mesh is a few MB; a FIFO, a device or a
+/// multi-GB file behind a mesh path is a mistake that would block or fill memory.
+const MAX_MESH_FILE_BYTES: u64 = 512 << 20;
+
 /// Loads a mesh file (STL, DAE, OBJ: chosen by extension). Collada unit and node transforms
 /// are applied by the loader, so the result is in the file's declared metres.
 pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
@@ -276,10 +280,17 @@ pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
             format!("unsupported mesh format '.{ext}': use STL, DAE (Collada) or OBJ"),
         ));
     }
-    if !path.exists() {
+    let Ok(meta) = std::fs::metadata(path) else {
         return Err(Error::io(
             path,
             "mesh file not found: check the URDF <mesh filename> and package_dirs",
+        ));
+    };
+    if !meta.is_file() || meta.len() > MAX_MESH_FILE_BYTES {
+        return Err(Error::input(
+            path,
+            "mesh",
+            format!("allowed: a regular file of at most {MAX_MESH_FILE_BYTES} bytes"),
         ));
     }
     // The Collada reader can panic on inconsistent index streams: contain it as an input error,

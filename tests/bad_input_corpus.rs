@@ -818,6 +818,18 @@ fn solve_cases() -> Vec<Case> {
             nothing,
         ),
         case(
+            "--model-floor-rotation-deg huge",
+            &["solve", "run", "--model-floor-rotation-deg", "90"],
+            &["--model-floor-rotation-deg", "allowed: 0 to 5"],
+            nothing,
+        ),
+        case(
+            "--model-floor-translation-mm NaN",
+            &["solve", "run", "--model-floor-translation-mm", "nan"],
+            &["--model-floor-translation-mm", "allowed"],
+            nothing,
+        ),
+        case(
             "--joint-noise-rad NaN",
             &["solve", "run", "--joint-noise-rad", "nan"],
             &["--joint-noise-rad", "allowed"],
@@ -924,6 +936,13 @@ fn calibrate_cases() -> Vec<Case> {
         case("mount on a link that never moves", CAL, &[c, "camera.mount.link", "mount = \"fixed\""], cell_line("camera", "mount = { link = \"link_base\" }")),
         case("view overhead negative", CAL, &[c, "calibration.view_overhead_s"], cell_line("calibration", "view_overhead_s = -1.0")),
         case("robot image fraction zero", CAL, &[c, "calibration.min_robot_image_fraction"], cell_line("calibration", "min_robot_image_fraction = 0.0")),
+        case("model floor huge", CAL, &[c, "calibration.model_floor_translation_mm"], cell_line("calibration", "model_floor_translation_mm = 1000.0")),
+        case("model floor negative", CAL, &[c, "calibration.model_floor_rotation_deg"], cell_line("calibration", "model_floor_rotation_deg = -1.0")),
+        case("check interval beyond a timer", CAL, &[c, "check_interval_s"], cell_line("daemon", "check_interval_s = 1e20")),
+        case("table extent NaN", CAL, &[c, "camera.scene.table_extent_m"], cell_line("camera", "scene = { seed = 1, table_extent_m = [nan, 1.0, -0.8, 0.8] }")),
+        case("floor above the table", CAL, &[c, "camera.scene.floor_height_m"], cell_line("camera", "scene = { seed = 1, floor_height_m = 0.5 }")),
+        case("sim truth eye on its target", CAL, &[c, "camera.truth", "1 mm apart"], cell_line("camera", "truth = { eye = [0.1, 0.0, 0.3], look_at = [0.1, 0.0, 0.3] }")),
+        case("sim truth far away", CAL, &[c, "camera.truth", "translation"], cell_line("camera", "truth = { eye = [1e300, 0.0, 0.3], look_at = [0.1, 0.0, 0.3] }")),
     ];
     v.push(case(
         "renderer unknown",
@@ -1027,6 +1046,16 @@ fn import_cases() -> Vec<Case> {
                 image::GrayImage::new(320, 240)
                     .save(d.join("src/mask/0001.png"))
                     .unwrap()
+            },
+        ),
+        case(
+            "mask header states a huge image",
+            IMPORT,
+            &["0001.png", "sides up to 16384"],
+            |d: &Path| {
+                let mut img = image::GrayImage::new(20_000, 1);
+                img.put_pixel(5, 0, image::Luma([255]));
+                img.save(d.join("src/mask/0001.png")).unwrap();
             },
         ),
         case(
@@ -1146,6 +1175,16 @@ const EXPORT: &[&str] = &["export", "result.json", "--format", "ros"];
 fn export_cases() -> Vec<Case> {
     const R: &str = "result.json";
     vec![
+        case(
+            "translation that overflows when inverted",
+            &["export", R, "--format", "opencv"],
+            &[R, "camera_from_base", "translation[0]"],
+            |d: &Path| {
+                edit_json(&d.join(R), |v| {
+                    v["camera_from_base"][0][3] = json!(1.5e308);
+                })
+            },
+        ),
         case(
             "frame with a newline",
             &[

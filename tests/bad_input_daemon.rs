@@ -19,8 +19,8 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use daemon_common::{
-    call, call_as, real_time_arm, record, result_json, start, wait_final, wait_for, write_config,
-    write_index, write_result, POSE, TOKEN,
+    call, call_as, get_bytes, real_time_arm, record, result_json, start, wait_final, wait_for,
+    write_config, write_index, write_result, POSE, TOKEN,
 };
 use serde_json::{json, Value};
 
@@ -866,6 +866,17 @@ fn malformed_and_hostile_api_requests_get_one_line_4xx_and_change_nothing() {
     }
     for why in changed(&after_run, &settled(&data), |_| false) {
         failures.push(format!("data folder: {why}"));
+    }
+
+    // A run folder edited on disk: view 0's mask no longer has the camera's size. The overlay
+    // must be refused with one line naming the mask, not drawn out of bounds.
+    let mask = data.join("runs").join(&run).join("views/000.mask.png");
+    image::GrayImage::new(1280, 960).save(&mask).unwrap();
+    let (code, _, body) = get_bytes(&format!("{base}{CALS}/{run}/views/0/overlay.png"));
+    let body = String::from_utf8_lossy(&body);
+    count += 1;
+    if code != 500 || !body.contains("000.mask.png") || body.contains("panicked") {
+        failures.push(format!("overlay of a resized mask: {code} {body}"));
     }
 
     println!("{count} daemon bad-input cases, {} failed", failures.len());

@@ -99,6 +99,47 @@ fn synth_then_solve_recovers_the_camera() {
     }
 }
 
+/// The model-error floor is added to the reported covariance, per camera axis: each 1-sigma
+/// of a solve with the floor is the root sum of squares of the floor and the solve's own. The
+/// translation floor is on the camera centre (the increment's translation), so it adds to the
+/// reported translation as is; a rotation floor would also move it through the lever arm.
+#[test]
+fn the_model_error_floor_adds_to_each_reported_axis() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &[]);
+    let uncertainty = |out: &str, extra: &[&str]| {
+        let path = dir.path().join(out);
+        let mut args = vec!["--out", path.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        assert_ok(&solve(&run, &args));
+        ResultFile::read(&path).unwrap().uncertainty.unwrap()
+    };
+    let own = uncertainty("own.json", &[]);
+    let rotation = uncertainty("rotation.json", &["--model-floor-rotation-deg", "0.2"]);
+    let translation = uncertainty("translation.json", &["--model-floor-translation-mm", "3"]);
+    let pairs = own
+        .rotation_deg
+        .iter()
+        .zip(rotation.rotation_deg)
+        .map(|(a, b)| (*a, b, 0.2))
+        .chain(
+            own.translation_mm
+                .iter()
+                .zip(translation.translation_mm)
+                .map(|(a, b)| (*a, b, 3.0)),
+        );
+    for (k, (without, with, floor)) in pairs.enumerate() {
+        let expected = without.hypot(floor);
+        assert!(
+            (with - expected).abs() < 0.05 * expected,
+            "axis {k}: {with} with the floor, {without} without, floor {floor}"
+        );
+    }
+    let centre = |u: &easyhec::run::UncertaintyEntry| u.camera_centre_95_mm.unwrap();
+    assert!(centre(&translation) > centre(&own) + 3.0);
+}
+
 #[test]
 fn synth_is_deterministic() {
     let dir = tempfile::tempdir().unwrap();

@@ -25,5 +25,5 @@ pub mod v4l2;
 pub mod xarm;
 
 pub use arm::{Arm, ArmStatus, JointLimit, Motion};
-pub use camera::{Camera, Frame, Intrinsics};
+pub use camera::{Camera, Frame, Intrinsics, MAX_IMAGE_SIDE};
 pub use error::{DriverError, ErrorKind, Result};

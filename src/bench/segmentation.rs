@@ -197,6 +197,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         segmenter,
         allow_poor_fit: true,
         joint_noise_rad: SolveOptions::default().joint_noise_rad,
+        model_floor: (0.0, 0.0),
     };
     let quiet = &mut |_: &str| {};
     let reference = solve_run(&request("recorded.json", None), quiet)?;

@@ -149,6 +149,8 @@ impl<'a> Session<'a> {
             .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
         let solve_opts = SolveOptions {
             joint_noise_rad: settings.joint_noise_rad,
+            floor_rotation_deg: settings.model_floor_rotation_deg,
+            floor_translation_mm: settings.model_floor_translation_mm,
             ..SolveOptions::default()
         };
         Ok(Session {

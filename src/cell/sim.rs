@@ -183,7 +183,9 @@ pub(super) fn camera(
         robot.actuated.len(),
         path,
     )?;
-    let pose = truth.camera_from_base();
+    let pose = truth
+        .checked_camera_from_base()
+        .map_err(|problem| Error::input(path, "camera.truth", problem))?;
     let model = camera
         .camera()
         .ok_or_else(|| Error::input(path, "camera", "a simulated camera without its intrinsics"))?;

@@ -56,6 +56,14 @@ pub struct SolveArgs {
     /// carried into the reported uncertainty (docs/uncertainty.md). 0 to 0.1.
     #[arg(long, default_value_t = 5e-4, value_parser = joint_noise)]
     pub joint_noise_rad: f64,
+    /// Model-error floor of the reported rotation, degrees (1 sigma per camera axis): what
+    /// no mask shows, such as a URDF or intrinsics error. 0 to 5.
+    #[arg(long, default_value_t = 0.0, value_parser = floor_deg)]
+    pub model_floor_rotation_deg: f64,
+    /// Model-error floor of the camera centre's position, millimetres (1 sigma per camera
+    /// axis). 0 to 100.
+    #[arg(long, default_value_t = 0.0, value_parser = floor_mm)]
+    pub model_floor_translation_mm: f64,
 }
 
 /// `--select`: how a solve picks its views.
@@ -105,6 +113,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         masks_out: a.masks_out,
         allow_poor_fit: a.allow_poor_fit,
         joint_noise_rad: a.joint_noise_rad,
+        model_floor: (a.model_floor_rotation_deg, a.model_floor_translation_mm),
     };
     if is_rig_run(&request.run)? {
         return solve_rig(&request);
@@ -180,11 +189,33 @@ fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
 
 /// `--joint-noise-rad`: a finite 0 to 0.1 rad (the cell config's bound).
 fn joint_noise(text: &str) -> Result<f64, String> {
+    number_within(
+        text,
+        easyhec::config::checks::bounds::JOINT_NOISE_RAD,
+        "rad",
+    )
+}
+
+/// `--model-floor-rotation-deg`: 0 to the cell config's bound.
+fn floor_deg(text: &str) -> Result<f64, String> {
+    number_within(
+        text,
+        easyhec::config::checks::bounds::MODEL_FLOOR_DEG,
+        "deg",
+    )
+}
+
+/// `--model-floor-translation-mm`: 0 to the cell config's bound.
+fn floor_mm(text: &str) -> Result<f64, String> {
+    number_within(text, easyhec::config::checks::bounds::MODEL_FLOOR_MM, "mm")
+}
+
+/// A finite number from 0 to `bound`.
+fn number_within(text: &str, bound: f64, unit: &str) -> Result<f64, String> {
     let v: f64 = text.parse().map_err(|e| format!("{e}"))?;
-    let bound = easyhec::config::checks::bounds::JOINT_NOISE_RAD;
     if v.is_finite() && (0.0..=bound).contains(&v) {
         Ok(v)
     } else {
-        Err(format!("{v}; allowed: 0 to {bound} rad"))
+        Err(format!("{v}; allowed: 0 to {bound} {unit}"))
     }
 }

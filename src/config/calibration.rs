@@ -74,6 +74,14 @@ pub struct CalibrationSettings {
     /// kinematic error). `information` scoring counts what such errors do to the estimate.
     #[serde(default = "default_joint_noise")]
     pub joint_noise_rad: f64,
+    /// Model-error floor of the reported rotation, degrees (1 sigma per camera axis): what no
+    /// mask residual shows, such as a URDF or intrinsics error. Added to the covariance.
+    #[serde(default)]
+    pub model_floor_rotation_deg: f64,
+    /// Model-error floor of the camera centre's position, millimetres (1 sigma per camera
+    /// axis).
+    #[serde(default)]
+    pub model_floor_translation_mm: f64,
     /// Rank poses by information per second (the move plus each view's other work) instead
     /// of by information alone. Only arms whose moves take time are affected: the simulated
     /// arm arrives at once unless `[arm] speedup` slows it.
@@ -163,22 +171,7 @@ impl InitialGuess {
     /// As `camera_from_base`.
     pub fn camera_from_base(&self) -> std::result::Result<Isometry3<f64>, String> {
         match self {
-            InitialGuess::LookAt(l) => {
-                let values = l.eye.iter().chain(&l.look_at).chain([&l.roll_deg]);
-                if values.into_iter().any(|v| !v.is_finite()) {
-                    return Err("eye, look_at and roll_deg must be finite numbers".into());
-                }
-                let apart = (0..3)
-                    .map(|k| (l.eye[k] - l.look_at[k]).powi(2))
-                    .sum::<f64>();
-                if apart.sqrt() < 1e-3 {
-                    return Err(format!(
-                        "eye {:?} and look_at {:?} are less than 1 mm apart; allowed: a point the camera looks at, away from the camera",
-                        l.eye, l.look_at
-                    ));
-                }
-                Ok(l.camera_from_base())
-            }
+            InitialGuess::LookAt(l) => l.checked_camera_from_base(),
             InitialGuess::Matrix { camera_from_base } => {
                 crate::geometry::from_rows(camera_from_base)
             }

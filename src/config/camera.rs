@@ -30,6 +30,31 @@ pub struct LookAt {
 }
 
 impl LookAt {
+    /// [`LookAt::camera_from_base`] after checking the numbers: finite, within
+    /// [`crate::geometry::MAX_TRANSLATION_M`], and eye and target at least 1 mm apart (else
+    /// there is no viewing direction).
+    pub fn checked_camera_from_base(&self) -> std::result::Result<Isometry3<f64>, String> {
+        let values = self.eye.iter().chain(&self.look_at).chain([&self.roll_deg]);
+        if values.into_iter().any(|v| !v.is_finite()) {
+            return Err("eye, look_at and roll_deg must be finite numbers".into());
+        }
+        for point in [&self.eye, &self.look_at] {
+            if let Some(problem) = crate::geometry::translation_problem(point) {
+                return Err(format!("eye or look_at: {problem}"));
+            }
+        }
+        let apart = (0..3)
+            .map(|k| (self.eye[k] - self.look_at[k]).powi(2))
+            .sum::<f64>();
+        if apart.sqrt() < 1e-3 {
+            return Err(format!(
+                "eye {:?} and look_at {:?} are less than 1 mm apart; allowed: a point the camera looks at, away from the camera",
+                self.eye, self.look_at
+            ));
+        }
+        Ok(self.camera_from_base())
+    }
+
     /// As `camera_from_base` (OpenCV optical frame, base z up).
     pub fn camera_from_base(&self) -> Isometry3<f64> {
         let look = look_at_camera_from_base(

@@ -33,6 +33,10 @@ pub mod bounds {
     pub const SPEEDUP: f64 = 1_000.0;
     /// Joint noise, radians (about 6°: anything larger is not encoder noise).
     pub const JOINT_NOISE_RAD: f64 = 0.1;
+    /// Model-error floor of the rotation, degrees (1 sigma per axis).
+    pub const MODEL_FLOOR_DEG: f64 = 5.0;
+    /// Model-error floor of the translation, millimetres (1 sigma per axis).
+    pub const MODEL_FLOOR_MM: f64 = 100.0;
     /// Simulated boundary jitter, pixels.
     pub const BOUNDARY_JITTER_PX: f64 = 20.0;
     /// Correlation length of the simulated boundary displacement, pixels (the smoothing
@@ -343,6 +347,20 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
         true,
     )?;
     c.within(
+        "calibration.model_floor_rotation_deg",
+        s.model_floor_rotation_deg,
+        0.0,
+        bounds::MODEL_FLOOR_DEG,
+        false,
+    )?;
+    c.within(
+        "calibration.model_floor_translation_mm",
+        s.model_floor_translation_mm,
+        0.0,
+        bounds::MODEL_FLOOR_MM,
+        false,
+    )?;
+    c.within(
         "calibration.joint_noise_rad",
         s.joint_noise_rad,
         0.0,
@@ -419,26 +437,17 @@ fn check_attached(c: &Check, at: &str, a: &AttachedConfig) -> Result<()> {
     if a.link().trim().is_empty() {
         return Err(c.fail(format!("{at}.link"), "empty", "a link of the URDF"));
     }
+    c.finite(&format!("{at}.xyz"), &a.xyz())?;
     match a {
-        AttachedConfig::Box {
-            size, xyz, rpy_deg, ..
-        } => {
+        AttachedConfig::Box { size, rpy_deg, .. } => {
             check_sizes(c, at, "size", size)?;
-            c.finite(&format!("{at}.xyz"), xyz)?;
             c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
         }
-        AttachedConfig::Sphere { radius_m, xyz, .. } => {
+        AttachedConfig::Sphere { radius_m, .. } => {
             check_sizes(c, at, "radius_m", &[*radius_m])?;
-            c.finite(&format!("{at}.xyz"), xyz)?;
         }
-        AttachedConfig::Mesh {
-            xyz,
-            rpy_deg,
-            scale,
-            ..
-        } => {
+        AttachedConfig::Mesh { rpy_deg, scale, .. } => {
             check_sizes(c, at, "scale", scale)?;
-            c.finite(&format!("{at}.xyz"), xyz)?;
             c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
         }
     }
@@ -446,7 +455,6 @@ fn check_attached(c: &Check, at: &str, a: &AttachedConfig) -> Result<()> {
 }
 
 fn check_obstacle(c: &Check, at: &str, o: &ObstacleConfig) -> Result<()> {
-    let size_range = |field: &str, v: &[f64]| check_sizes(c, at, field, v);
     match o {
         ObstacleConfig::Plane {
             normal, offset_m, ..
@@ -465,13 +473,13 @@ fn check_obstacle(c: &Check, at: &str, o: &ObstacleConfig) -> Result<()> {
         } => {
             c.finite(&format!("{at}.centre"), centre)?;
             c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
-            size_range("size", size)?;
+            check_sizes(c, at, "size", size)?;
         }
         ObstacleConfig::Sphere {
             centre, radius_m, ..
         } => {
             c.finite(&format!("{at}.centre"), centre)?;
-            size_range("radius_m", &[*radius_m])?;
+            check_sizes(c, at, "radius_m", &[*radius_m])?;
         }
         ObstacleConfig::Mesh {
             xyz,
@@ -481,7 +489,7 @@ fn check_obstacle(c: &Check, at: &str, o: &ObstacleConfig) -> Result<()> {
         } => {
             c.finite(&format!("{at}.xyz"), xyz)?;
             c.finite(&format!("{at}.rpy_deg"), rpy_deg)?;
-            size_range("scale", scale)?;
+            check_sizes(c, at, "scale", scale)?;
         }
         ObstacleConfig::KeepOut { min, max, .. } => {
             c.finite(&format!("{at}.min"), min)?;

@@ -84,6 +84,9 @@ pub const IDLE_TIMEOUT_MIN_S: f64 = 2.0;
 pub const IDLE_TIMEOUT_MAX_S: f64 = 3600.0;
 /// Default `max_connections`: room for a thousand idle clients and the ones that matter.
 pub const MAX_CONNECTIONS: usize = 2048;
+/// Longest time between scheduled bump checks, seconds (a year): far beyond any useful
+/// schedule, and well inside what a timer can hold.
+pub const MAX_CHECK_INTERVAL_S: f64 = 31_536_000.0;
 /// Largest `max_connections`.
 pub const MAX_CONNECTIONS_MAX: usize = 65_536;
 
@@ -174,10 +177,10 @@ impl DaemonSettings {
             }
         }
         if let Some(s) = self.check_interval_s {
-            if !(s.is_finite() && s >= 1.0) {
+            if !(s.is_finite() && (1.0..=MAX_CHECK_INTERVAL_S).contains(&s)) {
                 return bad(
                     "check_interval_s",
-                    format!("{s}: use at least 1 second, or leave it out for on-demand checks"),
+                    format!("{s}: use 1 to {MAX_CHECK_INTERVAL_S} seconds (a year), or leave it out for on-demand checks"),
                 );
             }
         }

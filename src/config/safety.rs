@@ -235,6 +235,15 @@ impl AttachedConfig {
             | AttachedConfig::Mesh { link, .. } => link,
         }
     }
+
+    /// Where the body sits in its link's frame, metres.
+    pub fn xyz(&self) -> [f64; 3] {
+        match self {
+            AttachedConfig::Box { xyz, .. }
+            | AttachedConfig::Sphere { xyz, .. }
+            | AttachedConfig::Mesh { xyz, .. } => *xyz,
+        }
+    }
 }
 
 fn unit_scale() -> [f64; 3] {

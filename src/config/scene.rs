@@ -220,6 +220,45 @@ fn default_noise() -> f64 {
     2.5
 }
 
+/// Largest distance of a table edge or a floor from the robot's base, metres.
+const MAX_SCENE_EXTENT_M: f64 = 10.0;
+
+impl SceneSettings {
+    /// The table's and floor's placement, if one is wrong: finite, within
+    /// [`MAX_SCENE_EXTENT_M`] of the base, a table of positive size and a floor below it. The
+    /// scene draws its clutter and boxes from these ranges.
+    fn layout_problem(&self) -> Option<(&'static str, String)> {
+        let near = |v: f64| v.is_finite() && v.abs() <= MAX_SCENE_EXTENT_M;
+        let [x0, x1, y0, y1] = self.table_extent_m;
+        if !(self.table_extent_m.iter().all(|&v| near(v)) && x0 < x1 && y0 < y1) {
+            return Some((
+                "table_extent_m",
+                format!(
+                    "is {:?}; allowed: [x_min, x_max, y_min, y_max] with min < max, each within {MAX_SCENE_EXTENT_M} m",
+                    self.table_extent_m
+                ),
+            ));
+        }
+        if !near(self.table_height_m) {
+            let h = self.table_height_m;
+            return Some((
+                "table_height_m",
+                format!("is {h}; allowed: within {MAX_SCENE_EXTENT_M} m"),
+            ));
+        }
+        if !(near(self.floor_height_m) && self.floor_height_m < self.table_height_m) {
+            return Some((
+                "floor_height_m",
+                format!(
+                    "is {}; allowed: below table_height_m ({}), within {MAX_SCENE_EXTENT_M} m",
+                    self.floor_height_m, self.table_height_m
+                ),
+            ));
+        }
+        None
+    }
+}
+
 impl Default for SceneSettings {
     fn default() -> Self {
         SceneSettings {
@@ -297,10 +336,13 @@ impl SceneSettings {
         let bad =
             |key: &str, message: String| Err(Error::input(file, format!("{field}.{key}"), message));
         let unit = |c: &[f64; 3]| c.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v));
-        if !(self.noise_sigma.is_finite() && self.noise_sigma >= 0.0) {
+        if let Some((key, message)) = self.layout_problem() {
+            return bad(key, message);
+        }
+        if !(self.noise_sigma.is_finite() && (0.0..=255.0).contains(&self.noise_sigma)) {
             return bad(
                 "noise_sigma",
-                format!("must be >= 0, got {}", self.noise_sigma),
+                format!("must be in [0, 255] grey levels, got {}", self.noise_sigma),
             );
         }
         if let Some(c) = &self.clutter {

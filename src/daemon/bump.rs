@@ -195,7 +195,11 @@ fn recorded_views(
         ))
     })?;
     let dir = store.run_dir(&record);
-    let run = RunFile::read(&dir.join("run.json"))?;
+    // The run folder is data on disk: check it (view count, paths inside the folder, regular
+    // files, memory) as `easyhec solve` would, before reading any frame.
+    let json = dir.join("run.json");
+    let run = RunFile::read(&json)?;
+    run.check(&json, &dir)?;
     run.views
         .iter()
         .filter_map(|v| v.image.as_ref().map(|img| (img, &v.joints)))

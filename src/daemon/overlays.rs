@@ -246,7 +246,22 @@ pub fn render(
         .mask
         .as_ref()
         .ok_or_else(|| Refusal::NotFound(format!("view {n} has no mask")))?;
-    let observed = camera.undistort_mask(&Mask::load(&run_dir.join(mask_rel))?);
+    // The run folder is data on disk: its paths stay inside it and its mask has the camera's
+    // size, since the overlay indexes the render with the mask's pixels.
+    let json = run_dir.join("run.json");
+    let mask_path = crate::run::inside_run(run_dir, mask_rel, &json, &format!("views[{n}].mask"))?;
+    let mask = Mask::load(&mask_path)?;
+    if (mask.width, mask.height) != (camera.width, camera.height) {
+        return Err(Refusal::Internal(format!(
+            "{}: mask: is {}x{}; allowed: the camera's {}x{}",
+            mask_path.display(),
+            mask.width,
+            mask.height,
+            camera.width,
+            camera.height
+        )));
+    }
+    let observed = camera.undistort_mask(&mask);
     if view.joints.len() != cell.robot.actuated.len() {
         return Err(Refusal::Internal(format!(
             "view {n} has {} joints; the cell's robot has {}",
@@ -266,8 +281,9 @@ pub fn render(
         .image
         .as_ref()
         .filter(|_| !camera.is_distorted())
-        .and_then(|p| image::open(run_dir.join(p)).ok())
-        .map(|i| i.to_rgb8());
+        .and_then(|p| crate::run::inside_run(run_dir, p, &json, "image").ok())
+        .and_then(|p| crate::segment::read_frame(&p, camera.width, camera.height).ok())
+        .and_then(|f| image::RgbImage::from_raw(f.width, f.height, f.rgb));
     let img = overlay_image(&rendered, &observed, background.as_ref());
     let mut bytes = std::io::Cursor::new(Vec::new());
     img.write_to(&mut bytes, image::ImageFormat::Png)

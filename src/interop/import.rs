@@ -158,6 +158,7 @@ fn read_views(src: &Path, joint_count: usize) -> Result<Vec<SourceView>> {
             ));
         }
     }
+    check_mask_headers(src, &masks)?;
     let mut views: Vec<SourceView> = Vec::with_capacity(masks.len());
     for (stem, mask_path) in &masks {
         let Some(qpos_path) = qpos.get(stem) else {
@@ -206,6 +207,33 @@ fn read_view(
         joints: q[..joint_count].to_vec(),
         color: color.is_file().then_some(color),
     })
+}
+
+/// Every mask's header states the first one's size, and a solve of them all fits in memory:
+/// checked before any mask is decoded, since each decoded mask is held until the write.
+fn check_mask_headers(src: &Path, masks: &BTreeMap<String, PathBuf>) -> Result<()> {
+    let mut first: Option<(u32, u32)> = None;
+    for path in masks.values() {
+        let size = Mask::dimensions(path)?;
+        match first {
+            None => first = Some(size),
+            Some(f) if f != size => {
+                return Err(Error::input(
+                    path,
+                    "mask",
+                    format!(
+                        "is {}x{}; allowed: the first mask's {}x{}",
+                        size.0, size.1, f.0, f.1
+                    ),
+                ))
+            }
+            Some(_) => {}
+        }
+    }
+    match first {
+        Some(size) => crate::run::check_solve_memory(masks.len(), size, &src.join("mask"), "mask"),
+        None => Ok(()),
+    }
 }
 
 fn same_size(first: &Mask, mask: &Mask, path: &Path) -> Result<()> {

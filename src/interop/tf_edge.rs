@@ -116,6 +116,9 @@ pub fn transform_from_parts(
     if t.iter().chain(q_xyzw.iter()).any(|v| !v.is_finite()) {
         return Err("has a non-finite number".into());
     }
+    if let Some(problem) = crate::geometry::translation_problem(&t) {
+        return Err(format!("has a {problem}"));
+    }
     let q = Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]);
     let norm = q.norm();
     if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {

@@ -58,6 +58,9 @@ pub struct OfflineSolve {
     pub allow_poor_fit: bool,
     /// 1-sigma error of each recorded joint, radians, for the reported covariance.
     pub joint_noise_rad: f64,
+    /// Model-error floor (rotation degrees, translation millimetres, 1 sigma per camera
+    /// axis) added to the reported covariance.
+    pub model_floor: (f64, f64),
 }
 
 /// What an offline solve produced.
@@ -316,6 +319,8 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
     SolveOptions {
         optimizer: req.optimizer,
         joint_noise_rad: req.joint_noise_rad,
+        floor_rotation_deg: req.model_floor.0,
+        floor_translation_mm: req.model_floor.1,
         ..SolveOptions::default()
     }
 }
@@ -647,7 +652,7 @@ fn write_overlays(
 /// Synthetic runs carry their truth beside run.json: the error against it.
 fn truth_error(dir: &Path, estimate: &Isometry3<f64>) -> Option<(PathBuf, f64, f64)> {
     let path = dir.join("ground_truth.json");
-    let text = std::fs::read_to_string(&path).ok()?;
+    let text = crate::io::read_text_input(&path).ok()?;
     let truth: GroundTruth = serde_json::from_str(&text).ok()?;
     let truth = from_rows(&truth.camera_from_base).ok()?;
     Some((

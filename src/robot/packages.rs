@@ -93,7 +93,7 @@ fn source_package(dir: &Path, name: &str, depth: usize) -> Option<PathBuf> {
 /// The `<package><name>` a folder's `package.xml` declares; `None` when the manifest is
 /// missing, is not XML, or has no name.
 fn manifest_name(dir: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(dir.join("package.xml")).ok()?;
+    let text = crate::io::read_text_input(&dir.join("package.xml")).ok()?;
     let doc = roxmltree::Document::parse(&text).ok()?;
     let root = doc.root_element();
     if root.tag_name().name() != "package" {

@@ -176,22 +176,33 @@ pub(crate) fn inside_run(dir: &Path, rel: &str, json: &Path, field: &str) -> Res
 /// Refuses, before allocating, a run whose masks alone would not fit in the memory this
 /// machine has available (an allocation failure aborts the process with no message).
 fn check_memory(file: &RunFile, json: &Path) -> Result<()> {
-    let pixels = u64::from(file.camera.width) * u64::from(file.camera.height);
+    let size = (file.camera.width, file.camera.height);
+    check_solve_memory(file.views.len(), size, json, "views")
+}
+
+/// `views` images of `size` (width, height) must fit in the memory a solve of them needs;
+/// otherwise an error naming `field` of `path`.
+pub(crate) fn check_solve_memory(
+    views: usize,
+    size: (u32, u32),
+    path: &Path,
+    field: &str,
+) -> Result<()> {
+    let pixels = u64::from(size.0) * u64::from(size.1);
     let need = pixels
-        .saturating_mul(file.views.len() as u64)
+        .saturating_mul(views as u64)
         .saturating_mul(SOLVE_BYTES_PER_VIEW_PIXEL);
     let Some(available) = available_memory_bytes() else {
         return Ok(());
     };
     if need > available {
         return Err(Error::input(
-            json,
-            "views",
+            path,
+            field,
             format!(
-                "{} views of {}x{} need about {:.1} GB to solve; this machine has {:.1} GB available: use fewer views or smaller images",
-                file.views.len(),
-                file.camera.width,
-                file.camera.height,
+                "{views} views of {}x{} need about {:.1} GB to solve; this machine has {:.1} GB available: use fewer views or smaller images",
+                size.0,
+                size.1,
                 need as f64 / 1e9,
                 available as f64 / 1e9
             ),

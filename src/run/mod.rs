@@ -22,7 +22,7 @@ pub mod rig;
 pub use checks::{
     available_memory_bytes, MAX_RUN_JOINTS, MAX_RUN_VIEWS, SOLVE_BYTES_PER_VIEW_PIXEL,
 };
-pub(crate) use checks::{check_mask_coverage, check_run_file};
+pub(crate) use checks::{check_mask_coverage, check_run_file, check_solve_memory, inside_run};
 
 /// Run-directory format tag.
 pub const RUN_FORMAT: &str = "easyhec-run/1";

@@ -257,7 +257,7 @@ impl RigGroundTruth {
     /// The rig truth at `path`. Anything else (no file, another format, bad JSON) gives
     /// `None`: a truth file is a simulator's extra, never an input a solve depends on.
     pub fn read(path: &Path) -> Option<RigGroundTruth> {
-        let text = std::fs::read_to_string(path).ok()?;
+        let text = crate::io::read_text_input(path).ok()?;
         let truth: RigGroundTruth = serde_json::from_str(&text).ok()?;
         (truth.format == RIG_TRUTH_FORMAT).then_some(truth)
     }

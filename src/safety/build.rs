@@ -40,8 +40,7 @@ fn pose_from(xyz: [f64; 3], rpy_deg: [f64; 3]) -> Isometry3<f64> {
 
 /// Link pairs listed as `<disable_collisions link1=… link2=…/>` in a MoveIt SRDF.
 pub fn read_srdf_disabled_pairs(path: &Path) -> Result<Vec<(String, String)>> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::io(path, format!("cannot read SRDF: {e}")))?;
+    let text = crate::io::read_text_input(path)?;
     let doc = roxmltree::Document::parse(&text)
         .map_err(|e| Error::input(path, "srdf", format!("malformed XML: {e}")))?;
     Ok(doc
@@ -398,7 +397,7 @@ fn attached_shape(body: &AttachedConfig, config_dir: &Path) -> Result<Option<Lin
         AttachedConfig::Sphere { radius_m, xyz, .. } => {
             let centre = Point3::from(*xyz);
             let ball = SharedShape::compound(vec![(
-                Isometry3::translation(xyz[0], xyz[1], xyz[2]),
+                Isometry3::from(centre.coords),
                 SharedShape::new(Ball::new(*radius_m)),
             )]);
             Ok(Some((ball, (centre, *radius_m))))

@@ -55,20 +55,26 @@ pub trait Segmenter: Send + Sync {
 /// A recorded view's colour image as a frame, for segmenting runs offline; it must have the
 /// camera's size, since its mask is compared pixel for pixel with renders.
 pub fn read_frame(path: &Path, width: u32, height: u32) -> Result<Frame> {
-    let img = image::open(path)
-        .map_err(|e| Error::input(path, "image", format!("cannot decode: {e}")))?
-        .to_rgb8();
-    if img.width() != width || img.height() != height {
+    // A FIFO or a device would block; and the header first: a small file can state a huge
+    // image.
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return Err(Error::input(path, "image", "is not a regular file"));
+    }
+    let stated = image::image_dimensions(path)
+        .map_err(|e| Error::input(path, "image", format!("cannot decode: {e}")))?;
+    if stated != (width, height) {
         return Err(Error::input(
             path,
             "image",
             format!(
                 "is {}x{} but the camera is {width}x{height}",
-                img.width(),
-                img.height()
+                stated.0, stated.1
             ),
         ));
     }
+    let img = image::open(path)
+        .map_err(|e| Error::input(path, "image", format!("cannot decode: {e}")))?
+        .to_rgb8();
     Ok(Frame {
         width,
         height,

@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-use easyhec_drivers::Frame;
+use easyhec_drivers::{Frame, MAX_IMAGE_SIDE};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::{DimFact, Factoid};
 
@@ -18,6 +18,10 @@ use super::Segmenter;
 use crate::config::segmenter::{Activation, ChannelOrder, OnnxConfig, PixelRange, TensorLayout};
 use crate::error::{Error, Result};
 use crate::mask::Mask;
+
+/// Largest model file read, bytes (2 GiB: the protobuf limit of an ONNX file with its weights
+/// inside).
+const MAX_MODEL_BYTES: u64 = 2 << 30;
 
 /// The runnable model and how to feed and read it.
 pub struct OnnxSegmenter {
@@ -142,10 +146,20 @@ impl OnnxSegmenter {
             ("segmenter.input_width", cfg.input_width),
             ("segmenter.input_height", cfg.input_height),
         ] {
-            if v == Some(0) {
+            if v.is_some_and(|v| v == 0 || v > MAX_IMAGE_SIDE) {
                 return Err(bad(
                     field,
-                    "is 0: give the model's input size in pixels".into(),
+                    format!(
+                        "is {v:?}: give the model's input size in pixels, 1 to {MAX_IMAGE_SIDE}"
+                    ),
+                ));
+            }
+        }
+        if let Ok(meta) = std::fs::metadata(&model_path) {
+            if !meta.is_file() || meta.len() > MAX_MODEL_BYTES {
+                return Err(bad(
+                    "segmenter.model",
+                    format!("{shown}: allowed: a regular file of at most {MAX_MODEL_BYTES} bytes"),
                 ));
             }
         }
@@ -178,6 +192,13 @@ impl OnnxSegmenter {
             ));
         }
         let (input_height, input_width) = Self::input_size(&model, cfg, config_path)?;
+        let side = MAX_IMAGE_SIDE as usize;
+        if input_height > side || input_width > side {
+            return Err(bad(
+                "segmenter.model",
+                format!("{shown} takes a {input_width}x{input_height} input; allowed: sides up to {side}"),
+            ));
+        }
         let shape = match cfg.layout {
             TensorLayout::Nchw => [1, 3, input_height, input_width],
             TensorLayout::Nhwc => [1, input_height, input_width, 3],
