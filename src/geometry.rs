@@ -90,7 +90,7 @@ pub const MAX_TRANSLATION_M: f64 = 1000.0;
 pub fn translation_problem(t: &[f64; 3]) -> Option<String> {
     t.iter().position(|v| v.abs() > MAX_TRANSLATION_M).map(|k| {
         format!(
-            "translation[{k}] is {}; allowed: -{MAX_TRANSLATION_M} to {MAX_TRANSLATION_M} m",
+            "translation[{k}] = {} m; allowed: -{MAX_TRANSLATION_M} to {MAX_TRANSLATION_M} m",
             t[k]
         )
     })
@@ -118,9 +118,19 @@ pub fn from_rows(rows: &[[f64; 4]; 4]) -> Result<Isometry3<f64>, String> {
             r.determinant()
         ));
     }
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-    let t = Vector3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
-    Ok(Isometry3::from_parts(Translation3::from(t), rotation))
+    Ok(rigid_from_rows(rows))
+}
+
+/// The rigid transform nearest to row-major `rows`, with no checks: for rows a caller built
+/// itself from a pose (a result about to be written), where a check could only fail on a
+/// pose the solver produced and must not panic over.
+pub fn rigid_from_rows(rows: &[[f64; 4]; 4]) -> Isometry3<f64> {
+    let r = Matrix3::from_fn(|i, j| rows[i][j]);
+    // Bounded iterations: a non-finite matrix never converges.
+    let nearest = Rotation3::from_matrix_eps(&r, 1e-12, 100, Rotation3::identity());
+    let rotation = UnitQuaternion::from_rotation_matrix(&nearest);
+    let t = Vector3::new(rows[0][3], rows[1][3], rows[2][3]);
+    Isometry3::from_parts(Translation3::from(t), rotation)
 }
 
 /// URDF `<origin xyz rpy>` (fixed-axis roll, pitch, yaw) to a transform.

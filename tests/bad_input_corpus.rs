@@ -937,12 +937,13 @@ fn calibrate_cases() -> Vec<Case> {
         case("view overhead negative", CAL, &[c, "calibration.view_overhead_s"], cell_line("calibration", "view_overhead_s = -1.0")),
         case("robot image fraction zero", CAL, &[c, "calibration.min_robot_image_fraction"], cell_line("calibration", "min_robot_image_fraction = 0.0")),
         case("model floor huge", CAL, &[c, "calibration.model_floor_translation_mm"], cell_line("calibration", "model_floor_translation_mm = 1000.0")),
+        case("model floor above the stop target", CAL, &[c, "calibration.model_floor_translation_mm", "stop_centre_95_mm"], cell_line("calibration", "model_floor_translation_mm = 0.5")),
         case("model floor negative", CAL, &[c, "calibration.model_floor_rotation_deg"], cell_line("calibration", "model_floor_rotation_deg = -1.0")),
         case("check interval beyond a timer", CAL, &[c, "check_interval_s"], cell_line("daemon", "check_interval_s = 1e20")),
         case("table extent NaN", CAL, &[c, "camera.scene.table_extent_m"], cell_line("camera", "scene = { seed = 1, table_extent_m = [nan, 1.0, -0.8, 0.8] }")),
         case("floor above the table", CAL, &[c, "camera.scene.floor_height_m"], cell_line("camera", "scene = { seed = 1, floor_height_m = 0.5 }")),
         case("sim truth eye on its target", CAL, &[c, "camera.truth", "1 mm apart"], cell_line("camera", "truth = { eye = [0.1, 0.0, 0.3], look_at = [0.1, 0.0, 0.3] }")),
-        case("sim truth far away", CAL, &[c, "camera.truth", "translation"], cell_line("camera", "truth = { eye = [1e300, 0.0, 0.3], look_at = [0.1, 0.0, 0.3] }")),
+        case("sim truth far away", CAL, &[c, "camera.truth", "eye[0]"], cell_line("camera", "truth = { eye = [1e300, 0.0, 0.3], look_at = [0.1, 0.0, 0.3] }")),
     ];
     v.push(case(
         "renderer unknown",
@@ -1279,6 +1280,19 @@ fn export_cases() -> Vec<Case> {
                 "0 0 inf 0 0 0 1",
             ],
             &["--optical-from-child", "inf", "allowed"],
+            nothing,
+        ),
+        case(
+            "optical_from_child beyond a kilometre",
+            &[
+                "export",
+                R,
+                "--format",
+                "ros",
+                "--optical-from-child",
+                "2000 0 0 0 0 0 1",
+            ],
+            &["--optical-from-child", "translation[0] = 2000 m", "allowed"],
             nothing,
         ),
         case(

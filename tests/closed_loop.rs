@@ -91,17 +91,20 @@ fn every_shipped_config_parses_and_builds() {
 
 /// The uncertainty rule stops the loop as soon as the reported 95% centre bound meets the
 /// target, and no sooner than `min_views`; a target no solve reaches leaves the other rules.
+/// The cell's model-error floor reaches the loop's reported uncertainty.
 #[test]
 fn the_loop_stops_once_the_centre_bound_meets_its_target() {
     let path = config_path("sim-xarm6.toml");
-    let stop_with = |target: Option<f64>| {
+    let stop_with_floor = |target: Option<f64>, floor_mm: f64| {
         let mut cfg = quick(read_config(&path).unwrap(), 4);
         cfg.calibration.min_views = 2;
         cfg.calibration.stop_centre_95_mm = target;
+        cfg.calibration.model_floor_translation_mm = floor_mm;
         let cell = Cell::build(cfg, &path).unwrap();
         let dir = tempfile::tempdir().unwrap();
         run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap()
     };
+    let stop_with = |target: Option<f64>| stop_with_floor(target, 0.0);
     let loose = stop_with(Some(50.0));
     let bound = loose
         .result
@@ -129,6 +132,14 @@ fn the_loop_stops_once_the_centre_bound_meets_its_target() {
             .contains("camera centre within"),
         "{}",
         unreachable.result.stop_reason
+    );
+    // A 5 mm floor on the centre: every translation sigma at least 5 mm, and the centre
+    // bound at least 2.8 times it (the 95% radius of a 3-D Gaussian).
+    let floored = stop_with_floor(Some(50.0), 5.0);
+    let u = floored.result.uncertainty.as_ref().unwrap();
+    assert!(
+        u.translation_mm.iter().all(|&s| s >= 5.0) && u.camera_centre_95_mm.unwrap() >= 13.9,
+        "{u:?}"
     );
 }
 

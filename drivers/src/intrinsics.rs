@@ -60,8 +60,21 @@ pub enum CalibrationFormat {
     OpenCv,
 }
 
+/// Largest calibration file read, bytes.
+const MAX_CALIBRATION_FILE_BYTES: u64 = 1 << 20;
+
 /// Reads a calibration file (ROS `camera_info` or OpenCV YAML, told apart by content).
 pub fn load_intrinsics(file: &Path) -> Result<Intrinsics, IntrinsicsError> {
+    // A FIFO or a device would block, and a calibration file is a few kB.
+    if let Ok(meta) = std::fs::metadata(file) {
+        if !meta.is_file() || meta.len() > MAX_CALIBRATION_FILE_BYTES {
+            return Err(IntrinsicsError::new(
+                file,
+                "intrinsics",
+                format!("allowed: a regular file of at most {MAX_CALIBRATION_FILE_BYTES} bytes"),
+            ));
+        }
+    }
     let text = std::fs::read_to_string(file).map_err(|e| {
         IntrinsicsError::new(
             file,

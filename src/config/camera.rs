@@ -14,7 +14,7 @@ use super::mount::Mount;
 use super::scene::SceneSettings;
 use super::seconds;
 use crate::error::{Error, Result};
-use crate::geometry::look_at_camera_from_base;
+use crate::geometry::{look_at_camera_from_base, MAX_TRANSLATION_M};
 
 /// A camera pose given the way people measure one: where it is and what it looks at.
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -38,9 +38,12 @@ impl LookAt {
         if values.into_iter().any(|v| !v.is_finite()) {
             return Err("eye, look_at and roll_deg must be finite numbers".into());
         }
-        for point in [&self.eye, &self.look_at] {
-            if let Some(problem) = crate::geometry::translation_problem(point) {
-                return Err(format!("eye or look_at: {problem}"));
+        for (name, point) in [("eye", &self.eye), ("look_at", &self.look_at)] {
+            if let Some(k) = point.iter().position(|v| v.abs() > MAX_TRANSLATION_M) {
+                return Err(format!(
+                    "{name}[{k}] is {} m; allowed: within {MAX_TRANSLATION_M} m of the base",
+                    point[k]
+                ));
             }
         }
         let apart = (0..3)

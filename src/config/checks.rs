@@ -346,20 +346,7 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
         1.0,
         true,
     )?;
-    c.within(
-        "calibration.model_floor_rotation_deg",
-        s.model_floor_rotation_deg,
-        0.0,
-        bounds::MODEL_FLOOR_DEG,
-        false,
-    )?;
-    c.within(
-        "calibration.model_floor_translation_mm",
-        s.model_floor_translation_mm,
-        0.0,
-        bounds::MODEL_FLOOR_MM,
-        false,
-    )?;
+    check_model_floor(c, s)?;
     c.within(
         "calibration.joint_noise_rad",
         s.joint_noise_rad,
@@ -368,6 +355,43 @@ fn check_calibration(c: &Check, s: &CalibrationSettings) -> Result<()> {
         false,
     )
 }
+
+/// The model-error floors, within their bounds and below what the uncertainty stop rule
+/// needs: the translation floor alone widens the 95% camera-centre bound to 2.80 times itself
+/// (the 95% radius of a 3-D Gaussian), so a larger floor would switch that rule off unseen.
+fn check_model_floor(c: &Check, s: &CalibrationSettings) -> Result<()> {
+    c.within(
+        "calibration.model_floor_rotation_deg",
+        s.model_floor_rotation_deg,
+        0.0,
+        bounds::MODEL_FLOOR_DEG,
+        false,
+    )?;
+    let floor = s.model_floor_translation_mm;
+    c.within(
+        "calibration.model_floor_translation_mm",
+        floor,
+        0.0,
+        bounds::MODEL_FLOOR_MM,
+        false,
+    )?;
+    match s.stop_centre_95_mm {
+        Some(target) if CENTRE_95_PER_SIGMA * floor >= target => Err(c.fail(
+            "calibration.model_floor_translation_mm",
+            floor,
+            &format!(
+                "below {:.3} mm with stop_centre_95_mm = {target}: the floor alone makes the 95% centre bound {:.2} mm, so the uncertainty stop rule could never fire (raise stop_centre_95_mm above that)",
+                target / CENTRE_95_PER_SIGMA,
+                CENTRE_95_PER_SIGMA * floor
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// The 95% radius of an isotropic 3-D Gaussian, in units of its per-axis sigma
+/// (sqrt of the chi-square 95% quantile with 3 degrees of freedom, 7.815).
+const CENTRE_95_PER_SIGMA: f64 = 2.7955;
 
 fn check_safety(c: &Check, s: &SafetyConfig) -> Result<()> {
     c.within(

@@ -187,10 +187,11 @@ impl Ros2Settings {
         }
         if let Some(v) = &self.optical_from_child {
             let norm = v[3..].iter().map(|x| x * x).sum::<f64>().sqrt();
-            if v.iter().any(|x| !x.is_finite()) || (norm - 1.0).abs() > 1e-2 {
+            let far = crate::geometry::translation_problem(&[v[0], v[1], v[2]]).is_some();
+            if v.iter().any(|x| !x.is_finite()) || far || (norm - 1.0).abs() > 1e-2 {
                 return bad(
                     "optical_from_child",
-                    format!("is {v:?}; allowed: 7 finite numbers [x, y, z, qx, qy, qz, qw] with a unit quaternion"),
+                    format!("is {v:?}; allowed: 7 finite numbers [x, y, z, qx, qy, qz, qw], x, y and z within {} m, with a unit quaternion", crate::geometry::MAX_TRANSLATION_M),
                 );
             }
         }

@@ -246,11 +246,11 @@ impl SceneSettings {
                 format!("is {h}; allowed: within {MAX_SCENE_EXTENT_M} m"),
             ));
         }
-        if !(near(self.floor_height_m) && self.floor_height_m < self.table_height_m) {
+        if !(near(self.floor_height_m) && self.floor_height_m <= self.table_height_m) {
             return Some((
                 "floor_height_m",
                 format!(
-                    "is {}; allowed: below table_height_m ({}), within {MAX_SCENE_EXTENT_M} m",
+                    "is {}; allowed: at most table_height_m ({}), within {MAX_SCENE_EXTENT_M} m",
                     self.floor_height_m, self.table_height_m
                 ),
             ));

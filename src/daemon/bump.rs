@@ -261,7 +261,7 @@ async fn measure(
             .active_of(camera.as_deref())
             .and_then(|a| a.result.uncertainty)
             .and_then(|u| u.covariance)
-            .map(|rows| Matrix6::from_fn(|r, c| rows[r][c]));
+            .map(|rows| without_model_floor(&cell, Matrix6::from_fn(|r, c| rows[r][c])));
         let job = CameraCheck {
             daemon: daemon.clone(),
             id: id.clone(),
@@ -377,6 +377,25 @@ impl CameraCheck {
             .map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
         Ok((agreement(&observed, &rendered.mask), explained))
     }
+}
+
+/// `covariance` less the cell's model-error floor: a URDF or intrinsics error is the same at
+/// the calibration and at the check, so it explains no outline motion between them, and a
+/// floor left in would hide real bumps. Negative variances this leaves (a floor raised after
+/// the calibration) are clamped per outline sample in [`explained_px`].
+fn without_model_floor(cell: &Cell, covariance: Matrix6<f64>) -> Matrix6<f64> {
+    let settings = &cell.config.calibration;
+    let rotation = settings.model_floor_rotation_deg.to_radians().powi(2);
+    let translation = (settings.model_floor_translation_mm / 1000.0).powi(2);
+    let floor = Vector6::new(
+        translation,
+        translation,
+        translation,
+        rotation,
+        rotation,
+        rotation,
+    );
+    covariance - Matrix6::from_diagonal(&floor)
 }
 
 /// Outline distance (pixels) the calibration's own uncertainty explains at this view: twice

@@ -117,7 +117,7 @@ pub fn transform_from_parts(
         return Err("has a non-finite number".into());
     }
     if let Some(problem) = crate::geometry::translation_problem(&t) {
-        return Err(format!("has a {problem}"));
+        return Err(format!("has {problem}"));
     }
     let q = Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]);
     let norm = q.norm();

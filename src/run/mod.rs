@@ -660,8 +660,9 @@ impl ResultFile {
         Ok(r)
     }
 
-    /// The transform as a rigid pose.
+    /// The transform as a rigid pose (checked by [`ResultFile::read`]; a result built from a
+    /// solve holds the solver's own pose).
     pub fn camera_from_base(&self) -> Isometry3<f64> {
-        from_rows(&self.camera_from_base).expect("validated when read or built")
+        crate::geometry::rigid_from_rows(&self.camera_from_base)
     }
 }

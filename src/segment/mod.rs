@@ -57,7 +57,8 @@ pub trait Segmenter: Send + Sync {
 pub fn read_frame(path: &Path, width: u32, height: u32) -> Result<Frame> {
     // A FIFO or a device would block; and the header first: a small file can state a huge
     // image.
-    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
         return Err(Error::input(path, "image", "is not a regular file"));
     }
     let stated = image::image_dimensions(path)

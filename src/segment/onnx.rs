@@ -146,12 +146,10 @@ impl OnnxSegmenter {
             ("segmenter.input_width", cfg.input_width),
             ("segmenter.input_height", cfg.input_height),
         ] {
-            if v.is_some_and(|v| v == 0 || v > MAX_IMAGE_SIDE) {
+            if let Some(v) = v.filter(|&v| v == 0 || v > MAX_IMAGE_SIDE) {
                 return Err(bad(
                     field,
-                    format!(
-                        "is {v:?}: give the model's input size in pixels, 1 to {MAX_IMAGE_SIDE}"
-                    ),
+                    format!("is {v}: give the model's input size in pixels, 1 to {MAX_IMAGE_SIDE}"),
                 ));
             }
         }
