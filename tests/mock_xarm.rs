@@ -151,6 +151,26 @@ fn calibration_through_the_xarm_driver_reaches_the_truth_safely() {
     }
 }
 
+/// A controller that already reports an error is not cleared by the first move: with
+/// `clear_faults = false` the calibration ends without any move reaching the arm.
+#[test]
+fn an_error_present_at_start_is_not_cleared_by_the_first_move() {
+    let rt = runtime();
+    let mock = spawn_mock(&rt, 5.0, Vec::new(), false);
+    mock.inject_error(22);
+    let mut cfg = cell_config(&mock, 3);
+    cfg.calibration.clear_faults = false;
+    let cell = Cell::build(cfg, &config_path()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let reason = match run(&rt, &cell, &dir.path().join("run")) {
+        Ok(outcome) => outcome.result.stop_reason,
+        Err(e) => e.to_string(),
+    };
+    assert!(reason.contains("before the first move"), "{reason}");
+    assert!(mock.commands().is_empty(), "{:?}", mock.commands());
+    assert_eq!(mock.reported_state(), 4, "the error stays for the operator");
+}
+
 #[test]
 fn link_lost_mid_move_ends_the_calibration_with_the_arm_stopped() {
     let rt = runtime();

@@ -386,3 +386,81 @@ fn a_turned_box_and_a_scaled_mesh_sit_where_the_config_puts_them() {
         "{err}"
     );
 }
+
+/// An arm whose joint reading the test sets, recording every move it is sent.
+struct ReadingArm {
+    joints: Vec<easyhec_drivers::JointLimit>,
+    reading: std::sync::Mutex<Vec<f64>>,
+    moves: std::sync::Mutex<Vec<Vec<f64>>>,
+}
+
+#[async_trait::async_trait]
+impl easyhec_drivers::Arm for ReadingArm {
+    fn joints(&self) -> &[easyhec_drivers::JointLimit] {
+        &self.joints
+    }
+    async fn read_joints(&self) -> easyhec_drivers::Result<Vec<f64>> {
+        Ok(self.reading.lock().unwrap().clone())
+    }
+    async fn move_to(
+        &self,
+        target: &[f64],
+        _speed_rad_s: f64,
+    ) -> easyhec_drivers::Result<easyhec_drivers::Motion> {
+        self.moves.lock().unwrap().push(target.to_vec());
+        Ok(easyhec_drivers::Motion::new(async { Ok(()) }))
+    }
+    async fn stop(&self) -> easyhec_drivers::Result<()> {
+        Ok(())
+    }
+    async fn status(&self) -> easyhec_drivers::Result<easyhec_drivers::ArmStatus> {
+        Ok(easyhec_drivers::ArmStatus::Idle)
+    }
+}
+
+/// The gated arm checks a move again from the arm's own reading: a non-finite reading, or
+/// one (within the drift tolerance) from which the path fails its check, sends nothing.
+#[test]
+fn the_gated_arm_rechecks_each_move_from_where_the_arm_is() {
+    let robot = xarm6();
+    let c = Arc::new(checker(&robot, &SafetyConfig::default()));
+    // A start 4 mrad inside a joint's upper limit, with a safe move away from it.
+    let mid = [0.0, 0.3, -0.6, 0.0, 0.6, 0.0];
+    let (k, upper, start, target, mv) = (0..mid.len())
+        .find_map(|k| {
+            let (_, upper) = robot.joint_limits()[k];
+            let mut start = mid.to_vec();
+            start[k] = upper - 0.004;
+            let mut target = start.clone();
+            target[k] -= 0.2;
+            let mv = c.check_move(&start, &target, 0.5).ok()?;
+            Some((k, upper, start, target, mv))
+        })
+        .expect("some joint can start at its upper limit");
+    let arm = Arc::new(ReadingArm {
+        joints: Vec::new(),
+        reading: std::sync::Mutex::new(start.clone()),
+        moves: std::sync::Mutex::new(Vec::new()),
+    });
+    let gated = easyhec::safety::SafeArm::new(arm.clone(), c.clone());
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .build()
+        .unwrap();
+    let send = |reading: Vec<f64>| {
+        *arm.reading.lock().unwrap() = reading;
+        rt.block_on(gated.execute(&mv)).map(|_| ())
+    };
+    let mut nan = start.clone();
+    nan[3] = f64::NAN;
+    let e = send(nan).unwrap_err().to_string();
+    assert!(e.contains("finite"), "{e}");
+    // 0.008 rad off the planned start (inside the 0.01 rad tolerance) but past the joint's
+    // upper limit: the path from there is refused.
+    let mut past_limit = start.clone();
+    past_limit[k] = upper + 0.004;
+    let e = send(past_limit).unwrap_err().to_string();
+    assert!(e.contains("fails its check"), "{e}");
+    assert!(arm.moves.lock().unwrap().is_empty());
+    send(start).unwrap();
+    assert_eq!(*arm.moves.lock().unwrap(), vec![target]);
+}

@@ -130,6 +130,12 @@ async fn targets_outside_the_limits_are_refused_with_nothing_sent() {
         arm.move_to(&[0.0; 5], 0.5).await,
         Err(DriverError::Refused(_))
     ));
+    // Slower than the least speed byte (1% of full speed): moving would exceed the speed
+    // the path was checked at.
+    match arm.move_to(&[0.0, 0.5, -0.5, 0.0, 0.0, 0.0], 0.001).await {
+        Err(DriverError::Refused(m)) => assert!(m.contains("least step"), "{m}"),
+        other => panic!("{other:?}"),
+    }
     tokio::time::sleep(Duration::from_millis(20)).await;
     assert_eq!(
         mock.received().len(),

@@ -233,6 +233,15 @@ async fn targets_outside_the_limits_are_refused_with_nothing_written() {
         .goals()
         .iter()
         .all(|g| (g.goal_ticks - 2048).abs() <= (1.0 / TICK) as i64));
+    // Slower than one velocity unit: moving would exceed the speed the path was checked at.
+    match arm.move_to(&[0.5, 0.0], 0.001).await {
+        Err(DriverError::Refused(m)) => assert!(m.contains("least velocity step"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(mock
+        .goals()
+        .iter()
+        .all(|g| (g.goal_ticks - 2048).abs() <= (1.0 / TICK) as i64));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -66,7 +66,7 @@ pub struct Cell {
     /// The segmenter.
     pub segmenter: Box<dyn Segmenter>,
     /// The safety checker.
-    pub checker: SafetyChecker,
+    pub checker: Arc<SafetyChecker>,
     /// Simulator handles (empty on real hardware).
     pub sim: SimHandles,
 }
@@ -152,7 +152,12 @@ impl Cell {
             .iter()
             .map(|j| (j.lower, j.upper, j.max_velocity))
             .collect();
-        let checker = SafetyChecker::new(robot.clone(), &config.safety, &controller, path)?;
+        let checker = Arc::new(SafetyChecker::new(
+            robot.clone(),
+            &config.safety,
+            &controller,
+            path,
+        )?);
         config.daemon.validate(path, robot.actuated.len())?;
         let more_cameras = (1..config.camera.cameras().len())
             .map(|i| {
@@ -170,7 +175,7 @@ impl Cell {
             config_path: path.to_path_buf(),
             robot,
             seen,
-            arm: SafeArm::new(arm.device),
+            arm: SafeArm::new(arm.device, checker.clone()),
             camera: camera.device,
             more_cameras,
             checker,

@@ -309,12 +309,15 @@ async fn move_to_check_pose(daemon: &Daemon, cell: &Cell) -> Result<bool> {
         .checker
         .check_move(&from, target, speed)
         .map_err(|v| Error::Hardware(format!("check_pose refused by the safety checker: {v}")))?;
-    cell.arm
-        .execute(&mv)
-        .await?
-        .wait()
-        .await
-        .map_err(|e| Error::driver("moving to check_pose", e))?;
+    let arrived = cell.arm.execute(&mv).await?.wait().await;
+    if let Err(e) = arrived {
+        // A failed wait need not mean the arm stopped (a driver may lose track of a motion
+        // the controller still runs): stop it before the arm's lease is released.
+        if let Err(stop) = cell.arm.stop().await {
+            tracing::warn!("stopping the arm after a failed move to check_pose: {stop}");
+        }
+        return Err(Error::driver("moving to check_pose", e));
+    }
     Ok(true)
 }
 

@@ -510,6 +510,14 @@ impl Inner {
             );
             if dist[k] == dmax {
                 fastest = vel as f64 * vel_unit;
+                if fastest > speed * (1.0 + 1e-9) {
+                    // The least velocity unit is faster than asked: refuse rather than
+                    // move faster than the checked speed.
+                    return Err(DriverError::Refused(format!(
+                        "speed {speed} rad/s is below joint {}'s least velocity step ({fastest} rad/s)",
+                        m.id
+                    )));
+                }
             }
             let (addr, block) = self.motion_block(acc, vel, goals[k]);
             start = addr;

@@ -470,6 +470,14 @@ impl Arm for PiperArm {
             )));
         }
         let pct = self.speed_percent(speed_rad_s);
+        let sent = f64::from(pct) / 100.0 * inner.cfg.full_speed_rad_s;
+        if sent > speed_rad_s * (1.0 + 1e-9) {
+            // The least speed byte (1%) is faster than asked: the path was checked at the
+            // slower speed, so refuse rather than move faster than checked.
+            return Err(DriverError::Refused(format!(
+                "speed {speed_rad_s} rad/s is below the controller's least step ({sent} rad/s, 1%)"
+            )));
+        }
         let mut cmd = inner.cmd.lock().await;
         let status = inner.fresh_status().await?;
         if let Some(fault) = status.fault() {

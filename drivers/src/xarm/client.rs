@@ -580,6 +580,13 @@ impl Arm for XArm {
         let mut link = inner.lock().await;
         inner.ensure_connected(&mut link).await?;
         if !link.armed {
+            // Bringing the arm up clears errors; a fault already there is the caller's to
+            // clear (`clear_fault`, which a cell allows only with clear_faults), not a move's.
+            if let Some((_, message)) = inner.controller_error(&mut link).await? {
+                return Err(DriverError::Refused(format!(
+                    "{message} (reported before the first move: clear it at the pendant, or let easyhec clear faults)"
+                )));
+            }
             inner.bring_up(&mut link).await?;
         } else {
             if let Some((_, message)) = inner.controller_error(&mut link).await? {
