@@ -388,17 +388,11 @@ impl CameraCheck {
 /// the calibration) are clamped per outline sample in [`explained_px`].
 fn without_model_floor(cell: &Cell, covariance: Matrix6<f64>) -> Matrix6<f64> {
     let settings = &cell.config.calibration;
-    let rotation = settings.model_floor_rotation_deg.to_radians().powi(2);
-    let translation = (settings.model_floor_translation_mm / 1000.0).powi(2);
-    let floor = Vector6::new(
-        translation,
-        translation,
-        translation,
-        rotation,
-        rotation,
-        rotation,
-    );
-    covariance - Matrix6::from_diagonal(&floor)
+    covariance
+        - crate::solve::model_floor(
+            settings.model_floor_rotation_deg,
+            settings.model_floor_translation_mm,
+        )
 }
 
 /// Outline distance (pixels) the calibration's own uncertainty explains at this view: twice

@@ -69,17 +69,23 @@ pub(super) fn pose_covariance(
     // then stands in: tighter, but a finite answer where the slope has none.
     let h_weight: Matrix6<f64> = parts.iter().map(|p| p.h_weight).sum();
     let h_inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
-    let rotation = opts.floor_rotation_deg.to_radians().powi(2);
-    let translation = (opts.floor_translation_mm / 1000.0).powi(2);
-    let floor = Matrix6::from_diagonal(&Twist::new(
-        translation,
-        translation,
-        translation,
-        rotation,
-        rotation,
-        rotation,
-    ));
+    let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
     Some(h_inv * meat * h_inv + floor)
+}
+
+/// The model-error floor's covariance of the left increment `(rho, phi)`: `translation_mm`
+/// per camera axis on `rho`, `rotation_deg` on `phi` (1 sigma each).
+pub fn model_floor(rotation_deg: f64, translation_mm: f64) -> Matrix6<f64> {
+    let rotation = rotation_deg.to_radians().powi(2);
+    let translation = (translation_mm / 1000.0).powi(2);
+    Matrix6::from_diagonal(&Twist::new(
+        translation,
+        translation,
+        translation,
+        rotation,
+        rotation,
+        rotation,
+    ))
 }
 
 /// One image tile's share of a view's residuals.

@@ -34,6 +34,7 @@ mod search;
 mod shared_joints;
 mod uncertainty;
 
+pub use covariance::model_floor;
 pub use search::coarse_search;
 pub use shared_joints::{
     refine_with_joint_corrections, solve_with_shared_joints, CameraSolve, SharedCamera,
