@@ -88,10 +88,16 @@ pub const MAX_TRANSLATION_M: f64 = 1000.0;
 /// Why translation `t` cannot be used, if it cannot: every entry within
 /// [`MAX_TRANSLATION_M`].
 pub fn translation_problem(t: &[f64; 3]) -> Option<String> {
-    t.iter().position(|v| v.abs() > MAX_TRANSLATION_M).map(|k| {
+    point_problem("translation", t)
+}
+
+/// Why point `p` (named `name` in the message) cannot be used, if it cannot: every entry
+/// within [`MAX_TRANSLATION_M`] of the origin.
+pub fn point_problem(name: &str, p: &[f64; 3]) -> Option<String> {
+    p.iter().position(|v| v.abs() > MAX_TRANSLATION_M).map(|k| {
         format!(
-            "translation[{k}] = {} m; allowed: -{MAX_TRANSLATION_M} to {MAX_TRANSLATION_M} m",
-            t[k]
+            "{name}[{k}] = {} m; allowed: -{MAX_TRANSLATION_M} to {MAX_TRANSLATION_M} m",
+            p[k]
         )
     })
 }

@@ -50,22 +50,22 @@ pub fn write_json_atomic<T: serde::Serialize>(path: &Path, value: &T) -> Result<
 /// real one, low enough that a wrong path never fills memory.
 pub const MAX_TEXT_INPUT_BYTES: u64 = 64 * 1024 * 1024;
 
-/// Reads a whole text input after checking that it is a regular file (a FIFO or a device would
-/// block or never end) of at most [`MAX_TEXT_INPUT_BYTES`].
+/// Why a file with metadata `meta` cannot be read as an input of at most `max_bytes`, if it
+/// cannot: a FIFO or a device would block or never end, and a huge file would fill memory.
+pub fn input_file_problem(meta: &std::fs::Metadata, max_bytes: u64) -> Option<String> {
+    if !meta.is_file() {
+        return Some("is not a regular file".into());
+    }
+    (meta.len() > max_bytes)
+        .then(|| format!("is {} bytes; allowed: at most {max_bytes}", meta.len()))
+}
+
+/// Reads a whole text input after checking that it is a regular file of at most
+/// [`MAX_TEXT_INPUT_BYTES`].
 pub fn read_text_input(path: &Path) -> Result<String> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))?;
-    if !meta.is_file() {
-        return Err(Error::input(path, "(file)", "is not a regular file"));
-    }
-    if meta.len() > MAX_TEXT_INPUT_BYTES {
-        return Err(Error::input(
-            path,
-            "(file)",
-            format!(
-                "is {} bytes; allowed: at most {MAX_TEXT_INPUT_BYTES}",
-                meta.len()
-            ),
-        ));
+    if let Some(problem) = input_file_problem(&meta, MAX_TEXT_INPUT_BYTES) {
+        return Err(Error::input(path, "(file)", problem));
     }
     std::fs::read_to_string(path).map_err(|e| Error::io(path, format!("cannot read: {e}")))
 }

@@ -181,25 +181,9 @@ impl Mask {
         }
     }
 
-    /// The width and height a PNG/JPEG's header states, refused beyond
-    /// [`MAX_IMAGE_SIDE`]: a small file can state a huge image, so this is read before any
-    /// decode.
+    /// The width and height a mask file's header states (see [`image_size`]).
     pub fn dimensions(path: &Path) -> Result<(u32, u32)> {
-        // A FIFO or a device would block the header read.
-        let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-        if !meta.is_file() {
-            return Err(Error::input(path, "mask", "is not a regular file"));
-        }
-        let (w, h) = image::image_dimensions(path)
-            .map_err(|e| Error::input(path, "mask", format!("cannot decode image: {e}")))?;
-        if w.max(h) > MAX_IMAGE_SIDE {
-            return Err(Error::input(
-                path,
-                "mask",
-                format!("is {w}x{h} px; allowed: sides up to {MAX_IMAGE_SIDE}"),
-            ));
-        }
-        Ok((w, h))
+        image_size(path, "mask")
     }
 
     /// Reads an 8-bit (or any) PNG/JPEG; a pixel >= 128 in its first channel is robot.
@@ -229,6 +213,27 @@ impl Mask {
             .expect("PNG encoding to memory cannot fail");
         out.into_inner()
     }
+}
+
+/// The width and height a PNG/JPEG's header states, refused beyond [`MAX_IMAGE_SIDE`]; errors
+/// name `field`. A small file can state a huge image, so this is read before any decode, and
+/// only from a regular file (a FIFO or a device would block the read). `io` sits in this
+/// module's layer, so its file check is not shared here.
+pub fn image_size(path: &Path, field: &str) -> Result<(u32, u32)> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        return Err(Error::input(path, field, "is not a regular file"));
+    }
+    let (w, h) = image::image_dimensions(path)
+        .map_err(|e| Error::input(path, field, format!("cannot decode image: {e}")))?;
+    if w.max(h) > MAX_IMAGE_SIDE {
+        return Err(Error::input(
+            path,
+            field,
+            format!("is {w}x{h} px; allowed: sides up to {MAX_IMAGE_SIDE}"),
+        ));
+    }
+    Ok((w, h))
 }
 
 /// Signed distance field of a mask's boundary, pixels: negative inside the robot, positive

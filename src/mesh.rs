@@ -286,6 +286,7 @@ pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
             "mesh file not found: check the URDF <mesh filename> and package_dirs",
         ));
     };
+    // `io::input_file_problem` says the same, but `io` sits in this module's layer.
     if !meta.is_file() || meta.len() > MAX_MESH_FILE_BYTES {
         return Err(Error::input(
             path,

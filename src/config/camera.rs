@@ -14,7 +14,7 @@ use super::mount::Mount;
 use super::scene::SceneSettings;
 use super::seconds;
 use crate::error::{Error, Result};
-use crate::geometry::{look_at_camera_from_base, MAX_TRANSLATION_M};
+use crate::geometry::{look_at_camera_from_base, point_problem};
 
 /// A camera pose given the way people measure one: where it is and what it looks at.
 #[derive(Clone, Debug, Deserialize, Serialize)]
@@ -39,11 +39,8 @@ impl LookAt {
             return Err("eye, look_at and roll_deg must be finite numbers".into());
         }
         for (name, point) in [("eye", &self.eye), ("look_at", &self.look_at)] {
-            if let Some(k) = point.iter().position(|v| v.abs() > MAX_TRANSLATION_M) {
-                return Err(format!(
-                    "{name}[{k}] is {} m; allowed: within {MAX_TRANSLATION_M} m of the base",
-                    point[k]
-                ));
+            if let Some(problem) = point_problem(name, point) {
+                return Err(problem);
             }
         }
         let apart = (0..3)

@@ -104,12 +104,11 @@ fn read_doc(path: &Path, tag: &str) -> Result<Doc> {
 
 /// [`read_doc`] for a file that may hold any of `tags`.
 fn read_doc_of(path: &Path, tags: &[&str]) -> Result<Doc> {
-    if let Ok(meta) = std::fs::metadata(path) {
-        if !meta.is_file() || meta.len() > crate::io::MAX_TEXT_INPUT_BYTES {
-            let allowed = crate::io::MAX_TEXT_INPUT_BYTES;
-            let problem = format!("is not a regular file of at most {allowed} bytes");
-            return Ok(Doc::Broken(Problem::new("(file)", problem)));
-        }
+    let unreadable = std::fs::metadata(path)
+        .ok()
+        .and_then(|meta| crate::io::input_file_problem(&meta, crate::io::MAX_TEXT_INPUT_BYTES));
+    if let Some(problem) = unreadable {
+        return Ok(Doc::Broken(Problem::new("(file)", problem)));
     }
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,

@@ -168,11 +168,7 @@ fn read_views(src: &Path, joint_count: usize) -> Result<Vec<SourceView>> {
                 format!("has no qpos/{stem}.txt to pair with"),
             ));
         };
-        let view = read_view(src, stem, mask_path, qpos_path, joint_count)?;
-        if let Some(first) = views.first() {
-            same_size(&first.mask, &view.mask, mask_path)?;
-        }
-        views.push(view);
+        views.push(read_view(src, stem, mask_path, qpos_path, joint_count)?);
     }
     Ok(views)
 }
@@ -184,10 +180,6 @@ fn read_view(
     qpos_path: &Path,
     joint_count: usize,
 ) -> Result<SourceView> {
-    let meta = std::fs::metadata(mask_path).map_err(|e| Error::io(mask_path, e))?;
-    if !meta.is_file() {
-        return Err(Error::input(mask_path, "mask", "is not a regular file"));
-    }
     let mask = Mask::load(mask_path)?;
     crate::run::check_mask_coverage(&mask, mask_path, "mask")?;
     let q = read_numbers(qpos_path)?;
@@ -234,20 +226,6 @@ fn check_mask_headers(src: &Path, masks: &BTreeMap<String, PathBuf>) -> Result<(
         Some(size) => crate::run::check_solve_memory(masks.len(), size, &src.join("mask"), "mask"),
         None => Ok(()),
     }
-}
-
-fn same_size(first: &Mask, mask: &Mask, path: &Path) -> Result<()> {
-    if (mask.width, mask.height) == (first.width, first.height) {
-        return Ok(());
-    }
-    Err(Error::input(
-        path,
-        "mask",
-        format!(
-            "is {}x{}; allowed: the first mask's {}x{}",
-            mask.width, mask.height, first.width, first.height
-        ),
-    ))
 }
 
 /// The files in `dir` ending in `.ext`, keyed (and so ordered) by stem.

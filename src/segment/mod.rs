@@ -55,14 +55,7 @@ pub trait Segmenter: Send + Sync {
 /// A recorded view's colour image as a frame, for segmenting runs offline; it must have the
 /// camera's size, since its mask is compared pixel for pixel with renders.
 pub fn read_frame(path: &Path, width: u32, height: u32) -> Result<Frame> {
-    // A FIFO or a device would block; and the header first: a small file can state a huge
-    // image.
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if !meta.is_file() {
-        return Err(Error::input(path, "image", "is not a regular file"));
-    }
-    let stated = image::image_dimensions(path)
-        .map_err(|e| Error::input(path, "image", format!("cannot decode: {e}")))?;
+    let stated = crate::mask::image_size(path, "image")?;
     if stated != (width, height) {
         return Err(Error::input(
             path,

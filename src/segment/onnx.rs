@@ -153,13 +153,11 @@ impl OnnxSegmenter {
                 ));
             }
         }
-        if let Ok(meta) = std::fs::metadata(&model_path) {
-            if !meta.is_file() || meta.len() > MAX_MODEL_BYTES {
-                return Err(bad(
-                    "segmenter.model",
-                    format!("{shown}: allowed: a regular file of at most {MAX_MODEL_BYTES} bytes"),
-                ));
-            }
+        let unreadable = std::fs::metadata(&model_path)
+            .ok()
+            .and_then(|meta| crate::io::input_file_problem(&meta, MAX_MODEL_BYTES));
+        if let Some(problem) = unreadable {
+            return Err(bad("segmenter.model", format!("{shown} {problem}")));
         }
         let bytes = match std::fs::read(&model_path) {
             Ok(b) => b,
