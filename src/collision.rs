@@ -91,7 +91,8 @@ impl CollisionModel {
     pub fn load(robot: &RobotModel) -> Result<CollisionModel> {
         let src = &robot.source;
         // The same text the kinematics came from: a xacro description is expanded again.
-        let text = crate::robot::description_text(src)?;
+        let packages = crate::robot::LazyPackages::new(src);
+        let text = crate::robot::description_text(src, &packages)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(&src.urdf, "robot", format!("malformed URDF: {e}")))?;
         let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();
@@ -131,7 +132,7 @@ impl CollisionModel {
                 };
             for (geometry, origin, field) in pieces {
                 let (mesh, scale) =
-                    element_mesh(geometry, &field, &src.urdf, &src.package_dirs, &mut cache)?;
+                    element_mesh(geometry, &field, &src.urdf, &packages, &mut cache)?;
                 let placed = mesh.transformed(scale, &from_xyz_rpy(origin.xyz.0, origin.rpy.0));
                 let Some(shape) = hull_of(&placed.vertices) else {
                     continue;

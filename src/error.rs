@@ -52,6 +52,40 @@ pub enum Error {
     },
 }
 
+/// Longest text an error line echoes from its input before [`cut`] shortens it.
+pub const ECHO_BYTES: usize = 600;
+
+/// `text` as an error line may echo it: whole when short, else its first and last 240 bytes
+/// around a note of how much was cut, so a 60 MB value in a file becomes one readable line
+/// that still ends with what is allowed.
+pub fn cut(text: &str) -> std::borrow::Cow<'_, str> {
+    if text.len() <= ECHO_BYTES {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let head = floor_boundary(text, 240);
+    let tail = ceil_boundary(text, text.len() - 240);
+    std::borrow::Cow::Owned(format!(
+        "{} … ({} bytes cut) … {}",
+        &text[..head],
+        tail - head,
+        &text[tail..]
+    ))
+}
+
+fn floor_boundary(s: &str, mut i: usize) -> usize {
+    while !s.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
+fn ceil_boundary(s: &str, mut i: usize) -> usize {
+    while !s.is_char_boundary(i) {
+        i += 1;
+    }
+    i
+}
+
 impl From<easyhec_drivers::DriverError> for Error {
     fn from(driver: easyhec_drivers::DriverError) -> Self {
         Error::Driver {
@@ -70,8 +104,8 @@ impl Error {
     ) -> Self {
         Error::Input {
             file: file.as_ref().to_path_buf(),
-            field: field.into(),
-            message: message.into(),
+            field: cut(&field.into()).into_owned(),
+            message: cut(&message.into()).into_owned(),
         }
     }
 

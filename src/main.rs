@@ -69,7 +69,10 @@ fn main() -> ExitCode {
             e.exit()
         }
         Err(e) => {
-            eprintln!("error: {} (see easyhec --help)", one_line(&e));
+            eprintln!(
+                "error: {} (see easyhec --help)",
+                easyhec::error::cut(&one_line(&e))
+            );
             return ExitCode::FAILURE;
         }
     };
@@ -98,11 +101,18 @@ fn main() -> ExitCode {
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<cli::exit::Exit>().is_some() => {
+            let exit = e.downcast_ref::<cli::exit::Exit>().expect("checked above");
+            if let Some(m) = &exit.message {
+                eprintln!("error: {m}");
+            }
+            ExitCode::from(exit.code)
+        }
         Err(e) => {
             // The one place a command's error is reported: as the process's last line, in
             // the same one-line form whatever the log settings (scripts and tests read it).
             let chain: Vec<String> = e.chain().map(|c| c.to_string()).collect();
-            eprintln!("error: {}", chain.join(": "));
+            eprintln!("error: {}", easyhec::error::cut(&chain.join(": ")));
             ExitCode::FAILURE
         }
     }

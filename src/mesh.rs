@@ -283,7 +283,7 @@ pub fn load_mesh_file(path: &Path) -> Result<TriMesh> {
     let Ok(meta) = std::fs::metadata(path) else {
         return Err(Error::io(
             path,
-            "mesh file not found: check the URDF <mesh filename> and package_dirs",
+            "mesh file not found: check the URDF <mesh filename>, package_dirs and package_paths",
         ));
     };
     // `io::input_file_problem` says the same, but `io` sits in this module's layer.

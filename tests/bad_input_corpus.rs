@@ -63,7 +63,7 @@ fn fixture() -> &'static Path {
         );
         std::fs::remove_file(run.join("ground_truth.json")).ok();
         write_cell_config(&dir.join("cell.toml"));
-        write_import_source(&run, &dir.join("src"));
+        common::write_easyhec_source(&run, &dir.join("src"), false);
         write_result(&dir.join("result.json"));
         std::fs::write(
             dir.join("outside.png"),
@@ -86,31 +86,6 @@ fn write_cell_config(path: &Path) {
         &format!("{:?}", urdf.display().to_string()),
     );
     std::fs::write(path, text).unwrap();
-}
-
-/// EasyHeC's offline layout (mask/ qpos/ K.txt) from the synthetic run.
-fn write_import_source(run: &Path, src: &Path) {
-    let json: Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
-    std::fs::create_dir_all(src.join("mask")).unwrap();
-    std::fs::create_dir_all(src.join("qpos")).unwrap();
-    for (i, v) in json["views"].as_array().unwrap().iter().enumerate() {
-        let mask = run.join(v["mask"].as_str().unwrap());
-        std::fs::copy(&mask, src.join(format!("mask/{i:04}.png"))).unwrap();
-        let q: Vec<String> = v["joints"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|x| x.to_string())
-            .collect();
-        std::fs::write(src.join(format!("qpos/{i:04}.txt")), q.join(" ")).unwrap();
-    }
-    let c = &json["camera"];
-    let k = format!(
-        "{} 0 {}\n0 {} {}\n0 0 1\n",
-        c["fx"], c["cx"], c["fy"], c["cy"]
-    );
-    std::fs::write(src.join("K.txt"), k).unwrap();
 }
 
 fn write_result(path: &Path) {
@@ -1602,8 +1577,203 @@ fn check_outcome(c: &Case, status: std::process::ExitStatus, stderr: &str) -> Re
     Ok(())
 }
 
+/// A FIFO at `path` (as `mkfifo` makes it).
+fn make_fifo(path: &Path) {
+    let status = Command::new("mkfifo").arg(path).status().unwrap();
+    assert!(status.success(), "mkfifo {}", path.display());
+}
+
+/// Outputs that are inputs, links or not regular files, and targets that hold their sources:
+/// the one output policy refuses each before anything is written or deleted.
+fn output_cases() -> Vec<Case> {
+    let out_is = |name: &str, target: &'static str, needles: &[&str]| {
+        case(name, &["solve", "run", "--out", target], needles, nothing)
+    };
+    let import_into = |name: &str, target: &'static str, needle: &'static str| {
+        case(
+            name,
+            &[
+                "import", "easyhec", "src", "--force", "--out", target, "--urdf", "URDF",
+            ],
+            &["--out", needle],
+            nothing,
+        )
+    };
+    let export_to = |name: &str, setup: fn(&Path), needle: &'static str| {
+        case(
+            name,
+            &[
+                "export",
+                "result.json",
+                "--format",
+                "opencv",
+                "--out",
+                "out.yaml",
+            ],
+            &["out.yaml", "--out", needle],
+            setup,
+        )
+    };
+    vec![
+        out_is(
+            "solve --out run.json",
+            "run/run.json",
+            &["--out", "run.json", "reads"],
+        ),
+        out_is(
+            "solve --out a mask",
+            "run/views/000.mask.png",
+            &["--out", "000.mask.png", "reads"],
+        ),
+        case(
+            "solve --out ground_truth.json",
+            &["solve", "run", "--out", "run/ground_truth.json"],
+            &["--out", "ground_truth.json", "reads"],
+            |d: &Path| std::fs::write(d.join("run/ground_truth.json"), "{}").unwrap(),
+        ),
+        case(
+            "export --out its own result",
+            &[
+                "export",
+                "result.json",
+                "--format",
+                "opencv",
+                "--out",
+                "result.json",
+            ],
+            &["--out", "result.json", "reads"],
+            nothing,
+        ),
+        export_to(
+            "export --out a FIFO",
+            |d| make_fifo(&d.join("out.yaml")),
+            "not a regular file",
+        ),
+        export_to(
+            "export --out a symbolic link",
+            |d| std::os::unix::fs::symlink(d.join("outside.png"), d.join("out.yaml")).unwrap(),
+            "symbolic link",
+        ),
+        export_to(
+            "export --out a folder",
+            |d| std::fs::create_dir(d.join("out.yaml")).unwrap(),
+            "not a regular file",
+        ),
+        case(
+            "solve --masks-out over the recorded masks",
+            &[
+                "solve",
+                "run",
+                "--segmenter",
+                "builtin",
+                "--masks-out",
+                "run/views",
+            ],
+            &["--masks-out", "000.mask.png", "reads"],
+            nothing,
+        ),
+        case(
+            "synth into an existing run",
+            &["synth", "--robot", "URDF", "--out", "run"],
+            &["--out", "not empty", "--force"],
+            nothing,
+        ),
+        case(
+            "synth --force into the robot's folder",
+            &[
+                "synth",
+                "--robot",
+                "urdf_dir/robot.urdf",
+                "--out",
+                "urdf_dir",
+                "--force",
+            ],
+            &["--out", "holds"],
+            |d: &Path| {
+                std::fs::create_dir(d.join("urdf_dir")).unwrap();
+                std::fs::copy(common::robot_urdf("xarm6"), d.join("urdf_dir/robot.urdf")).unwrap();
+            },
+        ),
+        import_into("import --force over its source", "src", "holds"),
+        import_into("import --force over its source's parent", ".", "holds"),
+        import_into(
+            "import --force inside its source",
+            "src/mask",
+            "lies inside",
+        ),
+        case(
+            "import colour frame linked outside the source",
+            IMPORT,
+            &["color", "outside the source"],
+            |d: &Path| {
+                std::fs::create_dir(d.join("src/color")).unwrap();
+                std::os::unix::fs::symlink("/etc/passwd", d.join("src/color/0000.png")).unwrap();
+            },
+        ),
+        case(
+            "import colour frame that is no image",
+            IMPORT,
+            &["0000.png", "color"],
+            |d: &Path| {
+                std::fs::create_dir(d.join("src/color")).unwrap();
+                std::fs::write(d.join("src/color/0000.png"), "not an image").unwrap();
+            },
+        ),
+        case(
+            "import mask stems that differ only in case",
+            IMPORT,
+            &["mask", "0000", "same view"],
+            |d: &Path| {
+                std::fs::copy(d.join("src/mask/0000.png"), d.join("src/mask/0000.Png")).unwrap();
+            },
+        ),
+    ]
+}
+
+/// Values that would otherwise be used or echoed whole.
+fn value_cases() -> Vec<Case> {
+    let rj = "run.json";
+    vec![
+        case(
+            "joint of 1e300 rad",
+            SOLVE,
+            &[rj, "views[0].joints[0]", "URDF limits"],
+            run_json(|v| v["views"][0]["joints"][0] = json!(1e300)),
+        ),
+        case(
+            "joint of 7 rad past a revolute limit",
+            SOLVE,
+            &[rj, "views[1].joints[1]", "URDF limits"],
+            run_json(|v| v["views"][1]["joints"][1] = json!(7.0)),
+        ),
+        case(
+            "ignore_links repeating one name",
+            SOLVE,
+            &[rj, "ignore_links", "twice"],
+            run_json(|v| v["robot"]["ignore_links"] = json!(vec!["link1"; 5000])),
+        ),
+        case(
+            "ignore_links longer than any robot",
+            SOLVE,
+            &[rj, "ignore_links", "more than 1024"],
+            run_json(|v| {
+                let names: Vec<String> = (0..2000).map(|i| format!("l{i}")).collect();
+                v["robot"]["ignore_links"] = json!(names);
+            }),
+        ),
+        case(
+            "a 20 MB base link is cut in the message",
+            SOLVE,
+            &["robot.urdf", "robot.base_link", "bytes cut"],
+            run_json(|v| v["robot"]["base_link"] = json!("b".repeat(20 << 20))),
+        ),
+    ]
+}
+
 fn all_cases() -> Vec<Case> {
-    let mut v = solve_cases();
+    let mut v = output_cases();
+    v.extend(value_cases());
+    v.extend(solve_cases());
     v.extend(calibrate_cases());
     v.extend(import_cases());
     v.extend(export_cases());

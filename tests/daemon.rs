@@ -1583,3 +1583,130 @@ impl Drop for KillOnDrop {
         let _ = self.0.wait();
     }
 }
+
+/// Every file under `dir` with its bytes, for "nothing on disk changed".
+fn folder_bytes(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((p.clone(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Runs the real binary as a second daemon; returns its exit status, how long it took and
+/// its stderr.
+fn second_daemon(
+    config: &Path,
+    data: &Path,
+    listen: &str,
+) -> (std::process::ExitStatus, Duration, String) {
+    let t = Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_easyhec"))
+        .args(["daemon", "--listen", listen, "--config"])
+        .arg(config)
+        .arg("--data")
+        .arg(data)
+        .env_remove("EASYHEC_TOKEN")
+        .output()
+        .expect("easyhec runs");
+    (
+        out.status,
+        t.elapsed(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn one_daemon_per_data_folder_and_a_failed_start_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |_| {});
+    let data = dir.path().join("data");
+    let (mut first, base) = spawn_daemon(&config, &data);
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations"),
+        Some(&json!({"dry_run": true, "max_views": 1})),
+    );
+    assert_eq!(code, 202, "{body}");
+    wait_final(&base, body["id"].as_str().unwrap());
+    let before = folder_bytes(&data);
+
+    let (status, took, err) = second_daemon(&config, &data, "127.0.0.1:0");
+    assert!(!status.success(), "a second daemon started: {err}");
+    assert!(took < Duration::from_secs(1), "took {took:?}");
+    let pid = first.id().to_string();
+    assert!(
+        err.contains(&pid) && err.contains("another easyhec daemon"),
+        "{err}"
+    );
+    assert_eq!(
+        folder_bytes(&data),
+        before,
+        "the second daemon changed the folder"
+    );
+
+    // A daemon whose port is taken leaves an unlocked folder as it found it: the run the
+    // index still calls running is not marked interrupted by a start that cannot serve.
+    first.kill().unwrap();
+    first.wait().unwrap();
+    let index = data.join("index.json");
+    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&index).unwrap()).unwrap();
+    v["calibrations"][0]["state"] = json!("running");
+    std::fs::write(&index, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+    let before = folder_bytes(&data);
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let listen = taken.local_addr().unwrap().to_string();
+    let (status, _, err) = second_daemon(&config, &data, &listen);
+    assert!(!status.success() && err.contains("--listen"), "{err}");
+    assert_eq!(
+        folder_bytes(&data),
+        before,
+        "a failed bind repaired the folder"
+    );
+}
+
+#[test]
+fn without_a_data_folder_the_daemon_keeps_its_state_outside_the_config_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), |c| c.daemon.data_dir = None);
+    let state = dir.path().join("state");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_easyhec"))
+        .args(["daemon", "--listen", "127.0.0.1:0", "--config"])
+        .arg(&config)
+        .env_remove("EASYHEC_TOKEN")
+        .env_remove("STATE_DIRECTORY")
+        .env("XDG_STATE_HOME", &state)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufReader::new(child.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let expected = state.join("easyhec");
+    assert!(
+        line.contains(&format!("(data {})", expected.display())),
+        "{line}"
+    );
+    assert!(expected.join("daemon.lock").is_file());
+    let beside: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert!(
+        !beside.iter().any(|n| n == "easyhec-data"),
+        "a data folder appeared beside the config: {beside:?}"
+    );
+}

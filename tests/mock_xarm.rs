@@ -269,3 +269,102 @@ fn bad_xarm_cell_configs_get_one_line_errors_naming_the_key() {
     ];
     common::assert_configs_refused(dir.path(), &base, &cases);
 }
+
+/// `DIR/cell.toml` for `easyhec calibrate` against `mock` (the URDF made absolute).
+fn write_cell(mock: &MockXArm, views: usize, dir: &std::path::Path) -> PathBuf {
+    let mut cfg = cell_config(mock, views);
+    cfg.robot.urdf = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots/xarm6/robot.urdf");
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, toml::to_string(&cfg).unwrap()).unwrap();
+    path
+}
+
+fn calibrate_process(config: &std::path::Path, out: &std::path::Path) -> std::process::Child {
+    std::process::Command::new(env!("CARGO_BIN_EXE_easyhec"))
+        .args(["--quiet", "calibrate", "--renderer", "cpu", "--config"])
+        .arg(config)
+        .arg("--out")
+        .arg(out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("easyhec runs")
+}
+
+/// Stop requests (SET_STATE 4) the mock controller has received.
+fn stops(mock: &MockXArm) -> usize {
+    mock.requests()
+        .iter()
+        .filter(|r| r.register == 0x0C && r.params == [4])
+        .count()
+}
+
+#[test]
+fn sigterm_mid_move_sends_the_arm_a_stop_before_calibrate_exits() {
+    let rt = runtime();
+    // Real-time motion, so the signal lands while the arm moves.
+    let mock = spawn_mock(&rt, 1.0, vec![], false);
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_cell(&mock, 6, dir.path());
+    let run = dir.path().join("run");
+    let mut child = calibrate_process(&config, &run);
+    let started = Instant::now();
+    while mock.commands().is_empty() {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "calibrate ended before moving"
+        );
+        assert!(
+            started.elapsed() < Duration::from_secs(120),
+            "no move within 120 s"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    let stops_before = stops(&mock);
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(143), "{err}");
+    assert!(
+        stops(&mock) > stops_before,
+        "no stop command reached the controller before the process exited"
+    );
+    assert!(
+        err.contains("SIGTERM") && err.contains("easyhec solve"),
+        "{err}"
+    );
+    let q = mock.true_joints();
+    std::thread::sleep(Duration::from_millis(200));
+    assert_eq!(mock.true_joints(), q, "the arm stands still");
+    assert!(
+        run.join("run.json").is_file(),
+        "the run folder keeps its views"
+    );
+}
+
+#[test]
+fn a_loop_stopped_by_an_arm_fault_exits_with_its_own_code() {
+    let rt = runtime();
+    let fault = MockFault::ErrorMidMove {
+        on_move: 0,
+        at_fraction: 0.3,
+        code: 31,
+    };
+    let mock = spawn_mock(&rt, 5.0, vec![fault], false);
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_cell(&mock, 4, dir.path());
+    let out = calibrate_process(&config, &dir.path().join("run"))
+        .wait_with_output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("error: the loop stopped on an arm fault"),
+        "{err}"
+    );
+}

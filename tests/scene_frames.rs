@@ -381,6 +381,7 @@ fn truncated_cells_cut_the_robot_at_the_border_and_write_runs_with_images() {
     let entry = easyhec::run::RobotEntry {
         urdf: repo("robots/xarm6/robot.urdf").display().to_string(),
         package_dirs: Default::default(),
+        package_paths: Vec::new(),
         base_link: None,
         ignore_links: Vec::new(),
         joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),

@@ -50,3 +50,34 @@ fn every_shipped_config_parses_as_the_fixture_records() {
         assert_eq!(value, &recorded[name], "{name} parses differently");
     }
 }
+
+/// The templates a hardware user copies (`config/*.toml.example`) parse, and none of them
+/// pairs a real camera with `sim-truth`, which only the simulator's frames carry.
+#[test]
+fn every_template_parses_and_segments_real_frames_with_a_real_segmenter() {
+    use easyhec::config::{CameraConfig, SegmenterConfig};
+    let mut seen = 0;
+    for entry in std::fs::read_dir(root().join("config")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        if !name.ends_with(".toml.example") {
+            continue;
+        }
+        seen += 1;
+        let cfg = read_config(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        for cam in cfg.camera.cameras() {
+            let segmenter = cam.segmenter.as_ref().unwrap_or(&cfg.segmenter);
+            let real_camera = !matches!(cam.config, CameraConfig::Sim { .. });
+            assert!(
+                !(real_camera && matches!(segmenter, SegmenterConfig::SimTruth { .. })),
+                "{name}: camera '{}' is real and its segmenter is sim-truth",
+                cam.name
+            );
+            assert!(
+                real_camera,
+                "{name}: a template for hardware films with the simulator"
+            );
+        }
+    }
+    assert!(seen >= 4, "only {seen} templates found");
+}

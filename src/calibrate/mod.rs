@@ -226,6 +226,9 @@ pub struct Outcome {
     pub run_dir: PathBuf,
     /// Ended by [`RunOptions::cancel`] (the result covers the views taken until then).
     pub cancelled: bool,
+    /// Ended because the arm faulted (and `clear_faults` is off) or its moves kept failing:
+    /// the result covers the views taken until then, and a caller must not report success.
+    pub faulted: bool,
 }
 
 /// Runs the loop on `cell`, recording into `out`.

@@ -94,6 +94,8 @@ pub(super) struct Session<'a> {
     failures: usize,
     planned: Vec<PlannedPose>,
     cancelled: bool,
+    /// Stopped because the arm faulted or its moves kept failing.
+    faulted: bool,
     /// Each view's joint correction from every camera together, once it ran.
     joint_corrections: Option<JointCorrections>,
 }
@@ -173,6 +175,7 @@ impl<'a> Session<'a> {
             failures: 0,
             planned: Vec::new(),
             cancelled: false,
+            faulted: false,
             joint_corrections: None,
         })
     }
@@ -555,6 +558,7 @@ impl<'a> Session<'a> {
         let status = self.cell.arm.status().await?;
         let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
         if self.failures > self.settings.max_motion_failures {
+            self.faulted = true;
             return Ok(MoveOutcome::Stop(format!(
                 "gave up after {} failed moves ({note})",
                 self.failures
@@ -562,6 +566,7 @@ impl<'a> Session<'a> {
         }
         if faulted {
             if !self.settings.clear_faults {
+                self.faulted = true;
                 return Ok(MoveOutcome::Stop(format!(
                     "arm fault, not cleared (calibration.clear_faults = false): {e}"
                 )));
@@ -916,6 +921,7 @@ impl<'a> Session<'a> {
             planned: self.planned,
             run_dir: self.rec.dir().to_path_buf(),
             cancelled: self.cancelled,
+            faulted: self.faulted,
         })
     }
 }
@@ -1068,6 +1074,11 @@ fn robot_entry(cell: &Cell) -> RobotEntry {
             .package_dirs
             .iter()
             .map(|(k, v)| (k.clone(), recorder::absolute(v)))
+            .collect(),
+        package_paths: src
+            .package_paths
+            .iter()
+            .map(|p| recorder::absolute(p))
             .collect(),
         base_link: Some(cell.robot.links[cell.robot.base].clone()),
         ignore_links: src.ignore_links.clone(),

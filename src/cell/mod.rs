@@ -293,6 +293,7 @@ fn robot_source(config: &CellConfig, path: &Path) -> RobotSource {
             .iter()
             .map(|(k, v)| (k.clone(), dir.join(v)))
             .collect(),
+        package_paths: r.package_paths.iter().map(|p| dir.join(p)).collect(),
         base_link: r.base_link.clone(),
         ignore_links: r.ignore_links.clone(),
         joints: r.joints.clone(),

@@ -1,12 +1,14 @@
 //! `easyhec bench …`: the benchmarks (figures in docs/benchmarks.md). Per-seed lines go to
 //! stderr as they come; the summary tables to stdout.
 
+#[cfg(feature = "sim")]
+use super::exit::out;
 use clap::Subcommand;
 
 #[cfg(feature = "sim")]
 use easyhec::bench::{
-    AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, MotionBench, Report,
-    RigBench, SegmentBench, SpeedBench, ViewSetsBench,
+    AccuracyBench, CoverageBench, ExploreBench, InitBench, LoopBench, MotionBench, RealBench,
+    Report, RigBench, SegmentBench, SpeedBench, ViewSetsBench,
 };
 
 /// The benchmarks.
@@ -27,6 +29,9 @@ pub enum BenchCommand {
     /// Planning that weighs motion time against planning by information alone, on the mock
     /// xArm in real time: wall time, motion, views and error per seeded cell.
     Motion(MotionBench),
+    /// A recorded real run against its reference pose (default: the shared xArm7 set):
+    /// per-view IoU, the pose, the reported 1σ against a view-level jackknife's.
+    Real(RealBench),
     /// Several cameras calibrated in one run against each camera alone, on seeded simulated
     /// cells: each camera's median error with the same views, and the wall time.
     Rig(RigBench),
@@ -61,6 +66,7 @@ impl BenchCommand {
             BenchCommand::Init(b) => b.run(&mut log)?,
             BenchCommand::Loop(b) => b.run(&mut log)?,
             BenchCommand::Motion(b) => b.run(&mut log)?,
+            BenchCommand::Real(b) => b.run(&mut log)?,
             BenchCommand::Rig(b) => b.run(&mut log)?,
             BenchCommand::ViewSets(b) => b.run(&mut log)?,
             BenchCommand::Segment(b) => b.run(&mut log)?,
@@ -68,7 +74,7 @@ impl BenchCommand {
             BenchCommand::Speed(b) => b.run(&mut log)?,
         };
         drop(activity);
-        print!("{}", report.text());
+        out!("{}", report.text());
         Ok(())
     }
 }

@@ -1,8 +1,11 @@
 //! `easyhec calibrate`: the closed loop on a configured cell.
 
+use super::exit::{self, outln, Exit};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::sync::Arc;
+use tokio::signal::unix::Signal;
 
 use clap::Args;
 use easyhec::calibrate::{calibrate, ConfirmMove, PlannedPose, RunOptions};
@@ -39,7 +42,13 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(r) = a.renderer {
         config.calibration.renderer = r;
     }
-    let cell = Cell::build(config, &a.config)?;
+    if let Some(p) = &a.out {
+        let reads = [a.config.clone(), config.robot.urdf.clone()];
+        if let Some(problem) = easyhec::io::output_dir_problem(p, &reads) {
+            anyhow::bail!("{}: --out: {problem}", p.display());
+        }
+    }
+    let cell = Arc::new(Cell::build(config, &a.config)?);
     let out = a.out.unwrap_or_else(|| {
         PathBuf::from("runs").join(rfc3339(std::time::SystemTime::now()).replace(':', "-"))
     });
@@ -60,24 +69,34 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
     } else {
         None
     };
+    let cancel = Arc::new(AtomicBool::new(false));
+    let caught = Arc::new(AtomicI32::new(0));
     let opts = RunOptions {
         dry_run: a.dry_run,
         confirm,
+        cancel: Some(cancel.clone()),
         // The bar shows at the default log level and above (the global `--quiet` hides it).
         progress: tracing::enabled!(tracing::Level::INFO),
         ..RunOptions::default()
     };
     let runtime = super::runtime()?;
-    let outcome = runtime.block_on(calibrate(&cell, &out, &opts))?;
+    let watcher = runtime.spawn(stop_on_signals(cell.clone(), cancel, caught.clone()));
+    let outcome = runtime.block_on(calibrate(&cell, &out, &opts));
+    watcher.abort();
+    let signal = caught.load(Ordering::SeqCst);
+    if signal != 0 {
+        return Err(stopped_by_signal(signal, &out, outcome.as_ref().ok()));
+    }
+    let outcome = outcome?;
     let r = &outcome.result;
     if a.dry_run {
-        println!(
+        outln!(
             "dry run: {} poses planned from the first view's estimate (nothing moved); speed {:.2} rad/s",
             outcome.planned.len(),
             cell.config.calibration.speed_rad_s
         );
         for (i, p) in outcome.planned.iter().enumerate() {
-            println!(
+            outln!(
                 "  {}: {}  score {:.1}  in image {:.0}%  path {} poses checked, clearance {:.1} mm self / {:.1} mm environment",
                 i + 1,
                 fmt_joints(&p.joints),
@@ -93,7 +112,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
                 || *why == "allowed in config"
                 || *why == "disabled in SRDF"
             {
-                println!("  not checked: {a} / {b} ({why})");
+                outln!("  not checked: {a} / {b} ({why})");
             }
         }
         return Ok(());
@@ -132,17 +151,105 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         }
     }
     if cell.config.camera.is_listed() {
-        report_cameras(&cell, &outcome);
+        report_cameras(&cell, &outcome)?;
         write_rig_truth(&cell, &outcome.run_dir)?;
     } else {
         report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
     }
+    if outcome.faulted {
+        return Err(Exit {
+            code: exit::FAULT,
+            message: Some(format!(
+                "the loop stopped on an arm fault: {}; the run folder {} keeps the {} views recorded before it",
+                r.stop_reason,
+                outcome.run_dir.display(),
+                r.views_used.len()
+            )),
+        }
+        .into());
+    }
     Ok(())
+}
+
+/// Waits for SIGINT, SIGTERM or SIGHUP. The first sets the loop's cancel flag and stops the
+/// arm at once (the loop then closes the run folder with what it has); a second ends the
+/// process at once. Without it the default action would kill the process mid-move with no
+/// stop command sent to the arm.
+async fn stop_on_signals(cell: Arc<Cell>, cancel: Arc<AtomicBool>, caught: Arc<AtomicI32>) {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (Ok(mut int), Ok(mut term), Ok(mut hup)) = (
+        signal(SignalKind::interrupt()),
+        signal(SignalKind::terminate()),
+        signal(SignalKind::hangup()),
+    ) else {
+        tracing::warn!("cannot watch for SIGINT, SIGTERM and SIGHUP: a signal ends the process without stopping the arm");
+        return;
+    };
+    let first = next_signal(&mut int, &mut term, &mut hup).await;
+    caught.store(first, Ordering::SeqCst);
+    cancel.store(true, Ordering::SeqCst);
+    eprintln!(
+        "easyhec: {}: stopping the arm and closing the run folder (send it again to quit at once)",
+        signal_name(first)
+    );
+    if let Err(e) = cell.arm.stop().await {
+        eprintln!("easyhec: stopping the arm failed: {e}");
+    }
+    let second = next_signal(&mut int, &mut term, &mut hup).await;
+    eprintln!("easyhec: {} again: quitting at once", signal_name(second));
+    std::process::exit(128 + second);
+}
+
+/// The next of the three signals to arrive, by number.
+async fn next_signal(int: &mut Signal, term: &mut Signal, hup: &mut Signal) -> i32 {
+    tokio::select! {
+        _ = int.recv() => libc::SIGINT,
+        _ = term.recv() => libc::SIGTERM,
+        _ = hup.recv() => libc::SIGHUP,
+    }
+}
+
+/// What a calibration stopped by `signal` ends with: the exit code 128 + the signal, and a
+/// line that says where the run is and how to solve what it recorded.
+fn stopped_by_signal(
+    signal: i32,
+    out: &Path,
+    outcome: Option<&easyhec::calibrate::Outcome>,
+) -> anyhow::Error {
+    let views = outcome.map_or(0, |o| o.result.views_used.len());
+    let dir = outcome.map_or(out, |o| o.run_dir.as_path());
+    let next = if views > 0 {
+        format!(
+            "solve what it recorded with `easyhec solve {}`",
+            dir.display()
+        )
+    } else {
+        "it recorded no view to solve".to_string()
+    };
+    Exit {
+        code: u8::try_from(128 + signal).unwrap_or(1),
+        message: Some(format!(
+            "stopped by {} after {views} views (the arm was sent a stop); the run folder {} is closed: {next}",
+            signal_name(signal),
+            dir.display()
+        )),
+    }
+    .into()
+}
+
+/// The conventional name of the signals `calibrate` handles.
+fn signal_name(signal: i32) -> &'static str {
+    match signal {
+        libc::SIGINT => "SIGINT",
+        libc::SIGTERM => "SIGTERM",
+        libc::SIGHUP => "SIGHUP",
+        _ => "a signal",
+    }
 }
 
 /// Each camera of a rig: why it stopped, its fit and bound, and on a simulated cell its
 /// error against the truth (`<name>: error against the simulated truth: …`).
-fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) {
+fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) -> anyhow::Result<()> {
     for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
         let bound = cam.report.uncertainty.camera_centre_95_mm;
         tracing::info!(
@@ -153,7 +260,7 @@ fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) {
         );
         if let Some(truth) = unit.sim.camera_from_base {
             let estimate = cam.result.camera_from_base();
-            println!(
+            outln!(
                 "{}: error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
                 cam.name,
                 rotation_error_deg(&estimate, &truth),
@@ -161,6 +268,7 @@ fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) {
             );
         }
     }
+    Ok(())
 }
 
 /// On a simulated cell: writes `ground_truth.json` into the run and prints the error against
@@ -172,7 +280,7 @@ fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyho
     };
     let gt = easyhec::cell::sim::ground_truth(&cell.config, &truth);
     easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &gt)?;
-    println!(
+    outln!(
         "error against the simulated truth ({}): rotation {:.4} deg, translation {:.3} mm",
         cell.config.camera.mount().transform_name(),
         rotation_error_deg(estimate, &truth),

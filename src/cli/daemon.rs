@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
+use easyhec::daemon::folder_lock::FolderLock;
 use easyhec::daemon::{data_dir, resolve_token, serve, Daemon};
 
 #[derive(Args)]
@@ -15,7 +16,8 @@ pub struct DaemonArgs {
     /// a free one).
     #[arg(long)]
     pub listen: Option<String>,
-    /// Data folder (default: [daemon] data_dir relative to the config).
+    /// Data folder (default: [daemon] data_dir relative to the config, else the state
+    /// folder: $STATE_DIRECTORY, $XDG_STATE_HOME/easyhec or ~/.local/state/easyhec).
     #[arg(long)]
     pub data: Option<PathBuf>,
 }
@@ -23,13 +25,26 @@ pub struct DaemonArgs {
 /// Serves the cell until ctrl-c or SIGTERM.
 pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
     let config = easyhec::config::read_config(&a.config)?;
+    let data = data_dir(&config, &a.config, a.data.as_deref())?;
+    // The lock comes first, then the port, and only then the repair of the data folder: a
+    // second daemon, or one whose port is taken, leaves the folder as it found it. An
+    // existing folder is locked before the cell is built, so a second daemon fails at once;
+    // a new one only once the config has passed every check, so a bad config creates nothing.
+    let early_lock = if data.is_dir() {
+        Some(FolderLock::take(&data)?)
+    } else {
+        None
+    };
     let cell = easyhec::cell::Cell::build(config, &a.config)?;
     let token = resolve_token(&cell)?;
+    let mut folder_lock = match early_lock {
+        Some(lock) => lock,
+        None => FolderLock::take(&data)?,
+    };
     let listen = a
         .listen
         .clone()
         .unwrap_or_else(|| cell.config.daemon.listen.clone());
-    let data = data_dir(&cell, a.data.as_deref());
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("easyhec-http")
@@ -37,13 +52,14 @@ pub fn run(a: DaemonArgs) -> anyhow::Result<()> {
         .build()
         .context("starting the async runtime")?;
     runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(&listen)
+            .await
+            .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
+        folder_lock.record_pid();
         let daemon = Daemon::open(cell, &data, token)?;
         for id in daemon.recovered() {
             tracing::warn!("easyhec daemon: {id} was running when the daemon stopped: marked interrupted (its views are on disk)");
         }
-        let listener = tokio::net::TcpListener::bind(&listen)
-            .await
-            .with_context(|| format!("--listen {listen}: cannot listen there (use HOST:PORT)"))?;
         let addr = listener.local_addr().context("reading the bound address")?;
         // Output, not a diagnostic: tests and supervisors read this line for the port, so it
         // is written whatever the log level or format.

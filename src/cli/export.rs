@@ -1,5 +1,6 @@
 //! `easyhec export`: a result in the form another tool reads.
 
+use super::exit::{out, outln};
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -32,6 +33,12 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
         return export_rig(&a);
     }
     let format = a.format;
+    if let Some(p) = &a.out {
+        if let Some(problem) = easyhec::io::output_file_problem(p, std::slice::from_ref(&a.result))
+        {
+            return Err(Error::input(p, "--out", problem).into());
+        }
+    }
     let result = ResultFile::read(&a.result)?;
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
@@ -40,7 +47,7 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
     match a.out {
         Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
             .with_context(|| format!("writing {}", p.display()))?,
-        None => print!("{text}"),
+        None => out!("{text}"),
     }
     Ok(())
 }
@@ -57,6 +64,9 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
         ))
         .into());
     };
+    if let Some(problem) = easyhec::io::output_dir_problem(dir, std::slice::from_ref(&a.result)) {
+        return Err(Error::input(dir, "--out", problem).into());
+    }
     // Every camera's file is made before the folder or any file is written: a refused
     // camera leaves nothing half-exported.
     let edges = a.frames.rig_edges(&rig)?;
@@ -78,7 +88,7 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
     for (name, child, path, text) in files {
         easyhec::io::write_atomic(&path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
-        println!("{name}: {child} -> {}", path.display());
+        outln!("{name}: {child} -> {}", path.display());
     }
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! `easyhec import`: another tool's recordings as a run directory.
 
+use super::exit::outln;
 use std::path::PathBuf;
 
 use clap::Subcommand;
@@ -48,6 +49,42 @@ impl ImportCommand {
     }
 }
 
+/// On SIGINT, SIGTERM or SIGHUP during the import, deletes its half-written staging folder
+/// before the process ends (128 + the signal): the default action would leave a hidden
+/// folder of copied frames beside the target.
+fn abandon_staging_on_signals() {
+    let watcher = std::thread::Builder::new()
+        .name("easyhec-import-signals".into())
+        .spawn(|| {
+            let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                .enable_io()
+                .build()
+            else {
+                return;
+            };
+            rt.block_on(async {
+                use tokio::signal::unix::{signal, SignalKind};
+                let (Ok(mut int), Ok(mut term), Ok(mut hup)) = (
+                    signal(SignalKind::interrupt()),
+                    signal(SignalKind::terminate()),
+                    signal(SignalKind::hangup()),
+                ) else {
+                    return;
+                };
+                let code = tokio::select! {
+                    _ = int.recv() => libc::SIGINT,
+                    _ = term.recv() => libc::SIGTERM,
+                    _ = hup.recv() => libc::SIGHUP,
+                };
+                eprintln!("easyhec: import stopped by a signal; its half-written copy is deleted");
+                easyhec::interop::import::abandon_staging_and_exit(128 + code);
+            });
+        });
+    if let Err(e) = watcher {
+        tracing::warn!("cannot watch for signals during the import: {e}");
+    }
+}
+
 /// Converts EasyHeC's offline folder into a run directory.
 pub fn easyhec(
     dir: PathBuf,
@@ -66,15 +103,17 @@ pub fn easyhec(
         ..Default::default()
     })?;
     let joints = robot.joint_names().iter().map(|s| s.to_string()).collect();
+    let urdf = urdf_for_run(&urdf)?;
+    abandon_staging_on_signals();
     let run = import_easyhec(&EasyHecImport {
         source: dir,
         out: out.clone(),
-        urdf: urdf_for_run(&urdf),
+        urdf,
         joints,
         ignore_links,
         initial_guess: None,
         force,
     })?;
-    println!("imported {} views into {}", run.views.len(), out.display());
+    outln!("imported {} views into {}", run.views.len(), out.display());
     Ok(())
 }

@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod daemon;
+pub mod exit;
 pub mod export;
 pub mod frames;
 pub mod import;
@@ -28,10 +29,16 @@ pub fn fmt_joints(q: &[f64]) -> String {
 }
 
 /// The URDF path a run directory records: absolute, so the run stays valid wherever it is
-/// solved from.
-pub fn urdf_for_run(urdf: &Path) -> String {
+/// solved from. `run.json` is UTF-8 JSON, so a path that is not UTF-8 is refused rather
+/// than written mangled (it would name another file).
+pub fn urdf_for_run(urdf: &Path) -> anyhow::Result<String> {
     let abs = std::fs::canonicalize(urdf).unwrap_or_else(|_| urdf.to_path_buf());
-    abs.display().to_string()
+    abs.to_str().map(str::to_string).ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: --urdf: the path is not UTF-8, and run.json records it as UTF-8 text; allowed: a UTF-8 path (rename or link the file)",
+            abs.display()
+        )
+    })
 }
 
 /// The async runtime the arm and camera drivers run on (two workers: the loop's planning and

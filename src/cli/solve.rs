@@ -1,5 +1,6 @@
 //! `easyhec solve`: camera_from_base from a recorded run directory.
 
+use super::exit::outln;
 use std::path::PathBuf;
 
 use anyhow::anyhow;
@@ -128,7 +129,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         );
     }
     let report = &outcome.report;
-    println!(
+    outln!(
         "{} solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%) -> {}",
         outcome.transform,
         outcome.views,
@@ -140,7 +141,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         outcome.out.display()
     );
     if let Some((path, rot, trans)) = &outcome.truth_error {
-        println!(
+        outln!(
             "error vs {}: rotation {rot:.4} deg, translation {trans:.3} mm",
             path.display()
         );
@@ -162,7 +163,7 @@ fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
             );
         }
         let u = &cam.report.uncertainty;
-        println!(
+        outln!(
             "{}: {} solved from {} views: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%)",
             cam.name,
             cam.transform,
@@ -173,13 +174,13 @@ fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
             u.camera_centre_95_mm
         );
         if let Some((rot, trans)) = cam.truth_error {
-            println!(
+            outln!(
                 "{}: error against the simulated truth: rotation {rot:.4} deg, translation {trans:.3} mm",
                 cam.name
             );
         }
     }
-    println!(
+    outln!(
         "{} cameras -> {}",
         outcome.cameras.len(),
         outcome.out.display()

@@ -1,5 +1,6 @@
 //! `easyhec synth`: a synthetic run directory with a separate ground-truth file.
 
+use super::exit::outln;
 use std::path::PathBuf;
 
 use anyhow::bail;
@@ -55,6 +56,10 @@ pub struct SynthArgs {
     /// Aim the camera so part of the robot leaves the image in every view (55–93% inside).
     #[arg(long)]
     pub truncate: bool,
+    /// Replace OUT when it exists and is not empty (refused otherwise: new masks beside an
+    /// old run's would mix two runs).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Most views `easyhec synth` makes: a calibration uses 3–10, benchmarks up to 20; this keeps
@@ -110,9 +115,27 @@ fn check_args(a: &SynthArgs) -> Result<(), easyhec::error::Error> {
     }
 }
 
+/// `--out` under the output policy: a folder that holds no input (the URDF), empty or new
+/// unless `--force`. Returns whether an old run is to be replaced.
+fn check_out(a: &SynthArgs) -> anyhow::Result<bool> {
+    if let Some(problem) = easyhec::io::output_dir_problem(&a.out, std::slice::from_ref(&a.robot)) {
+        bail!("{}: --out: {problem}", a.out.display());
+    }
+    let non_empty = std::fs::read_dir(&a.out).is_ok_and(|mut d| d.next().is_some());
+    if non_empty && !a.force {
+        bail!(
+            "{}: --out: exists and is not empty; allowed: a new or empty folder (pass --force to replace it)",
+            a.out.display()
+        );
+    }
+    Ok(non_empty)
+}
+
 /// Writes a synthetic run with its ground truth.
 pub fn run(a: SynthArgs) -> anyhow::Result<()> {
     check_args(&a)?;
+    let replace = check_out(&a)?;
+    let urdf = urdf_for_run(&a.robot)?;
     let robot = RobotModel::load(&RobotSource {
         urdf: a.robot.clone(),
         ignore_links: a.ignore_links.clone(),
@@ -164,19 +187,24 @@ pub fn run(a: SynthArgs) -> anyhow::Result<()> {
         None => None,
     };
     let entry = RobotEntry {
-        urdf: urdf_for_run(&a.robot),
+        urdf,
         package_dirs: Default::default(),
+        package_paths: Vec::new(),
         base_link: None,
         ignore_links: a.ignore_links,
         joints: robot.joint_names().iter().map(|s| s.to_string()).collect(),
         xacro_args: Default::default(),
     };
+    if replace {
+        std::fs::remove_dir_all(&a.out)
+            .map_err(|e| anyhow::anyhow!("{}: --out: cannot replace it: {e}", a.out.display()))?;
+    }
     match &imaged {
         Some(imaged) => write_imaged_scene(imaged, entry, &a.out, a.seed, &noise)?,
         None => write_scene(&generate(&robot, &opts)?, entry, &a.out, a.seed, &noise)?,
     }
     drop(activity);
-    println!(
+    outln!(
         "wrote {} views to {} (ground truth in ground_truth.json)",
         a.views,
         a.out.display()

@@ -28,9 +28,16 @@ pub struct DaemonSettings {
     #[serde(default)]
     pub protect_reads: bool,
     /// Data folder (run directories, history, active calibration), relative to the config
-    /// file (default `easyhec-data`; `--data` overrides).
-    #[serde(default = "default_data_dir")]
-    pub data_dir: PathBuf,
+    /// file. Absent: the service manager's state folder (`$STATE_DIRECTORY`, systemd's
+    /// `StateDirectory=`), else `$XDG_STATE_HOME/easyhec`, else `~/.local/state/easyhec`:
+    /// never beside the config, which may sit in a checkout. `--data` overrides.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_dir: Option<PathBuf>,
+    /// Calibrations kept in the history. Past it, the oldest finished calibration that is
+    /// no camera's active one leaves the index and its run folder is deleted, so the index
+    /// stays far below the size the daemon reads back. Absent: [`KEEP_CALIBRATIONS`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keep_calibrations: Option<usize>,
     /// Seconds between scheduled bump checks; absent: checks only on demand.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub check_interval_s: Option<f64>,
@@ -87,14 +94,16 @@ pub const MAX_CONNECTIONS: usize = 2048;
 /// Longest time between scheduled bump checks, seconds (a year): far beyond any useful
 /// schedule, and well inside what a timer can hold.
 pub const MAX_CHECK_INTERVAL_S: f64 = 31_536_000.0;
+/// Default `keep_calibrations`.
+pub const KEEP_CALIBRATIONS: usize = 1000;
+/// Largest `keep_calibrations`: a record is at most a few KiB, so the index stays well
+/// inside the 64 MiB the daemon reads back.
+pub const KEEP_CALIBRATIONS_MAX: usize = 10_000;
 /// Largest `max_connections`.
 pub const MAX_CONNECTIONS_MAX: usize = 65_536;
 
 fn default_listen() -> String {
     "127.0.0.1:8787".into()
-}
-fn default_data_dir() -> PathBuf {
-    PathBuf::from("easyhec-data")
 }
 fn default_min_iou() -> f64 {
     0.9
@@ -123,6 +132,11 @@ impl DaemonSettings {
         Duration::from_secs_f64(self.idle_timeout_s.unwrap_or(IDLE_TIMEOUT_S))
     }
 
+    /// `keep_calibrations`, or its default.
+    pub fn keep_calibrations(&self) -> usize {
+        self.keep_calibrations.unwrap_or(KEEP_CALIBRATIONS)
+    }
+
     /// `max_connections`, or its default.
     pub fn max_connections(&self) -> usize {
         self.max_connections.unwrap_or(MAX_CONNECTIONS)
@@ -144,6 +158,14 @@ impl DaemonSettings {
                 return bad(
                     "idle_timeout_s",
                     format!("{s}: use {IDLE_TIMEOUT_MIN_S} to {IDLE_TIMEOUT_MAX_S} seconds (default {IDLE_TIMEOUT_S})"),
+                );
+            }
+        }
+        if let Some(n) = self.keep_calibrations {
+            if !(1..=KEEP_CALIBRATIONS_MAX).contains(&n) {
+                return bad(
+                    "keep_calibrations",
+                    format!("{n}: use 1 to {KEEP_CALIBRATIONS_MAX} (default {KEEP_CALIBRATIONS})"),
                 );
             }
         }

@@ -21,8 +21,8 @@ use super::reconcile::check_result_pose;
 use super::store::{ActiveFile, CalibrationRecord, State, Store};
 use super::validate::{inside, resolved_inside};
 use super::{now, Daemon, Refusal};
-use crate::run::rig::RigResultFile;
-use crate::run::ResultFile;
+use crate::run::rig::{RigResultFile, RigRunFile};
+use crate::run::{ResultFile, RunFile};
 
 impl Daemon {
     /// Makes calibration `id` active, when [`activatable`] allows it: for a list of cameras,
@@ -59,6 +59,7 @@ pub fn activatable(store: &Store, r: &CalibrationRecord) -> Result<ResultFile, R
     let result = ResultFile::read(&path).map_err(|e| refuse(r, "result.json", e))?;
     check_result_pose(&result).map_err(|(f, m)| refuse(r, &format!("result.json {f}"), m))?;
     check_not_partial(store, r, &result)?;
+    check_views(store, r, &result, None)?;
     Ok(result)
 }
 
@@ -90,9 +91,56 @@ pub fn activatable_cameras(
         result.stop_reason = rig.stop_reason.clone();
         check_not_partial(store, r, &result)?;
         result.stop_reason = cam.stop_reason.clone();
+        check_views(store, r, &result, Some(&cam.name))?;
         out.push((cam.name.clone(), result));
     }
     Ok(out)
+}
+
+/// The result's view indices name views of its own run (of `camera`, for a list), each used
+/// once: a `result.json` copied in from another run, or edited, is refused before it can
+/// become what bump checks and robot controllers read.
+fn check_views(
+    store: &Store,
+    r: &CalibrationRecord,
+    result: &ResultFile,
+    camera: Option<&str>,
+) -> Result<(), Refusal> {
+    let json = store.run_dir(r).join("run.json");
+    let count = match camera {
+        None => RunFile::read(&json).map(|run| run.views.len()),
+        Some(name) => RigRunFile::read(&json).map(|rig| {
+            rig.cameras
+                .iter()
+                .position(|c| c.name == name)
+                .map_or(0, |k| rig.camera_run(k).views.len())
+        }),
+    }
+    .map_err(|e| refuse(r, "run.json", e))?;
+    let mut seen = std::collections::BTreeSet::new();
+    for (i, &v) in result.views_used.iter().enumerate() {
+        if v >= count || !seen.insert(v) {
+            return Err(refuse(
+                r,
+                &format!("result.json views_used[{i}]"),
+                format!("{v} does not fit its run: allowed: each of the run's {count} views (0 to {}) at most once", count.saturating_sub(1)),
+            ));
+        }
+    }
+    for (i, p) in result.per_view.iter().enumerate() {
+        if p.view >= count {
+            return Err(refuse(
+                r,
+                &format!("result.json per_view[{i}].view"),
+                format!(
+                    "{} does not fit its run: allowed: 0 to {} (the run has {count} views)",
+                    p.view,
+                    count.saturating_sub(1)
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// A 409 naming the calibration and the field.

@@ -294,15 +294,6 @@ fn daemon_id(id: String) -> Result<String, Refusal> {
 /// Longest wait for a preview frame.
 const PREVIEW_GRAB: std::time::Duration = std::time::Duration::from_secs(10);
 
-/// The preview's hold on the camera, given back when dropped.
-struct PreviewLease(Shared);
-
-impl Drop for PreviewLease {
-    fn drop(&mut self) {
-        self.0.release(&Busy::Preview);
-    }
-}
-
 /// `name` in a calibration's run directory, checked to lie inside the data folder (the
 /// records and the folder are read back from disk, so they are not trusted).
 fn run_file(
@@ -349,8 +340,7 @@ async fn auth_always(State(d): State<Shared>, req: Request, next: Next) -> Respo
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+        .and_then(bearer_token);
     match given {
         Some(t) if d.token_matches(t) => next.run(req).await,
         _ => {
@@ -368,6 +358,14 @@ async fn auth_always(State(d): State<Shared>, req: Request, next: Next) -> Respo
             r
         }
     }
+}
+
+/// The token of an `Authorization` value of exactly the documented form: the scheme
+/// `Bearer` (any case, RFC 7235), one space, and the token with nothing around it.
+fn bearer_token(value: &str) -> Option<&str> {
+    let (scheme, token) = value.split_at_checked(7)?;
+    let plain = !token.is_empty() && !token.chars().any(|c| c.is_whitespace() || c.is_control());
+    (scheme.eq_ignore_ascii_case("Bearer ") && plain).then_some(token)
 }
 
 /// Liveness, and what holds the arm.
@@ -423,6 +421,14 @@ fn start_options(headers: &HeaderMap, body: &[u8]) -> Result<StartOptions, Refus
             "Content-Type: {:?} is not JSON: send the request body as application/json",
             given.unwrap_or_default()
         )));
+    }
+    // An array would otherwise be read field by field in order (`[1, true]` as max_views 1,
+    // dry_run true): only an object names its fields.
+    let first = body.iter().find(|b| !b.is_ascii_whitespace());
+    if first != Some(&b'{') {
+        return Err(Refusal::BadRequest(
+            "request body: not a JSON object (expected {\"max_views\": N, \"dry_run\": false, \"cameras\": [NAME]}, each optional)".into(),
+        ));
     }
     let mut de = serde_json::Deserializer::from_slice(body);
     let opts = serde_path_to_error::deserialize(&mut de)
@@ -591,14 +597,7 @@ async fn overlay(
         }
         None => render_overlay(&d, (target, run_dir), n, view, &rows, key).await?,
     };
-    Ok((
-        [
-            (header::CONTENT_TYPE, "image/png"),
-            (header::CACHE_CONTROL, "no-store"),
-        ],
-        png,
-    )
-        .into_response())
+    Ok(png_response(png))
 }
 
 /// The run directory and view `n` of a calibration (of camera `target`), with the view's
@@ -696,6 +695,18 @@ async fn plan_overlay(
             ))
         })?;
     let plan = run_file(&d, &record, "plan.json")?;
+    let key = overlays::Key::new(
+        &id,
+        target.name.as_deref(),
+        0,
+        &rows,
+        overlays::mask_path(&run_dir, &view).as_deref(),
+    )
+    .planned(k);
+    if let Some(png) = d.overlays.get(&key) {
+        d.metrics.overlay_hits.fetch_add(1, Ordering::Relaxed);
+        return Ok(png_response(png));
+    }
     let pose = from_rows(&rows).map_err(Refusal::Internal)?;
     let cell = d.cell().clone();
     let png = tokio::task::spawn_blocking(move || {
@@ -704,14 +715,22 @@ async fn plan_overlay(
     })
     .await
     .map_err(|e| Refusal::Internal(format!("plan overlay task: {e}")))??;
-    Ok((
+    d.metrics.overlay_renders.fetch_add(1, Ordering::Relaxed);
+    let png = Bytes::from(png);
+    d.overlays.put(key, png.clone());
+    Ok(png_response(png))
+}
+
+/// A PNG answer that clients must not cache (the daemon's cache keys on what it shows).
+fn png_response(png: Bytes) -> Response {
+    (
         [
             (header::CONTENT_TYPE, "image/png"),
             (header::CACHE_CONTROL, "no-store"),
         ],
         png,
     )
-        .into_response())
+        .into_response()
 }
 
 /// One live camera frame, to frame the camera before a run. It takes the arm-and-camera
@@ -738,10 +757,9 @@ async fn camera_preview(
         .get(target.index)
         .map(|c| c.device.clone())
         .ok_or_else(|| Refusal::Internal(format!("no camera {}", target.index)))?;
-    d.lease(Busy::Preview)?;
-    // On its own task, released by a guard: a client that hangs up, a grab that panics or
+    // On its own task, released by the guard: a client that hangs up, a grab that panics or
     // one that never returns must not leave the lease taken.
-    let lease = PreviewLease(d.clone());
+    let lease = d.lease(Busy::Preview)?;
     let frame = tokio::spawn(async move {
         let grabbed = tokio::time::timeout(PREVIEW_GRAB, device.grab()).await;
         drop(lease);
@@ -981,7 +999,12 @@ async fn cameras(State(d): State<Shared>) -> Json<Cameras> {
         (status = 503, description = "The daemon is shutting down", body = ErrorBody)),
     security(("bearer" = [])))]
 async fn run_check(State(d): State<Shared>) -> Result<Response, Refusal> {
-    let mut c = bump::check(&d, "api").await?;
+    // The check runs as its own task: a client that hangs up drops this handler, never the
+    // check, so the arm's move is still supervised, recorded and its lease given back.
+    let task = d.clone();
+    let mut c = tokio::spawn(async move { bump::check(&task, "api").await })
+        .await
+        .map_err(|e| Refusal::Internal(format!("bump check task: {e}")))??;
     if d.cell().config.camera.is_listed() {
         return Ok(Json(Checks { checks: c }).into_response());
     }

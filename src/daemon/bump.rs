@@ -74,9 +74,9 @@ pub async fn check(
             "no active calibration to check: run one first (POST /api/v1/calibrations)".into(),
         ));
     }
-    daemon.lease(Busy::Check)?;
+    let lease = daemon.lease(Busy::Check)?;
     let measured = measure(daemon, &actives).await;
-    daemon.release(&Busy::Check);
+    drop(lease);
     let m = &daemon.metrics;
     m.checks.fetch_add(1, Ordering::Relaxed);
     let (joints, moved, agreements) = match measured {

@@ -11,6 +11,7 @@
 //! - [`api`]: the axum router (JSON API, SSE progress, overlays, metrics, OpenAPI, web page);
 //!   [`overlays`] renders and caches the overlay PNGs.
 //! - [`http`]: the HTTP/1 server under the router (connection limit, timeouts).
+//! - [`folder_lock`]: one daemon per data folder.
 //!
 //! One device lease: a calibration or a bump check holds the arm and camera; a second request
 //! gets 409 naming the holder. The loop's planning and solving are CPU-bound and blocking, so
@@ -21,6 +22,7 @@ pub mod activation;
 pub mod api;
 pub mod bump;
 pub mod exports;
+pub mod folder_lock;
 pub mod http;
 pub mod openapi;
 pub mod overlays;
@@ -85,6 +87,48 @@ impl Busy {
     }
 }
 
+/// The arm-and-camera lease: taken by [`Daemon::lease`], given back when dropped. One guard
+/// type for calibrations, bump checks and previews, so no path can forget to give it back.
+pub struct Lease {
+    busy: Arc<Mutex<Option<Busy>>>,
+    who: Busy,
+}
+
+impl Drop for Lease {
+    fn drop(&mut self) {
+        let mut busy = lock(&self.busy);
+        if busy.as_ref() == Some(&self.who) {
+            *busy = None;
+        }
+    }
+}
+
+/// How a calibration's loop ended, as [`final_state`] reads it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ending {
+    /// The loop returned a result (it may have stopped early on the cancel flag).
+    pub solved: bool,
+    /// The loop itself saw the cancel flag and stopped early.
+    pub loop_cancelled: bool,
+    /// A cancel was accepted (answered 202) before the outcome was decided.
+    pub cancel_accepted: bool,
+    /// The daemon is shutting down.
+    pub shutting_down: bool,
+}
+
+/// A job's final state. An accepted cancel always wins, even when the loop finished its
+/// last round before it saw the flag: the client was promised a cancelled run, so it is
+/// never `succeeded` and never activated.
+pub fn final_state(e: Ending) -> State {
+    let cancelled = e.loop_cancelled || e.cancel_accepted;
+    match (e.shutting_down, cancelled, e.solved) {
+        (true, true, _) | (true, _, false) => State::Interrupted,
+        (false, true, _) => State::Cancelled,
+        (_, false, true) => State::Succeeded,
+        (false, false, false) => State::Failed,
+    }
+}
+
 /// Why a request cannot be served now.
 #[derive(Debug)]
 pub enum Refusal {
@@ -128,6 +172,11 @@ pub struct Job {
     cancel: Arc<AtomicBool>,
     events: broadcast::Sender<Event>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
+    /// The arm lease this calibration holds, dropped when the job ends.
+    lease: Mutex<Option<Lease>>,
+    /// Set once the job's final state is decided: a cancel that finds it set is answered
+    /// 409, so a 202 cancel always wins.
+    decided: Mutex<bool>,
 }
 
 impl Job {
@@ -182,7 +231,7 @@ pub struct Daemon {
     token: String,
     store: Store,
     jobs: Mutex<BTreeMap<String, Arc<Job>>>,
-    busy: Mutex<Option<Busy>>,
+    busy: Arc<Mutex<Option<Busy>>>,
     shutting_down: AtomicBool,
     shutdown_tx: watch::Sender<bool>,
     /// Counters for `/metrics`.
@@ -318,7 +367,7 @@ impl Daemon {
             token,
             store,
             jobs: Mutex::new(BTreeMap::new()),
-            busy: Mutex::new(None),
+            busy: Arc::default(),
             shutting_down: AtomicBool::new(false),
             shutdown_tx,
             metrics: Metrics::default(),
@@ -395,8 +444,10 @@ impl Daemon {
         self.shutdown_tx.subscribe()
     }
 
-    /// Takes the arm lease for `who`, or says who holds it.
-    fn lease(&self, who: Busy) -> std::result::Result<(), Refusal> {
+    /// Takes the arm lease for `who`, or says who holds it. The lease is given back when the
+    /// returned guard drops, on every path: a finished job, an error, a panic or a request
+    /// whose client hung up.
+    fn lease(&self, who: Busy) -> std::result::Result<Lease, Refusal> {
         if self.shutting_down.load(Ordering::SeqCst) {
             return Err(Refusal::ShuttingDown);
         }
@@ -404,15 +455,11 @@ impl Daemon {
         if let Some(b) = &*busy {
             return Err(Refusal::Busy(b.clone()));
         }
-        *busy = Some(who);
-        Ok(())
-    }
-
-    fn release(&self, who: &Busy) {
-        let mut busy = lock(&self.busy);
-        if busy.as_ref() == Some(who) {
-            *busy = None;
-        }
+        *busy = Some(who.clone());
+        Ok(Lease {
+            busy: self.busy.clone(),
+            who,
+        })
     }
 
     /// Starts a calibration on its own thread; returns its id at once.
@@ -427,7 +474,7 @@ impl Daemon {
         // Hold the jobs lock while choosing the id so two starts cannot pick the same one.
         let jobs_guard = lock(&self.jobs);
         let id = self.store.next_id()?;
-        self.lease(Busy::Calibration(id.clone()))?;
+        let lease = self.lease(Busy::Calibration(id.clone()))?;
         let record = CalibrationRecord {
             id: id.clone(),
             state: State::Queued,
@@ -456,16 +503,17 @@ impl Daemon {
             cameras,
             camera_results: None,
         };
-        if let Err(e) = self.store.save(&record) {
-            self.release(&Busy::Calibration(id.clone()));
-            return Err(e.into());
-        }
+        // Nothing is kept when the record cannot be written: no phantom `queued` entry.
+        self.store
+            .insert(&record, self.settings.keep_calibrations())?;
         let (events, _) = broadcast::channel(256);
         let job = Arc::new(Job {
             record: Mutex::new(record),
             cancel: Arc::new(AtomicBool::new(false)),
             events,
             thread: Mutex::new(None),
+            lease: Mutex::new(Some(lease)),
+            decided: Mutex::new(false),
         });
         let mut jobs_guard = jobs_guard;
         jobs_guard.insert(id.clone(), job.clone());
@@ -523,7 +571,7 @@ impl Daemon {
         if let Some(k) = FINISHED_STATES.iter().position(|s| *s == state) {
             self.metrics.finished[k].fetch_add(1, Ordering::Relaxed);
         }
-        self.release(&Busy::Calibration(job.record().id));
+        drop(lock(&job.lease).take());
         self.update(job, "state", None, |r| {
             f(r);
             r.state = state;
@@ -579,16 +627,22 @@ impl Daemon {
             ))),
         };
         let shutting_down = self.shutting_down.load(Ordering::SeqCst);
+        // From here on a cancel is answered 409: the state below is final.
+        let cancel_accepted = {
+            let mut decided = lock(&job.decided);
+            *decided = true;
+            job.cancel.load(Ordering::SeqCst)
+        };
+        let ending = |solved: bool, loop_cancelled: bool| Ending {
+            solved,
+            loop_cancelled,
+            cancel_accepted,
+            shutting_down,
+        };
         match outcome {
             Ok(o) => {
                 let truth = self.truth_error(&o.result.camera_from_base());
-                let state = if o.cancelled && shutting_down {
-                    State::Interrupted
-                } else if o.cancelled {
-                    State::Cancelled
-                } else {
-                    State::Succeeded
-                };
+                let state = final_state(ending(true, o.cancelled));
                 // Activate before the record turns final: a client that sees "succeeded" may
                 // check against the active calibration at once (it got 409 in between).
                 if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
@@ -637,11 +691,7 @@ impl Daemon {
                 {
                     let _ = rt.block_on(self.cell.arm.stop());
                 }
-                let state = if shutting_down {
-                    State::Interrupted
-                } else {
-                    State::Failed
-                };
+                let state = final_state(ending(false, false));
                 tracing::warn!("easyhec daemon: {id} {}: {e}", state.name());
                 self.finish(job, state, |r| r.error = Some(e.to_string()));
             }
@@ -699,14 +749,18 @@ impl Daemon {
                 None => Err(Refusal::NotFound(format!("no calibration {id}"))),
             };
         };
-        let record = job.record();
-        if record.state.is_final() {
-            return Err(Refusal::Conflict(format!(
-                "calibration {id} is {}: only a queued or running one can be cancelled",
-                record.state.name()
-            )));
+        {
+            // Under the job's decision lock: either the flag is set before the outcome is
+            // decided (and the run ends cancelled), or the run has already finished.
+            let decided = lock(&job.decided);
+            let record = job.record();
+            if *decided || record.state.is_final() {
+                return Err(Refusal::Conflict(format!(
+                    "calibration {id} already finished (its outcome was decided before the cancel arrived): only a queued or running one can be cancelled"
+                )));
+            }
+            job.cancel.store(true, Ordering::SeqCst);
         }
-        job.cancel.store(true, Ordering::SeqCst);
         // Stop first; the loop notices the flag and ends the run as cancelled.
         if let Err(e) = self.cell.arm.stop().await {
             tracing::error!("easyhec daemon: {id}: stop after cancel failed: {e}");
@@ -986,16 +1040,54 @@ fn check_max_views(n: Option<usize>) -> std::result::Result<(), Refusal> {
 }
 
 /// Resolves the daemon's data folder: `--data` as given, else `[daemon] data_dir` relative to
-/// the config file.
-pub fn data_dir(cell: &Cell, arg: Option<&Path>) -> PathBuf {
-    match arg {
-        Some(p) => p.to_path_buf(),
-        None => cell
-            .config_path
-            .parent()
-            .unwrap_or(Path::new("."))
-            .join(&cell.config.daemon.data_dir),
+/// the config file, else the state folder [`default_data_dir`] names.
+pub fn data_dir(
+    config: &crate::config::CellConfig,
+    config_path: &Path,
+    arg: Option<&Path>,
+) -> Result<PathBuf> {
+    if let Some(p) = arg {
+        return Ok(p.to_path_buf());
     }
+    if let Some(d) = &config.daemon.data_dir {
+        let base = config_path.parent().unwrap_or(Path::new("."));
+        return Ok(base.join(d));
+    }
+    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    default_data_dir(var("STATE_DIRECTORY"), var("XDG_STATE_HOME"), var("HOME")).ok_or_else(|| {
+        Error::input(
+            config_path,
+            "daemon.data_dir",
+            "absent, and neither STATE_DIRECTORY, XDG_STATE_HOME nor HOME is set; allowed: a folder for the daemon's data, or --data",
+        )
+    })
+}
+
+/// The data folder a daemon uses when neither `--data` nor `data_dir` names one: systemd's
+/// `StateDirectory=` (first entry of `$STATE_DIRECTORY`), else `$XDG_STATE_HOME/easyhec`,
+/// else `$HOME/.local/state/easyhec`. Never a folder beside the config, which may sit in a
+/// source checkout.
+pub fn default_data_dir(
+    state_directory: Option<std::ffi::OsString>,
+    xdg_state_home: Option<std::ffi::OsString>,
+    home: Option<std::ffi::OsString>,
+) -> Option<PathBuf> {
+    if let Some(s) = state_directory {
+        // systemd joins several StateDirectory= entries with ':'.
+        let first = s
+            .to_string_lossy()
+            .split(':')
+            .next()
+            .unwrap_or("")
+            .to_string();
+        if !first.is_empty() {
+            return Some(PathBuf::from(first));
+        }
+    }
+    if let Some(x) = xdg_state_home.filter(|x| Path::new(x).is_absolute()) {
+        return Some(PathBuf::from(x).join("easyhec"));
+    }
+    home.map(|h| PathBuf::from(h).join(".local/state/easyhec"))
 }
 
 /// The API token: `EASYHEC_TOKEN` when set and non-empty, else `[daemon] token`.
@@ -1039,4 +1131,60 @@ pub async fn serve(
         s.abort();
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ending(
+        solved: bool,
+        loop_cancelled: bool,
+        cancel_accepted: bool,
+        shutting_down: bool,
+    ) -> State {
+        final_state(Ending {
+            solved,
+            loop_cancelled,
+            cancel_accepted,
+            shutting_down,
+        })
+    }
+
+    #[test]
+    fn an_accepted_cancel_always_ends_cancelled_even_after_the_last_round() {
+        assert_eq!(ending(true, false, false, false), State::Succeeded);
+        // The loop finished before it saw the flag: the 202 still wins.
+        assert_eq!(ending(true, false, true, false), State::Cancelled);
+        assert_eq!(ending(true, true, true, false), State::Cancelled);
+        assert_eq!(ending(false, false, true, false), State::Cancelled);
+        assert_eq!(ending(false, false, false, false), State::Failed);
+        // Shutdown stops the run with the same flag: interrupted, never activated.
+        assert_eq!(ending(true, true, true, true), State::Interrupted);
+        assert_eq!(ending(false, false, false, true), State::Interrupted);
+        assert_eq!(ending(true, false, false, true), State::Succeeded);
+    }
+
+    #[test]
+    fn the_default_data_folder_is_the_state_folder_never_the_config_folder() {
+        let some = |s: &str| Some(std::ffi::OsString::from(s));
+        assert_eq!(
+            default_data_dir(
+                some("/var/lib/easyhec:/var/lib/other"),
+                some("/x"),
+                some("/home/u")
+            ),
+            Some(PathBuf::from("/var/lib/easyhec"))
+        );
+        assert_eq!(
+            default_data_dir(None, some("/home/u/.state"), some("/home/u")),
+            Some(PathBuf::from("/home/u/.state/easyhec"))
+        );
+        // A relative XDG_STATE_HOME is invalid by the spec and ignored.
+        assert_eq!(
+            default_data_dir(None, some("rel"), some("/home/u")),
+            Some(PathBuf::from("/home/u/.local/state/easyhec"))
+        );
+        assert_eq!(default_data_dir(None, None, None), None);
+    }
 }

@@ -39,6 +39,8 @@ pub struct Key {
     id: String,
     camera: Option<String>,
     view: usize,
+    /// A dry run's planned pose drawn over the view, by index (`None`: the view itself).
+    planned: Option<usize>,
     pose: [[u64; 4]; 4],
     mask: Option<(SystemTime, u64)>,
 }
@@ -60,9 +62,20 @@ impl Key {
             id: id.to_string(),
             camera: camera.map(str::to_string),
             view,
+            planned: None,
             pose: rows.map(|r| r.map(f64::to_bits)),
             mask: stamp,
         }
+    }
+}
+
+impl Key {
+    /// The same key for planned pose `k` drawn over the view: a dry run's plan never changes
+    /// once written, so its overlays are cached like a view's, and a flood of unauthenticated
+    /// reads renders each at most once.
+    pub fn planned(mut self, k: usize) -> Key {
+        self.planned = Some(k);
+        self
     }
 }
 

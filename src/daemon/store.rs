@@ -274,6 +274,26 @@ pub struct Recovery {
     pub interrupted: Vec<String>,
 }
 
+/// Drops the oldest finished records that no active entry names until at most `keep` are
+/// left (running ones and active ones always stay); returns the dropped ids.
+fn prune_history(
+    records: &mut Vec<CalibrationRecord>,
+    active: &[ActiveFile],
+    keep: usize,
+) -> Vec<String> {
+    let mut excess = records.len().saturating_sub(keep);
+    let mut dropped = Vec::new();
+    records.retain(|r| {
+        let removable = excess > 0 && r.state.is_final() && !active.iter().any(|a| a.id == r.id);
+        if removable {
+            excess -= 1;
+            dropped.push(r.id.clone());
+        }
+        !removable
+    });
+    dropped
+}
+
 fn lock(m: &Mutex<Inner>) -> std::sync::MutexGuard<'_, Inner> {
     m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
@@ -320,11 +340,15 @@ impl Store {
     }
 
     fn write_index(&self, inner: &Inner) -> Result<()> {
+        self.write_records(&inner.records)
+    }
+
+    fn write_records(&self, records: &[CalibrationRecord]) -> Result<()> {
         write_json_atomic(
             &self.dir.join("index.json"),
             &IndexFile {
                 format: INDEX_FORMAT.into(),
-                calibrations: inner.records.clone(),
+                calibrations: records.to_vec(),
             },
         )
     }
@@ -354,6 +378,32 @@ impl Store {
                     format!("every id up to cal-{MAX_ID} is taken"),
                 )
             })
+    }
+
+    /// Adds a new record, written before it is kept: a write that fails (a full or
+    /// read-only disk) leaves neither the index nor the daemon's memory holding it. Past
+    /// `keep` records, the oldest finished ones that no camera has active leave the index and
+    /// their run folders are deleted (after the index no longer names them).
+    pub fn insert(&self, record: &CalibrationRecord, keep: usize) -> Result<()> {
+        let mut inner = lock(&self.inner);
+        let mut next = inner.records.clone();
+        next.push(record.clone());
+        let pruned = prune_history(&mut next, &inner.active, keep);
+        self.write_records(&next)?;
+        inner.records = next;
+        drop(inner);
+        for id in pruned {
+            let dir = self.dir.join("runs").join(&id);
+            if let Err(e) = std::fs::remove_dir_all(&dir) {
+                if e.kind() != std::io::ErrorKind::NotFound {
+                    tracing::warn!(
+                        "easyhec daemon: {}: cannot delete a pruned run: {e}",
+                        dir.display()
+                    );
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Inserts or replaces a record (by id) and rewrites `index.json`.

@@ -181,9 +181,9 @@ fn easy_handeye2_file(edge: &TfEdge) -> String {
     let _ = writeln!(s, "parameters:");
     let _ = writeln!(s, "  name: {EASY_HANDEYE2_NAME}");
     let _ = writeln!(s, "  calibration_type: eye_on_base");
-    let _ = writeln!(s, "  robot_base_frame: {}", edge.parent);
+    let _ = writeln!(s, "  robot_base_frame: {}", yaml_scalar(&edge.parent));
     let _ = writeln!(s, "  robot_effector_frame: ''");
-    let _ = writeln!(s, "  tracking_base_frame: {}", edge.child);
+    let _ = writeln!(s, "  tracking_base_frame: {}", yaml_scalar(&edge.child));
     let _ = writeln!(s, "  tracking_marker_frame: ''");
     let _ = writeln!(s, "  freehand_robot_movement: false");
     let _ = writeln!(s, "  move_group_namespace: /");
@@ -193,6 +193,29 @@ fn easy_handeye2_file(edge: &TfEdge) -> String {
     s
 }
 
+/// A frame name as a YAML string scalar: quoted when a YAML 1.1 reader (PyYAML, ROS 1's
+/// rosparam) would take it for another type (`on`, `no`, `null`, `1e3`, `0x1f`), plain
+/// otherwise. Frame names hold no quotes ([`check_frame_name`]), so single quotes suffice.
+pub fn yaml_scalar(name: &str) -> std::borrow::Cow<'_, str> {
+    const OTHER_TYPES: [&str; 16] = [
+        "y", "n", "yes", "no", "true", "false", "on", "off", "null", "~", ".inf", "+.inf", "-.inf",
+        ".nan", "<<", "=",
+    ];
+    let lower = name.to_ascii_lowercase();
+    let digits_only = name.replace('_', "");
+    let numeric = digits_only.parse::<f64>().is_ok()
+        || lower.starts_with("0x")
+        || lower.starts_with("0o")
+        || lower.starts_with("0b")
+        || lower.starts_with("+0")
+        || lower.starts_with("-0");
+    if name.is_empty() || OTHER_TYPES.contains(&lower.as_str()) || numeric {
+        std::borrow::Cow::Owned(format!("'{name}'"))
+    } else {
+        std::borrow::Cow::Borrowed(name)
+    }
+}
+
 fn easy_handeye_ros1_yaml(edge: &TfEdge) -> String {
     let t = edge.translation();
     let q = edge.quaternion_xyzw();
@@ -200,7 +223,8 @@ fn easy_handeye_ros1_yaml(edge: &TfEdge) -> String {
     let _ = writeln!(
         s,
         "eye_on_hand: false\nrobot_base_frame: {}\ntracking_base_frame: {}\ntransformation:",
-        edge.parent, edge.child
+        yaml_scalar(&edge.parent),
+        yaml_scalar(&edge.child)
     );
     for (k, v) in ["x", "y", "z", "qx", "qy", "qz", "qw"]
         .iter()

@@ -45,7 +45,7 @@ struct SourceView {
 
 /// Converts EasyHeC's offline layout into an `easyhec-run/1` directory.
 pub fn import_easyhec(opts: &EasyHecImport) -> Result<RunFile> {
-    check_target(&opts.out, opts.force)?;
+    check_target(&opts.out, &opts.source, opts.force)?;
     check_joint_names(&opts.joints)?;
     let src = &opts.source;
     let k = read_camera_matrix(&src.join("K.txt"))?;
@@ -61,6 +61,7 @@ pub fn import_easyhec(opts: &EasyHecImport) -> Result<RunFile> {
         robot: RobotEntry {
             urdf: opts.urdf.clone(),
             package_dirs: BTreeMap::new(),
+            package_paths: Vec::new(),
             base_link: None,
             ignore_links: opts.ignore_links.clone(),
             joints: opts.joints.clone(),
@@ -78,7 +79,10 @@ pub fn import_easyhec(opts: &EasyHecImport) -> Result<RunFile> {
 
 /// An existing, non-empty target is refused unless `force`: importing over a run would mix
 /// its old files with the new `run.json`.
-fn check_target(out: &Path, force: bool) -> Result<()> {
+fn check_target(out: &Path, source: &Path, force: bool) -> Result<()> {
+    if let Some(problem) = crate::io::output_dir_problem(out, &[source.to_path_buf()]) {
+        return Err(Error::input(out, "--out", problem));
+    }
     let non_empty = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some());
     if non_empty && !force {
         return Err(Error::input(
@@ -194,11 +198,46 @@ fn read_view(
         ));
     }
     let color = src.join("color").join(format!("{stem}.png"));
+    let color = match std::fs::symlink_metadata(&color) {
+        Ok(_) => Some(check_color(src, &color, (mask.width, mask.height))?),
+        Err(_) => None,
+    };
     Ok(SourceView {
         mask,
         joints: q[..joint_count].to_vec(),
-        color: color.is_file().then_some(color),
+        color,
     })
+}
+
+/// A colour frame is copied only when it is a PNG image of the mask's size inside the
+/// source folder: a link out of it (to /etc/passwd, say) or a file that is no image would
+/// otherwise be copied into the run unread.
+fn check_color(src: &Path, color: &Path, size: (u32, u32)) -> Result<PathBuf> {
+    let real = std::fs::canonicalize(color)
+        .map_err(|e| Error::input(color, "color", format!("cannot be resolved: {e}")))?;
+    let root = std::fs::canonicalize(src).map_err(|e| Error::io(src, e))?;
+    if !real.starts_with(&root) {
+        return Err(Error::input(
+            color,
+            "color",
+            format!(
+                "resolves to {}, outside the source folder; allowed: a file inside it",
+                real.display()
+            ),
+        ));
+    }
+    let found = crate::mask::image_size(&real, "color")?;
+    if found != size {
+        return Err(Error::input(
+            color,
+            "color",
+            format!(
+                "is {}x{}; allowed: the mask's {}x{}",
+                found.0, found.1, size.0, size.1
+            ),
+        ));
+    }
+    Ok(real)
 }
 
 /// Every mask's header states the first one's size, and a solve of them all fits in memory:
@@ -244,6 +283,16 @@ fn files_by_stem(dir: &Path, ext: &str) -> Result<BTreeMap<String, PathBuf>> {
             .and_then(|s| s.to_str())
             .map(str::to_string);
         if let (true, Some(stem)) = (matches, stem) {
+            if let Some(other) = out.get(&stem) {
+                return Err(Error::input(
+                    &path,
+                    dir.file_name().and_then(|n| n.to_str()).unwrap_or(ext),
+                    format!(
+                        "and {} name the same view '{stem}' (the extension differs only in case); allowed: one file per view",
+                        Path::new(other).display()
+                    ),
+                ));
+            }
             out.insert(stem, path);
         }
     }
@@ -298,17 +347,61 @@ fn write_run(opts: &EasyHecImport, run: &RunFile, views: &[SourceView]) -> Resul
         .prefix(".easyhec-import-")
         .tempdir_in(parent)
         .map_err(|e| Error::io(parent, e))?;
+    let _registered = Staging::register(staging.path());
     let dir = staging.path();
-    std::fs::create_dir_all(dir.join("views")).map_err(|e| Error::io(dir, e))?;
+    {
+        let _writing = Staging::writing();
+        std::fs::create_dir_all(dir.join("views")).map_err(|e| Error::io(dir, e))?;
+    }
     for (entry, v) in run.views.iter().zip(views) {
+        let _writing = Staging::writing();
         let mask_rel = entry.mask.as_deref().unwrap_or_default();
         write_atomic(&dir.join(mask_rel), &v.mask.to_png_bytes())?;
         if let (Some(rel), Some(color)) = (&entry.image, &v.color) {
             std::fs::copy(color, dir.join(rel)).map_err(|e| Error::io(color, e))?;
         }
     }
+    let _writing = Staging::writing();
     write_json_atomic(&dir.join("run.json"), run)?;
     replace_dir(staging.keep(), out)
+}
+
+/// The staging folder of the import under way. Each write into it holds the read side; a
+/// signal handler takes the write side, so it never deletes the folder under a write that
+/// would then create it again.
+static STAGING: std::sync::RwLock<Option<PathBuf>> = std::sync::RwLock::new(None);
+
+/// Names the staging folder while it exists; forgets it when dropped.
+struct Staging;
+
+impl Staging {
+    fn register(dir: &Path) -> Staging {
+        *STAGING.write().unwrap_or_else(|e| e.into_inner()) = Some(dir.to_path_buf());
+        Staging
+    }
+
+    /// Held while one step writes into the staging folder.
+    fn writing() -> std::sync::RwLockReadGuard<'static, Option<PathBuf>> {
+        STAGING.read().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        *STAGING.write().unwrap_or_else(|e| e.into_inner()) = None;
+    }
+}
+
+/// For a signal handler: waits for the write under way, deletes the import's half-written
+/// staging folder (if any), and ends the process with `code` without letting the import
+/// write again. A signal's default action would leave a hidden folder of copied frames
+/// beside the target.
+pub fn abandon_staging_and_exit(code: i32) -> ! {
+    let held = STAGING.write().unwrap_or_else(|e| e.into_inner());
+    if let Some(dir) = held.as_ref() {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+    std::process::exit(code)
 }
 
 /// Moves `staged` to `out`; an existing `out` is set aside first and removed only after the

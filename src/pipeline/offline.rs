@@ -89,6 +89,7 @@ pub struct OfflineOutcome {
 pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
     let started = Instant::now();
     let (run, k) = load_requested(req)?;
+    check_outputs(req, &run.files_read())?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let fitted = fit_loaded(
@@ -165,6 +166,11 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
     use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
     let started = Instant::now();
     let cameras = crate::run::load_cameras_with(&req.run, mask_source(req))?;
+    let reads: Vec<PathBuf> = cameras
+        .iter()
+        .flat_map(|(_, run)| run.files_read())
+        .collect();
+    check_outputs(req, &reads)?;
     let views = cameras
         .iter()
         .map(|(_, run)| requested_views(req, run.views.len()))
@@ -458,6 +464,28 @@ fn requested_views(req: &OfflineSolve, total: usize) -> Result<usize> {
 
 /// Loads the run the way the request reads it (recorded masks, or images for a segmenter) and
 /// checks `--views` against it, before any renderer is opened.
+/// The solve's outputs against the output policy ([`crate::io::output_file_problem`]),
+/// before anything is computed: the result file and the masks and overlays folders must be
+/// none of the files the solve reads, nor hold them.
+fn check_outputs(req: &OfflineSolve, reads: &[PathBuf]) -> Result<()> {
+    if let Some(out) = &req.out {
+        if let Some(problem) = crate::io::output_file_problem(out, reads) {
+            return Err(Error::input(out, "--out", problem));
+        }
+    }
+    let folders = [
+        ("--masks-out", &req.masks_out),
+        ("--overlays", &req.overlays),
+    ];
+    for (flag, dir) in folders {
+        let Some(dir) = dir else { continue };
+        if let Some(problem) = crate::io::output_dir_problem(dir, reads) {
+            return Err(Error::input(dir, flag, problem));
+        }
+    }
+    Ok(())
+}
+
 fn load_requested(req: &OfflineSolve) -> Result<(LoadedRun, usize)> {
     let run = load_run_with(&req.run, mask_source(req))?;
     let k = requested_views(req, run.views.len())?;

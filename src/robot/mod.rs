@@ -20,11 +20,13 @@ mod urdf_numbers;
 mod xacro;
 
 use packages::resolve_mesh_uri;
+pub use packages::{LazyPackages, PackageIndex};
 
-/// The URDF text of `src`'s description: the file, or a `.xacro` file's expansion. Everything
-/// that reads the description (kinematics, collision geometry) goes through here.
-pub fn description_text(src: &RobotSource) -> Result<String> {
-    xacro::urdf_text(&src.urdf, &src.xacro_args)
+/// The URDF text of `src`'s description: the file, or a `.xacro` file's expansion (its
+/// `$(find NAME)` answered from `packages`). Everything that reads the description
+/// (kinematics, collision geometry) goes through here.
+pub fn description_text(src: &RobotSource, packages: &LazyPackages<'_>) -> Result<String> {
+    xacro::urdf_text(&src.urdf, &src.xacro_args, packages)
 }
 
 /// Joint type as FK needs it.
@@ -101,6 +103,9 @@ pub struct RobotSource {
     pub urdf: PathBuf,
     /// `package://NAME` roots.
     pub package_dirs: BTreeMap<String, PathBuf>,
+    /// Folders searched for packages (a description repository cloned anywhere), after
+    /// `package_dirs` and the ROS environment.
+    pub package_paths: Vec<PathBuf>,
     /// Frame `camera_from_base` refers to; default the URDF root.
     pub base_link: Option<String>,
     /// Links whose visuals are not rendered.
@@ -140,13 +145,13 @@ pub(crate) fn element_mesh(
     geometry: &urdf_rs::Geometry,
     field: &str,
     urdf_path: &Path,
-    package_dirs: &BTreeMap<String, PathBuf>,
+    packages: &LazyPackages<'_>,
     cache: &mut HashMap<PathBuf, Arc<TriMesh>>,
 ) -> Result<(TriMesh, Vector3<f64>)> {
     let urdf_dir = urdf_path.parent().unwrap_or(Path::new("."));
     Ok(match geometry {
         urdf_rs::Geometry::Mesh { filename, scale } => {
-            let path = resolve_mesh_uri(filename, urdf_dir, package_dirs)
+            let path = resolve_mesh_uri(filename, urdf_dir, packages)
                 .map_err(|m| Error::input(urdf_path, format!("{field} mesh"), m))?;
             let mesh = match cache.get(&path) {
                 Some(m) => m.clone(),
@@ -198,7 +203,8 @@ impl RobotModel {
     /// Loads a URDF and its visual meshes.
     pub fn load(src: &RobotSource) -> Result<RobotModel> {
         let urdf_path = &src.urdf;
-        let text = description_text(src)?;
+        let packages = LazyPackages::new(src);
+        let text = description_text(src, &packages)?;
         let urdf = urdf_rs::read_from_string(&text)
             .map_err(|e| Error::input(urdf_path, "robot", format!("malformed URDF: {e}")))?;
         urdf_numbers::check(&urdf, urdf_path)?;
@@ -244,7 +250,7 @@ impl RobotModel {
             }
         }
 
-        let (visual, vertex_link) = merged_visuals(&urdf.links, src)?;
+        let (visual, vertex_link) = merged_visuals(&urdf.links, src, &packages)?;
         Ok(RobotModel {
             name: urdf.name.clone(),
             links,
@@ -595,7 +601,11 @@ fn actuated_joints(
 
 /// Every rendered link's visuals placed in its frame and merged into one mesh, with each
 /// vertex's link index (so posing the robot is a per-vertex transform).
-fn merged_visuals(urdf_links: &[urdf_rs::Link], src: &RobotSource) -> Result<(TriMesh, Vec<u32>)> {
+fn merged_visuals(
+    urdf_links: &[urdf_rs::Link],
+    src: &RobotSource,
+    packages: &LazyPackages<'_>,
+) -> Result<(TriMesh, Vec<u32>)> {
     let urdf_path = &src.urdf;
     let mut cache: HashMap<PathBuf, Arc<TriMesh>> = HashMap::new();
     let mut visual = TriMesh::default();
@@ -607,13 +617,7 @@ fn merged_visuals(urdf_links: &[urdf_rs::Link], src: &RobotSource) -> Result<(Tr
         for (vi, v) in link.visual.iter().enumerate() {
             let field = format!("link '{}' visual {vi}", link.name);
             let origin = from_xyz_rpy(v.origin.xyz.0, v.origin.rpy.0);
-            let (mesh, scale) = element_mesh(
-                &v.geometry,
-                &field,
-                urdf_path,
-                &src.package_dirs,
-                &mut cache,
-            )?;
+            let (mesh, scale) = element_mesh(&v.geometry, &field, urdf_path, packages, &mut cache)?;
             let placed = mesh.transformed(scale, &origin);
             vertex_link.extend(std::iter::repeat_n(li as u32, placed.vertices.len()));
             visual.append(&placed);

@@ -9,6 +9,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use super::packages::{LazyPackages, PackageIndex};
 use crate::error::{Error, Result};
 use crate::io::{read_text_input, MAX_TEXT_INPUT_BYTES};
 
@@ -23,7 +24,11 @@ const MAX_ARG_BYTES: usize = 4096;
 
 /// The URDF text of a description: the file itself, or for `*.xacro` the `xacro` tool's
 /// expansion with `args` as `name:=value`. `args` on a plain URDF is an error, not ignored.
-pub(super) fn urdf_text(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
+pub(super) fn urdf_text(
+    path: &Path,
+    args: &BTreeMap<String, String>,
+    packages: &LazyPackages<'_>,
+) -> Result<String> {
     let is_xacro = path.extension().and_then(|e| e.to_str()) == Some("xacro");
     if !is_xacro {
         if let Some(name) = args.keys().next() {
@@ -38,7 +43,88 @@ pub(super) fn urdf_text(path: &Path, args: &BTreeMap<String, String>) -> Result<
     check_args(path, args)?;
     // Read first: the same size bound and the same one-line error for a missing file.
     read_text_input(path)?;
-    expand(path, args)
+    let resolver = write_resolver(path, packages.get())?;
+    expand(path, args, resolver.path())
+}
+
+/// Our `ament_index_python` stand-in (`xacro_resolver/`), with the package table it answers
+/// from, in a temporary folder that must outlive the xacro child.
+fn write_resolver(path: &Path, packages: &PackageIndex) -> Result<tempfile::TempDir> {
+    let io =
+        |e: std::io::Error| Error::io(path, format!("cannot prepare xacro's package lookups: {e}"));
+    let dir = tempfile::Builder::new()
+        .prefix("easyhec-xacro-")
+        .tempdir()
+        .map_err(io)?;
+    let module = dir.path().join("ament_index_python");
+    std::fs::create_dir(&module).map_err(io)?;
+    std::fs::write(
+        module.join("__init__.py"),
+        include_str!("xacro_resolver/__init__.py"),
+    )
+    .map_err(io)?;
+    std::fs::write(
+        module.join("packages.py"),
+        include_str!("xacro_resolver/packages.py"),
+    )
+    .map_err(io)?;
+    let table = serde_json::to_vec(&packages.to_json()).map_err(|e| io(e.into()))?;
+    std::fs::write(module.join("packages.json"), table).map_err(io)?;
+    Ok(dir)
+}
+
+/// `PYTHONPATH` with `first` ahead of what the environment already has.
+fn python_path(first: &Path) -> std::ffi::OsString {
+    let mut dirs = vec![first.to_path_buf()];
+    if let Some(old) = std::env::var_os("PYTHONPATH") {
+        dirs.extend(std::env::split_paths(&old));
+    }
+    std::env::join_paths(dirs).unwrap_or_else(|_| first.as_os_str().to_owned())
+}
+
+/// The cause of a failed expansion, from xacro's stderr: its `error:` line (xacro prints the
+/// cause first, then where it happened: `when processing file: …`), else an XML parser's
+/// line, else the last line that is not a location. Exception wrapping (`<class '…'>: `) and
+/// a message xacro repeats are dropped.
+fn xacro_reason(stderr: &str) -> String {
+    const LOCATIONS: [&str; 7] = [
+        "when ",
+        "in file:",
+        "included from:",
+        "instantiated from:",
+        "Check that:",
+        "- ",
+        "warning: ",
+    ];
+    let lines: Vec<&str> = stderr.lines().map(str::trim).collect();
+    let line = lines
+        .iter()
+        .find_map(|l| l.strip_prefix("error: "))
+        .or_else(|| {
+            lines
+                .iter()
+                .copied()
+                .find(|l| l.contains("XML parsing error:"))
+        })
+        .or_else(|| {
+            lines
+                .iter()
+                .copied()
+                .rfind(|l| !l.is_empty() && !LOCATIONS.iter().any(|p| l.starts_with(p)))
+        })
+        .unwrap_or("no message")
+        .trim();
+    let line = match (line.starts_with("<class '"), line.split_once("'>: ")) {
+        (true, Some((_, rest))) => rest,
+        _ => line,
+    };
+    let half = line.len() / 2;
+    let repeated = line.len() % 2 == 1
+        && line.is_char_boundary(half)
+        && line[half..].starts_with(' ')
+        && line[..half] == line[half + 1..];
+    let line = if repeated { &line[..half] } else { line };
+    line.trim_matches('"').to_string()
 }
 
 /// Names are xacro identifiers; values are single lines within [`MAX_ARG_BYTES`].
@@ -108,9 +194,10 @@ fn drain_keeping(mut pipe: impl Read, keep: usize, tail: bool) -> (Vec<u8>, usiz
 }
 
 /// Runs `xacro PATH name:=value…`, bounded in time and output.
-fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
+fn expand(path: &Path, args: &BTreeMap<String, String>, resolver: &Path) -> Result<String> {
     let mut child = Command::new("xacro")
         .arg(path)
+        .env("PYTHONPATH", python_path(resolver))
         .args(args.iter().map(|(k, v)| format!("{k}:={v}")))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -156,12 +243,7 @@ fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
         ));
     }
     if !status.success() {
-        let stderr = String::from_utf8_lossy(&stderr);
-        let reason = stderr
-            .lines()
-            .map(str::trim)
-            .rfind(|l| !l.is_empty())
-            .unwrap_or("no message");
+        let reason = xacro_reason(&String::from_utf8_lossy(&stderr));
         return Err(Error::input(
             path,
             "robot.urdf",
@@ -175,6 +257,32 @@ fn expand(path: &Path, args: &BTreeMap<String, String>) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_reason_is_xacros_cause_not_its_location() {
+        let cases = [
+            (
+                "error: <class 'ament_index_python.packages.PackageNotFoundError'>: package 'x' not found; looked in y package 'x' not found; looked in y\nwhen processing file: a/cell.urdf.xacro\n",
+                "package 'x' not found; looked in y",
+            ),
+            (
+                "error: name 'prefx' is not defined \nwhen evaluating expression 'prefx'\nwhen instantiating macro: acme_arm (m.xacro)\nin file: cell.urdf.xacro\n",
+                "name 'prefx' is not defined",
+            ),
+            (
+                "warning: xacro:include: unknown attribute(s): bogus\nwhen processing file: w.xacro\nerror: Undefined parameters [limits_file]\nin file: w.xacro\n",
+                "Undefined parameters [limits_file]",
+            ),
+            (
+                "XML parsing error: mismatched tag: line 2, column 2\nwhen processing file: b.xacro\nCheck that:\n - Your XML is well-formed\n",
+                "XML parsing error: mismatched tag: line 2, column 2",
+            ),
+            ("\n\n", "no message"),
+        ];
+        for (stderr, want) in cases {
+            assert_eq!(xacro_reason(stderr), want, "{stderr}");
+        }
+    }
 
     #[test]
     fn draining_keeps_the_head_of_output_and_the_tail_of_a_log() {

@@ -88,6 +88,37 @@ fn check_view_joints(joints: &[f64], expected: usize, i: usize, json: &Path) -> 
     Ok(())
 }
 
+/// How far a recorded joint may lie past its URDF limit (rad or m): encoders read a little
+/// past a limit the controller itself enforces, but a value far beyond it is a unit or
+/// field mix-up, and at 1e300 rad the sine and cosine of forward kinematics mean nothing.
+pub const JOINT_LIMIT_MARGIN: f64 = 0.2;
+
+/// Every view's joints within the URDF's limits (`limits`, in `robot.joints` order; a
+/// continuous joint's are ±2π) plus [`JOINT_LIMIT_MARGIN`].
+pub(crate) fn check_joints_within_limits(
+    file: &RunFile,
+    limits: &[(f64, f64)],
+    json: &Path,
+) -> Result<()> {
+    for (i, v) in file.views.iter().enumerate() {
+        for (k, (q, (lo, hi))) in v.joints.iter().zip(limits).enumerate() {
+            let (lo, hi) = (lo - JOINT_LIMIT_MARGIN, hi + JOINT_LIMIT_MARGIN);
+            if !(lo..=hi).contains(q) {
+                return Err(Error::input(
+                    json,
+                    format!("views[{i}].joints[{k}]"),
+                    format!(
+                        "is {}; allowed: {lo:.3} to {hi:.3} ({}'s URDF limits plus {JOINT_LIMIT_MARGIN})",
+                        crate::error::cut(&q.to_string()),
+                        file.robot.joints.get(k).map_or("the joint", String::as_str)
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// A view recorded twice counts its evidence twice: the solve would report an uncertainty
 /// √2 too small. Two views with bit-identical joints, or two views sharing one mask file, are
 /// the same view.

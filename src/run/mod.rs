@@ -95,11 +95,14 @@ pub struct RobotEntry {
     /// `package://NAME` roots.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub package_dirs: BTreeMap<String, String>,
+    /// Folders searched for ROS packages, relative to the run folder or absolute.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub package_paths: Vec<String>,
     /// Frame `camera_from_base` refers to.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub base_link: Option<String>,
     /// Links not rendered.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::config::robot::link_names")]
     pub ignore_links: Vec<String>,
     /// Actuated joints, in the order of each view's `joints`.
     pub joints: Vec<String>,
@@ -330,6 +333,22 @@ pub struct LoadedRun {
     pub views: Vec<LoadedView>,
 }
 
+impl LoadedRun {
+    /// Every file a solve of this run reads: `run.json`, each view's mask and colour frame,
+    /// `ground_truth.json` and the URDF. The outputs of that solve must be none of them.
+    pub fn files_read(&self) -> Vec<PathBuf> {
+        let mut files = vec![
+            self.dir.join("run.json"),
+            self.dir.join("ground_truth.json"),
+            resolve(&self.dir, &self.file.robot.urdf),
+        ];
+        for v in &self.file.views {
+            files.extend(v.mask.iter().chain(&v.image).map(|f| resolve(&self.dir, f)));
+        }
+        files
+    }
+}
+
 fn resolve(dir: &Path, p: &str) -> PathBuf {
     let p = Path::new(p);
     if p.is_absolute() {
@@ -421,6 +440,12 @@ fn load_run_file(
             .iter()
             .map(|(k, v)| (k.clone(), resolve(&dir, v)))
             .collect(),
+        package_paths: file
+            .robot
+            .package_paths
+            .iter()
+            .map(|p| resolve(&dir, p))
+            .collect(),
         base_link: file.robot.base_link.clone(),
         ignore_links: file.robot.ignore_links.clone(),
         joints: Some(file.robot.joints.clone()),
@@ -439,6 +464,7 @@ fn load_run_file(
             RobotModel::load(&source)?.seen_from_link(link, &json, "camera.mount.link")?
         }
     };
+    checks::check_joints_within_limits(&file, &robot.joint_limits(), &json)?;
     let initial_guess = match &file.initial_guess {
         Some(g) => Some(
             from_rows(&g.camera_from_base)

@@ -181,3 +181,37 @@ pub fn run_loop(cell: &easyhec::cell::Cell, out: &std::path::Path) -> easyhec::c
         ))
         .unwrap()
 }
+
+/// EasyHeC's offline layout (`mask/ qpos/ K.txt`, and `color/` with `with_color`) written
+/// from the synthetic run at `run`.
+pub fn write_easyhec_source(run: &std::path::Path, src: &std::path::Path, with_color: bool) {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
+    for sub in ["mask", "qpos", "color"]
+        .iter()
+        .take(if with_color { 3 } else { 2 })
+    {
+        std::fs::create_dir_all(src.join(sub)).unwrap();
+    }
+    for (i, v) in json["views"].as_array().unwrap().iter().enumerate() {
+        let mask = run.join(v["mask"].as_str().unwrap());
+        std::fs::copy(&mask, src.join(format!("mask/{i:04}.png"))).unwrap();
+        if with_color {
+            let image = run.join(v["image"].as_str().unwrap());
+            std::fs::copy(&image, src.join(format!("color/{i:04}.png"))).unwrap();
+        }
+        let q: Vec<String> = v["joints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.to_string())
+            .collect();
+        std::fs::write(src.join(format!("qpos/{i:04}.txt")), q.join(" ")).unwrap();
+    }
+    let c = &json["camera"];
+    let k = format!(
+        "{} 0 {}\n0 {} {}\n0 0 1\n",
+        c["fx"], c["cx"], c["fy"], c["cy"]
+    );
+    std::fs::write(src.join("K.txt"), k).unwrap();
+}

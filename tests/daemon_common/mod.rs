@@ -354,10 +354,21 @@ pub fn result_json(rows: [[f64; 4]; 4], stop_reason: &str) -> Value {
     })
 }
 
-/// Writes `DIR/result.json` (creating `DIR`).
+/// Writes `DIR/result.json` (creating `DIR`), and a one-view `run.json` for it to refer to
+/// when none is there (activation checks a result's views against its run).
 pub fn write_result(dir: &Path, result: &Value) {
     std::fs::create_dir_all(dir).unwrap();
     std::fs::write(dir.join("result.json"), result.to_string()).unwrap();
+    let run = dir.join("run.json");
+    if !run.exists() {
+        let one_view = serde_json::json!({
+            "format": "easyhec-run/1",
+            "robot": {"urdf": "robot.urdf", "joints": ["joint1"]},
+            "camera": {"width": 320, "height": 240, "fx": 300.0, "fy": 300.0, "cx": 159.5, "cy": 119.5},
+            "views": [{"joints": [0.0], "mask": "views/000.mask.png"}],
+        });
+        std::fs::write(run, one_view.to_string()).unwrap();
+    }
 }
 
 /// A calibration record as the daemon's index keeps it.

@@ -1,0 +1,63 @@
+//! `easyhec bench real` on four views of the shared real xArm7 set (read from ../shared, never
+//! copied): the pose lands near the RGB-D reference, and the table compares the reported 1σ
+//! with a view-level jackknife on every axis.
+
+mod common;
+
+use std::process::Command;
+
+#[test]
+fn bench_real_compares_the_reported_sigma_with_the_views_jackknife() {
+    let out = Command::new(common::easyhec_bin())
+        .args(["bench", "real", "--views", "4"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("easyhec runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let iou_line = text
+        .lines()
+        .find(|l| l.starts_with("per-view IoU:"))
+        .unwrap();
+    let ious: Vec<f64> = iou_line[13..]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert_eq!(ious.len(), 4, "{text}");
+    assert!(ious.iter().all(|v| *v > 0.85), "{text}");
+    let rows: Vec<Vec<f64>> = text
+        .lines()
+        .filter(|l| l.starts_with("| rot") || l.starts_with("| trans"))
+        .map(|l| {
+            l.split('|')
+                .skip(2)
+                .filter_map(|c| c.trim().parse().ok())
+                .collect()
+        })
+        .collect();
+    assert_eq!(rows.len(), 6, "{text}");
+    for r in &rows {
+        assert_eq!(r.len(), 5, "{text}");
+        assert!(r[0] > 0.0 && r[1] > 0.0, "sigmas must be positive: {text}");
+        assert!((r[2] - r[0] / r[1]).abs() < 0.01 + 0.01 * r[2], "{text}");
+    }
+    let from = text
+        .lines()
+        .find(|l| l.starts_with("from the reference:"))
+        .unwrap();
+    // "from the reference: R deg, T mm (camera centre C mm); …"
+    let mm: f64 = from
+        .split(", ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(mm < 20.0, "{from}");
+}
