@@ -1695,6 +1695,20 @@ fn output_cases() -> Vec<Case> {
             },
         ),
         import_into("import --force over its source", "src", "holds"),
+        case(
+            "import --force over a folder that is no run",
+            &[
+                "import", "easyhec", "src", "--force", "--out", "other", "--urdf", "URDF",
+            ],
+            &["--out", "no run.json"],
+            |d: &Path| std::fs::create_dir_all(d.join("other/keep")).unwrap(),
+        ),
+        case(
+            "synth --force over a folder that is no run",
+            &["synth", "--robot", "URDF", "--out", "other", "--force"],
+            &["--out", "no run.json"],
+            |d: &Path| std::fs::create_dir_all(d.join("other/keep")).unwrap(),
+        ),
         import_into("import --force over its source's parent", ".", "holds"),
         import_into(
             "import --force inside its source",

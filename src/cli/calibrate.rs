@@ -43,7 +43,8 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         config.calibration.renderer = r;
     }
     if let Some(p) = &a.out {
-        let reads = [a.config.clone(), config.robot.urdf.clone()];
+        let config_dir = a.config.parent().unwrap_or(Path::new("."));
+        let reads = [a.config.clone(), config_dir.join(&config.robot.urdf)];
         if let Some(problem) = easyhec::io::output_dir_problem(p, &reads) {
             anyhow::bail!("{}: --out: {problem}", p.display());
         }

@@ -128,6 +128,13 @@ fn check_out(a: &SynthArgs) -> anyhow::Result<bool> {
             a.out.display()
         );
     }
+    // --force replaces a run, never any other folder (a typo must not delete a home folder).
+    if non_empty && !a.out.join("run.json").is_file() {
+        bail!(
+            "{}: --out: holds no run.json, so it is no run to replace; allowed: a new or empty folder, or a run folder with --force",
+            a.out.display()
+        );
+    }
     Ok(non_empty)
 }
 

@@ -114,14 +114,18 @@ pub struct Ending {
     pub cancel_accepted: bool,
     /// The daemon is shutting down.
     pub shutting_down: bool,
+    /// The loop stopped on an arm fault (its result covers only the views before it).
+    pub faulted: bool,
 }
 
 /// A job's final state. An accepted cancel always wins, even when the loop finished its
 /// last round before it saw the flag: the client was promised a cancelled run, so it is
-/// never `succeeded` and never activated.
+/// never `succeeded` and never activated. A loop that stopped on an arm fault failed, though
+/// it wrote a result for the views before the fault.
 pub fn final_state(e: Ending) -> State {
     let cancelled = e.loop_cancelled || e.cancel_accepted;
-    match (e.shutting_down, cancelled, e.solved) {
+    let solved = e.solved && !e.faulted;
+    match (e.shutting_down, cancelled, solved) {
         (true, true, _) | (true, _, false) => State::Interrupted,
         (false, true, _) => State::Cancelled,
         (_, false, true) => State::Succeeded,
@@ -620,29 +624,41 @@ impl Daemon {
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build();
+        // A panic in the loop (a solver bug) must still end the job: lease given back, arm
+        // stopped below, record final, never a daemon that answers 409 until restarted.
         let outcome = match runtime {
-            Ok(rt) => rt.block_on(calibrate(&self.cell, &run_dir, &run_opts)),
+            Ok(rt) => std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                rt.block_on(calibrate(&self.cell, &run_dir, &run_opts))
+            }))
+            .unwrap_or_else(|_| {
+                Err(Error::Hardware(
+                    "the calibration loop panicked (a bug: please report it with the run folder)"
+                        .into(),
+                ))
+            }),
             Err(e) => Err(Error::Hardware(format!(
                 "cannot start the calibration runtime: {e}"
             ))),
         };
-        let shutting_down = self.shutting_down.load(Ordering::SeqCst);
-        // From here on a cancel is answered 409: the state below is final.
-        let cancel_accepted = {
+        // From here on a cancel is answered 409: the state below is final. The cancel flag is
+        // read before the shutdown flag, so a shutdown that sets it is seen as a shutdown.
+        let (cancel_accepted, shutting_down) = {
             let mut decided = lock(&job.decided);
             *decided = true;
-            job.cancel.load(Ordering::SeqCst)
+            let cancelled = job.cancel.load(Ordering::SeqCst);
+            (cancelled, self.shutting_down.load(Ordering::SeqCst))
         };
-        let ending = |solved: bool, loop_cancelled: bool| Ending {
+        let ending = |solved: bool, loop_cancelled: bool, faulted: bool| Ending {
             solved,
             loop_cancelled,
             cancel_accepted,
             shutting_down,
+            faulted,
         };
         match outcome {
             Ok(o) => {
                 let truth = self.truth_error(&o.result.camera_from_base());
-                let state = final_state(ending(true, o.cancelled));
+                let state = final_state(ending(true, o.cancelled, o.faulted));
                 // Activate before the record turns final: a client that sees "succeeded" may
                 // check against the active calibration at once (it got 409 in between).
                 if state == State::Succeeded && !opts.dry_run && self.settings.activate_on_success {
@@ -674,6 +690,11 @@ impl Daemon {
                         r.error = Some(
                             "the daemon shut down during this run; the arm was stopped".into(),
                         );
+                    } else if state == State::Failed {
+                        r.error = Some(format!(
+                            "the loop stopped on an arm fault: {}",
+                            o.result.stop_reason
+                        ));
                     }
                 });
                 tracing::info!(
@@ -691,7 +712,7 @@ impl Daemon {
                 {
                     let _ = rt.block_on(self.cell.arm.stop());
                 }
-                let state = final_state(ending(false, false));
+                let state = final_state(ending(false, false, false));
                 tracing::warn!("easyhec daemon: {id} {}: {e}", state.name());
                 self.finish(job, state, |r| r.error = Some(e.to_string()));
             }
@@ -1148,6 +1169,7 @@ mod tests {
             loop_cancelled,
             cancel_accepted,
             shutting_down,
+            faulted: false,
         })
     }
 
@@ -1163,6 +1185,15 @@ mod tests {
         assert_eq!(ending(true, true, true, true), State::Interrupted);
         assert_eq!(ending(false, false, false, true), State::Interrupted);
         assert_eq!(ending(true, false, false, true), State::Succeeded);
+        // An arm fault ends the loop with a result, which is still a failed run.
+        let faulted = Ending {
+            solved: true,
+            loop_cancelled: false,
+            cancel_accepted: false,
+            shutting_down: false,
+            faulted: true,
+        };
+        assert_eq!(final_state(faulted), State::Failed);
     }
 
     #[test]

@@ -94,6 +94,14 @@ fn check_target(out: &Path, source: &Path, force: bool) -> Result<()> {
     if out.exists() && !out.is_dir() {
         return Err(Error::input(out, "--out", "is not a folder"));
     }
+    // --force replaces a run, never any other folder (a typo must not delete a home folder).
+    if non_empty && !out.join("run.json").is_file() {
+        return Err(Error::input(
+            out,
+            "--out",
+            "holds no run.json, so it is no run to replace; allowed: a new or empty folder, or a run folder with --force",
+        ));
+    }
     Ok(())
 }
 

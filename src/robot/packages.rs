@@ -81,11 +81,12 @@ impl PackageIndex {
             installed_packages(prefix, &mut step);
         }
         index.add_first_wins(step);
+        // ROS 1 overlays: an earlier root shadows a later one, as roslib finds packages.
         let mut step = Vec::new();
         for root in &ros1 {
             source_packages(root, SOURCE_TREE_DEPTH, &mut step);
         }
-        index.add_step(step);
+        index.add_first_wins(step);
         let mut step = Vec::new();
         for root in &src.package_paths {
             source_packages(root, SOURCE_TREE_DEPTH, &mut step);
@@ -148,8 +149,15 @@ impl PackageIndex {
     /// The table the xacro tool's package lookups answer from (`ament_index_python` stand-in):
     /// `{"found": {name: dir}, "ambiguous": {name: message}, "looked_in": text}`.
     pub fn to_json(&self) -> serde_json::Value {
+        // JSON holds UTF-8 text: a package folder whose path is not UTF-8 cannot be handed to
+        // xacro, so it is left out (a $(find) of it then says where the search looked).
+        let found: BTreeMap<&str, &str> = self
+            .found
+            .iter()
+            .filter_map(|(name, dir)| Some((name.as_str(), dir.to_str()?)))
+            .collect();
         serde_json::json!({
-            "found": self.found,
+            "found": found,
             "ambiguous": self.ambiguous,
             "looked_in": self.looked_in,
         })
@@ -240,7 +248,17 @@ fn source_packages(dir: &Path, depth: usize, out: &mut Vec<(String, PathBuf)>) {
         }
         return;
     }
-    if depth == 0 {
+    // A workspace's build products hold copies of its packages; ignore markers mean "not a
+    // package tree", as colcon and catkin read them.
+    let skipped = ["COLCON_IGNORE", "CATKIN_IGNORE", "AMENT_IGNORE"]
+        .iter()
+        .any(|m| dir.join(m).exists())
+        || (depth < SOURCE_TREE_DEPTH
+            && matches!(
+                dir.file_name().and_then(|n| n.to_str()),
+                Some("build" | "install" | "log")
+            ));
+    if depth == 0 || skipped {
         return;
     }
     let Ok(entries) = std::fs::read_dir(dir) else {

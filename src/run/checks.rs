@@ -93,15 +93,16 @@ fn check_view_joints(joints: &[f64], expected: usize, i: usize, json: &Path) -> 
 /// field mix-up, and at 1e300 rad the sine and cosine of forward kinematics mean nothing.
 pub const JOINT_LIMIT_MARGIN: f64 = 0.2;
 
-/// Every view's joints within the URDF's limits (`limits`, in `robot.joints` order; a
-/// continuous joint's are ±2π) plus [`JOINT_LIMIT_MARGIN`].
+/// Every view's joints within the URDF's limits (`limits`, in `robot.joints` order; `None`
+/// for a continuous joint, which only has to be finite) plus [`JOINT_LIMIT_MARGIN`].
 pub(crate) fn check_joints_within_limits(
     file: &RunFile,
-    limits: &[(f64, f64)],
+    limits: &[Option<(f64, f64)>],
     json: &Path,
 ) -> Result<()> {
     for (i, v) in file.views.iter().enumerate() {
-        for (k, (q, (lo, hi))) in v.joints.iter().zip(limits).enumerate() {
+        for (k, (q, limit)) in v.joints.iter().zip(limits).enumerate() {
+            let Some((lo, hi)) = limit else { continue };
             let (lo, hi) = (lo - JOINT_LIMIT_MARGIN, hi + JOINT_LIMIT_MARGIN);
             if !(lo..=hi).contains(q) {
                 return Err(Error::input(

@@ -464,7 +464,14 @@ fn load_run_file(
             RobotModel::load(&source)?.seen_from_link(link, &json, "camera.mount.link")?
         }
     };
-    checks::check_joints_within_limits(&file, &robot.joint_limits(), &json)?;
+    // A continuous joint has no limit to hold it to: multi-turn encoders read past ±2π.
+    let limits: Vec<Option<(f64, f64)>> = robot
+        .actuated
+        .iter()
+        .map(|&i| &robot.joints[i])
+        .map(|j| (j.kind != crate::robot::JointKind::Continuous).then_some((j.lower, j.upper)))
+        .collect();
+    checks::check_joints_within_limits(&file, &limits, &json)?;
     let initial_guess = match &file.initial_guess {
         Some(g) => Some(
             from_rows(&g.camera_from_base)
