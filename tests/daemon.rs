@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 
 use daemon_common::{
     assert_refused, call, call_as, full_resolution, get_bytes, quarantined, raise_open_files,
-    read_events, real_time_arm, record, result_json, start, wait_final, wait_for, write_config,
-    write_index, write_result, POSE, TOKEN,
+    read_events, real_time_arm, record, refused_activation, result_json, start, wait_final,
+    wait_for, write_config, write_index, write_result, POSE, TOKEN,
 };
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -872,22 +872,6 @@ fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
         iou_b < iou - 0.05 && px_b > px + 0.5,
         "the knock should cost agreement: IoU {iou} -> {iou_b}, {px} -> {px_b} px"
     );
-}
-
-/// The error of a refused activation: 409, one line, naming the calibration and `field`.
-fn refused_activation(base: &str, id: &str, field: &str) -> String {
-    let (code, body) = call(
-        "POST",
-        &format!("{base}/api/v1/calibrations/{id}/activate"),
-        None,
-    );
-    assert_eq!(code, 409, "{id}: {body}");
-    let msg = body["error"].as_str().unwrap().to_string();
-    assert!(
-        msg.contains(id) && msg.contains(field) && !msg.contains('\n'),
-        "{id}: expected one line naming {field}: {msg}"
-    );
-    msg
 }
 
 /// Activation accepts only a succeeded, non-dry run whose own result.json, inside the data

@@ -310,17 +310,8 @@ fn activation_refuses_a_result_whose_views_are_not_its_runs() {
     let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
     v["views_used"].as_array_mut().unwrap().push(json!(99));
     std::fs::write(&result, serde_json::to_string_pretty(&v).unwrap()).unwrap();
-    let (code, body) = call(
-        "POST",
-        &format!("{base}/api/v1/calibrations/{id}/activate"),
-        None,
-    );
-    assert_eq!(code, 409, "{body}");
-    let msg = body["error"].as_str().unwrap();
-    assert!(
-        msg.contains(&id) && msg.contains("views_used") && msg.contains("99"),
-        "{msg}"
-    );
+    let msg = daemon_common::refused_activation(&base, &id, "views_used");
+    assert!(msg.contains("99"), "{msg}");
     let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(code, 404, "nothing became active");
 }

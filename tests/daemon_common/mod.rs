@@ -403,3 +403,19 @@ pub fn quarantined(data: &Path, prefix: &str) -> Vec<PathBuf> {
         .filter(|p| p.file_name().unwrap().to_string_lossy().starts_with(prefix))
         .collect()
 }
+
+/// The error of a refused activation: 409, one line, naming the calibration and `field`.
+pub fn refused_activation(base: &str, id: &str, field: &str) -> String {
+    let (code, body) = call(
+        "POST",
+        &format!("{base}/api/v1/calibrations/{id}/activate"),
+        None,
+    );
+    assert_eq!(code, 409, "{id}: {body}");
+    let msg = body["error"].as_str().unwrap().to_string();
+    assert!(
+        msg.contains(id) && msg.contains(field) && !msg.contains('\n'),
+        "{id}: expected one line naming {field}: {msg}"
+    );
+    msg
+}
