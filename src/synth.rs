@@ -33,7 +33,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{look_at_camera_from_base, to_rows};
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::mask_noise::apply_mask_noise;
+use crate::mask_noise::{apply_mask_noise_to_coverage, coverage_of_finer};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
 use crate::run::{
@@ -142,6 +142,31 @@ pub fn perturb(
         nalgebra::Translation3::from(pose.translation.vector + dir * dist),
         UnitQuaternion::from_scaled_axis(axis * angle) * pose.rotation,
     )
+}
+
+/// Supersampling of [`sub_pixel_coverage`] per image axis.
+const COVERAGE_SUPERSAMPLING: u32 = 4;
+
+/// The robot's sub-pixel coverage of each pixel, from a render 4x finer per axis: what a
+/// blurring segmenter sees before it thresholds.
+fn sub_pixel_coverage(
+    renderer: &CpuRenderer,
+    posed: &PosedRobot,
+    pinhole: &Intrinsics,
+    camera_from_base: &Isometry3<f64>,
+) -> Vec<f32> {
+    let f = COVERAGE_SUPERSAMPLING;
+    let finer = Intrinsics {
+        width: pinhole.width * f,
+        height: pinhole.height * f,
+        fx: pinhole.fx * f64::from(f),
+        fy: pinhole.fy * f64::from(f),
+        cx: (pinhole.cx + 0.5) * f64::from(f) - 0.5,
+        cy: (pinhole.cy + 0.5) * f64::from(f) - 0.5,
+        distortion: pinhole.distortion,
+    };
+    let fine = renderer.render(posed, &finer, camera_from_base, None);
+    coverage_of_finer(&fine.mask, f, pinhole.width, pinhole.height)
 }
 
 fn random_unit(rng: &mut impl Rng) -> Vector3<f64> {
@@ -262,7 +287,10 @@ pub fn generate(robot: &RobotModel, opts: &SynthOptions) -> Result<Scene> {
             if sil.mask.count() < (opts.width * opts.height / 100) as usize {
                 continue;
             }
-            let noisy = apply_mask_noise(&mut rng, &sil.mask, &opts.noise);
+            let coverage = (opts.noise.blur_px > 0.0)
+                .then(|| sub_pixel_coverage(&renderer, &posed, &pinhole, &truth));
+            let noisy =
+                apply_mask_noise_to_coverage(&mut rng, &sil.mask, coverage.as_deref(), &opts.noise);
             masks.push(camera.distort_mask(&noisy));
             true_joints.push(q);
         }

@@ -1,6 +1,7 @@
 //! `easyhec bench real` on four views of the shared real xArm7 set (read from ../shared, never
-//! copied): the pose lands near the RGB-D reference, and the table compares the reported 1σ
-//! with a view-level jackknife on every axis.
+//! copied): the pose lands near the RGB-D reference, and the reported 1σ holds what the views'
+//! disagreement shows: at least 0.7 of a view-level jackknife's on every axis (the
+//! statistical covariance alone is 20–50 times smaller there), with the reference near.
 
 mod common;
 
@@ -44,6 +45,17 @@ fn bench_real_compares_the_reported_sigma_with_the_views_jackknife() {
         assert_eq!(r.len(), 5, "{text}");
         assert!(r[0] > 0.0 && r[1] > 0.0, "sigmas must be positive: {text}");
         assert!((r[2] - r[0] / r[1]).abs() < 0.01 + 0.01 * r[2], "{text}");
+        assert!(
+            r[2] >= 0.7,
+            "reported sigma below 0.7 of the jackknife's: {text}"
+        );
+        // The reference is another method's estimate, not the truth; on four views it lies
+        // up to 3.0 reported sigmas away on one axis.
+        assert!(
+            r[3] <= 3.5,
+            "reference {} reported sigmas away: {text}",
+            r[3]
+        );
     }
     let from = text
         .lines()

@@ -293,6 +293,20 @@ fn web_page_calibrates_with_one_click_and_shows_the_result() {
             "return document.getElementById('unc-centre').textContent",
         );
         assert!(centre.as_str().unwrap().starts_with("within "), "{centre}");
+        // Which term sets the figures, with the statistical term's own bound beside it.
+        let dominant = js(
+            &session,
+            "return document.getElementById('unc-dominant').textContent",
+        );
+        let dominant = dominant.as_str().unwrap();
+        assert!(
+            ["statistical (", "inter-view (", "model floor ("]
+                .iter()
+                .any(|t| dominant.starts_with(t))
+                && dominant.contains("statistical ")
+                && dominant.ends_with(" mm)"),
+            "{dominant}"
+        );
         let matrix = js(
             &session,
             "return document.getElementById('matrix').textContent",

@@ -330,7 +330,14 @@ fn help_lists_every_choice_flags_values() {
             &["explore", "random", "information", "variance"],
         ),
         (&["bench", "segment"], &["easy", "hard"]),
-        (&["bench", "coverage"], &["standard", "segmenter", "none"]),
+        (
+            &["bench", "coverage"],
+            &["standard", "segmenter", "blurred", "none"],
+        ),
+        (
+            &["bench", "accuracy"],
+            &["standard", "segmenter", "blurred", "none"],
+        ),
     ];
     for (command, values) in expected {
         let text = help(command);

@@ -13,12 +13,13 @@ use easyhec::geometry::camera_centre_error_mm;
 use easyhec::mask::Mask;
 use easyhec::mask_noise::apply_mask_noise;
 use easyhec::render::CpuRenderer;
-use easyhec::solve::{solve, SolveOptions};
+use easyhec::solve::{solve, with_view_disagreement, SolveOptions};
 use easyhec::synth::SynthOptions;
 use rand::SeedableRng;
 
 /// Per-axis |error| / reported sigma (rotation x y z, translation x y z), and whether the
-/// centre lies within its 95% bound, for a 3-view solve of scene `seed`.
+/// centre lies within its 95% bound, for a 3-view solve of scene `seed` with its view
+/// jackknife, as a result reports it.
 fn solve_scene(
     robot: &easyhec::robot::RobotModel,
     seed: u64,
@@ -30,6 +31,7 @@ fn solve_scene(
     };
     let (scene, views, init) = seeded_scene(robot, seed, 3, &synth).unwrap();
     let report = solve(&CpuRenderer, &scene.camera, &views, &init, opts).unwrap();
+    let report = with_view_disagreement(&CpuRenderer, &scene.camera, &views, report, opts);
     let (est, truth) = (report.camera_from_base, scene.camera_from_base);
     let inside = camera_centre_error_mm(&est, &truth) <= report.uncertainty.camera_centre_95_mm;
     (errors_in_sigmas(&est, &truth, &report.uncertainty), inside)
@@ -142,6 +144,62 @@ fn segmenter_noise_moves_the_outline_smoothly_by_about_half_a_pixel() {
     );
 }
 
+/// Views that disagree beyond what their outlines' noise explains (here, two of five views
+/// recorded with the shoulder joint 0.5° off, one each way, as a kinematic error would) widen the reported
+/// covariance through the view jackknife, and the result says the inter-view term dominates;
+/// views that agree keep the statistical covariance.
+#[test]
+fn views_that_disagree_widen_the_reported_uncertainty() {
+    let robot = common::load_robot("xarm6");
+    let synth = SynthOptions {
+        noise: NoiseModel::segmenter(),
+        ..Default::default()
+    };
+    let (scene, views, init) = seeded_scene(&robot, 4, 5, &synth).unwrap();
+    let opts = SolveOptions::default();
+    let reported = |views: &[easyhec::solve::View]| {
+        let report = solve(&CpuRenderer, &scene.camera, views, &init, &opts).unwrap();
+        with_view_disagreement(&CpuRenderer, &scene.camera, views, report, &opts)
+    };
+    let agreeing = reported(&views);
+    assert_eq!(
+        agreeing.dominant_term(&opts),
+        easyhec::solve::DominantTerm::Statistical
+    );
+    let (statistical, _) = agreeing.term_bounds_mm();
+    assert!(
+        agreeing.uncertainty.camera_centre_95_mm < 1.5 * statistical,
+        "agreeing views: bound {:.3} mm, statistical {statistical:.3} mm",
+        agreeing.uncertainty.camera_centre_95_mm
+    );
+    let mut skewed = views.clone();
+    for ((view, joints), sign) in skewed
+        .iter_mut()
+        .zip(&scene.recorded_joints)
+        .zip([1.0, -1.0])
+    {
+        let mut q = joints.clone();
+        q[1] += sign * 0.5f64.to_radians();
+        view.robot = easyhec::render::PosedRobot::new(&robot, &q);
+    }
+    let disagreeing = reported(&skewed);
+    let (statistical, inter_view) = disagreeing.term_bounds_mm();
+    let bound = disagreeing.uncertainty.camera_centre_95_mm;
+    assert!(
+        bound > 2.0 * statistical && inter_view.is_some(),
+        "disagreeing views: bound {bound:.3} mm, statistical {statistical:.3} mm, inter-view {inter_view:?}"
+    );
+    assert_eq!(
+        disagreeing.dominant_term(&opts),
+        easyhec::solve::DominantTerm::InterView
+    );
+    let error = camera_centre_error_mm(&disagreeing.camera_from_base, &scene.camera_from_base);
+    assert!(
+        error <= bound,
+        "centre {error:.3} mm off, bound {bound:.3} mm (statistical {statistical:.3} mm)"
+    );
+}
+
 #[test]
 fn noise_presets_are_named_in_configs() {
     #[derive(serde::Deserialize)]
@@ -150,6 +208,8 @@ fn noise_presets_are_named_in_configs() {
     }
     let named: Holder = toml::from_str("noise = \"segmenter\"").unwrap();
     assert_eq!(named.noise, NoiseModel::segmenter());
+    let blurred: Holder = toml::from_str("noise = \"blurred\"").unwrap();
+    assert_eq!(blurred.noise.blur_px, 0.9);
     let table: Holder = toml::from_str(
         "noise = { boundary_jitter_px = 0.5, blob_probability = 0.3, joint_noise_rad = 0.0 }",
     )

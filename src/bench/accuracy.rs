@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::{median, seeded_scene, Report};
+use crate::config::NoiseModel;
 use crate::error::Result;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 use crate::render::CpuRenderer;
@@ -108,6 +109,9 @@ pub struct AccuracyBench {
     /// Optimisers to run.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "lm")]
     pub optimizers: Vec<Optimizer>,
+    /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
+    #[arg(long, default_value = "standard", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
+    pub noise: String,
 }
 
 impl AccuracyBench {
@@ -119,24 +123,23 @@ impl AccuracyBench {
             scenes,
             views,
             optimizers,
+            noise,
         } = self.clone();
+        let synth = SynthOptions {
+            noise: NoiseModel::preset(&noise)
+                .ok_or_else(|| crate::Error::Usage(format!("--noise {noise}: no such preset")))?,
+            ..SynthOptions::default()
+        };
         let model = RobotModel::from_urdf(robot)?;
         let seeds: Vec<u64> = (0..scenes).collect();
         for optimizer in optimizers {
             let name = super::value_name(&optimizer);
-            let trials = accuracy(
-                &model,
-                &seeds,
-                &views,
-                optimizer,
-                &SynthOptions::default(),
-                |t| {
-                    log(&format!(
+            let trials = accuracy(&model, &seeds, &views, optimizer, &synth, |t| {
+                log(&format!(
                     "{name} seed {} views {}: {:.4} deg {:.3} mm (1-sigma {:.4} deg {:.3} mm) {:.2} s",
                     t.seed, t.views, t.rotation_deg, t.translation_mm, t.sigma_rotation_deg, t.sigma_translation_mm, t.seconds
                 ))
-                },
-            )?;
+            })?;
             report.line(summarize(&name, &trials, &views));
         }
         Ok(report)

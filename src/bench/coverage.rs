@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{camera_centre_error_mm, log_se3, rotation_error_deg, translation_error_mm};
 use crate::render::CpuRenderer;
 use crate::robot::RobotModel;
-use crate::solve::{solve, SolveOptions, Uncertainty};
+use crate::solve::{solve, with_view_disagreement, SolveOptions, Uncertainty};
 use crate::synth::SynthOptions;
 
 /// One solve's errors against what it reported.
@@ -49,7 +49,7 @@ pub struct CoverageBench {
     #[arg(long, value_delimiter = ',', default_value = "1,3,5")]
     pub views: Vec<usize>,
     /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
-    #[arg(long, default_value = "segmenter", value_parser = ["standard", "segmenter", "none"])]
+    #[arg(long, default_value = "segmenter", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
     pub noise: String,
 }
 
@@ -58,8 +58,9 @@ impl CoverageBench {
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
         let noise = NoiseModel::preset(&self.noise).ok_or_else(|| {
             Error::Usage(format!(
-                "--noise {}: allowed: standard, segmenter, none",
-                self.noise
+                "--noise {}: allowed: {}",
+                self.noise,
+                NoiseModel::PRESETS.join(", ")
             ))
         })?;
         if self.views.iter().any(|&k| !(1..=20).contains(&k)) {
@@ -100,13 +101,9 @@ fn coverage_of_scene(
     let truth = scene.camera_from_base;
     let mut trials = Vec::new();
     for &k in view_counts {
-        let rep = solve(
-            &CpuRenderer,
-            &scene.camera,
-            &views[..k],
-            &init,
-            &SolveOptions::default(),
-        )?;
+        let opts = SolveOptions::default();
+        let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, &opts)?;
+        let rep = with_view_disagreement(&CpuRenderer, &scene.camera, &views[..k], rep, &opts);
         let est = rep.camera_from_base;
         trials.push(CoverageTrial {
             seed,

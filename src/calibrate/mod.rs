@@ -135,8 +135,9 @@ pub enum Progress {
         mean_iou: f64,
         /// The estimate, row-major 4x4.
         camera_from_base: [[f64; 4]; 4],
-        /// 1-sigma uncertainty of the estimate, when the fit gives one.
-        uncertainty: Option<UncertaintyEntry>,
+        /// 1-sigma uncertainty of the estimate, when the fit gives one (boxed: it is most of
+        /// the event's size).
+        uncertainty: Option<Box<UncertaintyEntry>>,
     },
     /// Planning for the next view finished: the candidates' disagreement at the best pose.
     Planned {

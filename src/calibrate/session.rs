@@ -27,7 +27,10 @@ use crate::render::PosedRobot;
 use crate::run::rig::{CameraResult, JointCorrections, RigResultFile, RIG_RESULT_FORMAT};
 use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
 use crate::safety::CheckedMove;
-use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
+use crate::solve::{
+    solve, solve_with_shared_joints, with_view_disagreement, CameraSolve, SolveOptions,
+    SolveReport, View,
+};
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
 /// starting pose (a fixed camera: below [`POOR_FIT_IOU`]). A fixed camera sees the whole arm,
@@ -390,22 +393,23 @@ impl<'a> Session<'a> {
     /// the camera centre within `stop_centre_95_mm`, for every camera. The bound is
     /// calibrated to cover the true error (docs/uncertainty.md), so stopping on it keeps the
     /// promise.
-    fn precise_enough(&self) -> Option<String> {
+    ///
+    /// The statistical bound is checked first; only when it passes does each camera's view
+    /// jackknife run (it costs about a solve), and the widened bound must pass too.
+    fn precise_enough(&mut self) -> Option<String> {
         let target = self.settings.stop_centre_95_mm?;
-        let mut worst: f64 = 0.0;
-        for t in &self.tracks {
-            let report = t.report.as_ref()?;
-            let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
-            if !fits || self.views() < self.settings.min_views {
-                return None;
-            }
-            let bound = report.uncertainty.camera_centre_95_mm;
-            // A NaN bound promises nothing: it never stops the loop.
-            if bound.is_nan() || bound > target {
-                return None;
-            }
-            worst = worst.max(bound);
+        if !self.bounds_within(target) {
+            return None;
         }
+        self.measure_view_disagreement();
+        if !self.bounds_within(target) {
+            return None;
+        }
+        let worst = self
+            .tracks
+            .iter()
+            .map(|t| t.report().uncertainty.camera_centre_95_mm)
+            .fold(0.0, f64::max);
         let which = if self.is_rig() {
             " for every camera"
         } else {
@@ -415,6 +419,35 @@ impl<'a> Session<'a> {
             "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
             self.views()
         ))
+    }
+
+    /// Enough views, every one fitting, and every camera's 95% centre bound within `target`.
+    fn bounds_within(&self, target: f64) -> bool {
+        self.views() >= self.settings.min_views
+            && self.tracks.iter().all(|t| {
+                t.report.as_ref().is_some_and(|report| {
+                    let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
+                    let bound = report.uncertainty.camera_centre_95_mm;
+                    // A NaN bound promises nothing: it never stops the loop.
+                    fits && !bound.is_nan() && bound <= target
+                })
+            })
+    }
+
+    /// Widens every camera's covariance by what its views' disagreement shows (once per
+    /// solve: a report that has it keeps it).
+    fn measure_view_disagreement(&mut self) {
+        let started = Instant::now();
+        let renderer = self.renderer.as_ref();
+        let opts = &self.solve_opts;
+        self.tracks.par_iter_mut().for_each(|t| {
+            if let Some(report) = t.report.take() {
+                t.report = Some(with_view_disagreement(
+                    renderer, &t.camera, &t.views, report, opts,
+                ));
+            }
+        });
+        self.solve_s += started.elapsed().as_secs_f64();
     }
 
     /// The variance rule of a single camera: the best disagreement settled, enough views,
@@ -860,6 +893,10 @@ impl<'a> Session<'a> {
         if !self.opts.dry_run && !self.cancelled {
             self.resegment_final()?;
             self.correct_shared_joints();
+            self.measure_view_disagreement();
+            // rounds.json ends on the figures result.json reports.
+            let cameras = self.camera_rounds();
+            self.last_round().cameras = cameras;
         }
         self.rec.write_rounds(&self.rounds)?;
         if !self.opts.dry_run && !self.cancelled {
@@ -885,7 +922,8 @@ impl<'a> Session<'a> {
             .map(|t| {
                 let report = t.report.take().expect("round 0 solved");
                 let reason = t.done.clone().unwrap_or_else(|| stop_reason.clone());
-                let result = camera_result(&report, t.unit.seen, reason, &timings_s);
+                let result =
+                    camera_result(&report, t.unit.seen, reason, &timings_s, &self.solve_opts);
                 CameraOutcome {
                     name: t.unit.name.to_string(),
                     result,
@@ -932,6 +970,7 @@ fn camera_result(
     seen: &crate::robot::RobotModel,
     stop_reason: String,
     timings_s: &std::collections::BTreeMap<String, f64>,
+    opts: &SolveOptions,
 ) -> ResultFile {
     let mut result = ResultFile::new(&report.camera_from_base, &seen.links[seen.base]);
     result.views_used = (0..report.per_view_iou.len()).collect();
@@ -941,7 +980,7 @@ fn camera_result(
         .enumerate()
         .map(|(i, &iou)| PerView { view: i, iou })
         .collect();
-    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
+    result.uncertainty = UncertaintyEntry::of_report(report, opts);
     result.stop_reason = stop_reason;
     result.timings_s = timings_s.clone();
     result
@@ -1124,7 +1163,7 @@ fn emit_round(opts: &RunOptions, rounds: &[RoundRecord], report: &SolveReport) {
             loss: r.loss,
             mean_iou: r.mean_iou,
             camera_from_base: r.camera_from_base,
-            uncertainty: UncertaintyEntry::of(&report.uncertainty),
+            uncertainty: UncertaintyEntry::of(&report.uncertainty).map(Box::new),
         });
     }
 }

@@ -42,6 +42,8 @@ pub mod bounds {
     /// Correlation length of the simulated boundary displacement, pixels (the smoothing
     /// kernel spans six times this, so it stays a small fraction of any image).
     pub const BOUNDARY_CORRELATION_PX: f64 = 32.0;
+    /// Blur of a synthetic segmenter's coverage, pixels (its kernel spans six of them).
+    pub const MASK_BLUR_PX: f64 = 8.0;
     /// Safety clearance, metres.
     pub const MARGIN_M: f64 = 0.5;
     /// Obstacle and workspace sizes, metres.
@@ -265,6 +267,13 @@ fn check_noise(c: &Check, field: &str, n: &NoiseModel) -> Result<()> {
         n.boundary_correlation_px,
         0.0,
         bounds::BOUNDARY_CORRELATION_PX,
+        false,
+    )?;
+    c.within(
+        &format!("{field}.blur_px"),
+        n.blur_px,
+        0.0,
+        bounds::MASK_BLUR_PX,
         false,
     )?;
     c.within(

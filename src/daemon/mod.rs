@@ -741,7 +741,7 @@ impl Daemon {
                 r.loss = Some(*loss);
                 r.mean_iou = Some(*mean_iou);
                 r.camera_from_base = Some(*camera_from_base);
-                r.uncertainty = uncertainty.clone();
+                r.uncertainty = uncertainty.as_deref().cloned();
                 r.phase = Some("planning".into());
             }),
             Progress::Planned { best_variance, .. } => self.update(job, "planned", None, |r| {

@@ -24,7 +24,8 @@ use crate::run::{
     load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
 use crate::solve::{
-    solve_with_shared_joints, CameraSolve, Optimizer, SolveOptions, SolveReport, View,
+    solve_with_shared_joints, with_view_disagreement, CameraSolve, Optimizer, SolveOptions,
+    SolveReport, View,
 };
 
 /// What to solve and how (`easyhec solve`'s flags).
@@ -401,6 +402,7 @@ fn fit_loaded(
     if !req.allow_poor_fit {
         judge_fit(&order, &report, k)?;
     }
+
     Ok(Fitted {
         run,
         pool,
@@ -427,6 +429,11 @@ fn finish_fit(
         stop_reason,
         mut timings,
     } = fitted;
+    // The reported covariance also holds what the views' disagreement shows.
+    let t = Instant::now();
+    let used: Vec<View> = order.iter().map(|&i| pool[i].clone()).collect();
+    let report = with_view_disagreement(renderer, &run.camera, &used, report, &solve_options(req));
+    timings.solve_s += t.elapsed().as_secs_f64();
     if let Some(dir) = overlays {
         write_overlays(renderer, &run, &pool, &order, &report, dir)?;
     }
@@ -528,7 +535,7 @@ fn result_file(
         .zip(&report.per_view_iou)
         .map(|(&v, &iou)| PerView { view: v, iou })
         .collect();
-    result.uncertainty = UncertaintyEntry::of(&report.uncertainty);
+    result.uncertainty = UncertaintyEntry::of_report(report, &solve_options(req));
     result.stop_reason = match req.optimizer {
         Optimizer::Lm => stop_reason,
         Optimizer::Adam => format!(

@@ -608,6 +608,24 @@ pub struct UncertaintyEntry {
     /// summarise, for tools that propagate it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance: Option<Box<[[f64; 6]; 6]>>,
+    /// What the figures are made of (absent in results written before the terms were split).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub terms: Option<Box<UncertaintyTerms>>,
+}
+
+/// `uncertainty.terms`: the parts of the reported covariance, each as the 95% camera-centre
+/// bound it would give on its own.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct UncertaintyTerms {
+    /// The term that sets the figures: `statistical` (the outline residuals' own scatter),
+    /// `inter-view` (the views' disagreement, from a view jackknife) or `model floor`.
+    pub dominant: String,
+    /// The statistical term's bound, millimetres.
+    pub statistical_centre_95_mm: f64,
+    /// The inter-view term's bound, millimetres; absent when it was not measured (fewer
+    /// than three views).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inter_view_centre_95_mm: Option<f64>,
 }
 
 impl UncertaintyEntry {
@@ -627,7 +645,26 @@ impl UncertaintyEntry {
                 translation_mm: u.translation_mm,
                 camera_centre_95_mm: Some(u.camera_centre_95_mm),
                 covariance: Some(Box::new(covariance)),
+                terms: None,
             })
+    }
+
+    /// [`UncertaintyEntry::of`] the report's uncertainty, with the terms it is made of.
+    pub fn of_report(
+        report: &crate::solve::SolveReport,
+        opts: &crate::solve::SolveOptions,
+    ) -> Option<UncertaintyEntry> {
+        let (statistical, inter_view) = report.term_bounds_mm();
+        let mut entry = UncertaintyEntry::of(&report.uncertainty)?;
+        let finite = statistical.is_finite() && inter_view.is_none_or(f64::is_finite);
+        entry.terms = finite.then(|| {
+            Box::new(UncertaintyTerms {
+                dominant: report.dominant_term(opts).name().into(),
+                statistical_centre_95_mm: statistical,
+                inter_view_centre_95_mm: inter_view,
+            })
+        });
+        Some(entry)
     }
 
     /// The first value that no solve could have written, as `(field path, problem)`: every

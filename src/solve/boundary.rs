@@ -1,6 +1,8 @@
 //! The boundary residual model LM minimises: per pyramid level, rendered outline samples are
 //! matched to the observed mask's outline (both ways) and summed into normal equations.
 
+use std::sync::Arc;
+
 use nalgebra::{Isometry3, Matrix6};
 use rayon::prelude::*;
 
@@ -15,7 +17,8 @@ pub(super) struct Level {
     pub(super) camera: Intrinsics,
     /// Cauchy scale at this level, pixels.
     pub(super) robust_scale_px: f64,
-    pub(super) views: Vec<ObservedLevel>,
+    /// Shared, so a level over a subset of the views costs no copy (the view jackknife).
+    pub(super) views: Vec<Arc<ObservedLevel>>,
 }
 
 /// How far along a pixel row/column the observed transition is searched, pixels.
@@ -77,8 +80,17 @@ impl Level {
             robust_scale_px,
             views: views
                 .par_iter()
-                .map(|v| ObservedLevel::new(&v.observed, factor))
+                .map(|v| Arc::new(ObservedLevel::new(&v.observed, factor)))
                 .collect(),
+        }
+    }
+
+    /// The same level over the views at `kept` only.
+    pub(super) fn keeping(&self, kept: &[usize]) -> Level {
+        Level {
+            camera: self.camera.clone(),
+            robust_scale_px: self.robust_scale_px,
+            views: kept.iter().map(|&i| self.views[i].clone()).collect(),
         }
     }
 }
@@ -257,23 +269,26 @@ pub(super) fn accumulate_keeping(
     pose: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> (Normal, Vec<Silhouette>) {
-    let c = level.robust_scale_px;
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
     let normal = silhouettes
         .par_iter()
         .zip(&level.views)
-        .map(|(sil, obs)| {
-            let mut n = Normal::zero();
-            view_residuals(sil, obs, &level.camera, |res| match res.r {
-                Some(r) => n.add(r, &res.j, res.ds, c),
-                None => n.add_outlier(res.cap, res.ds, c),
-            });
-            n
-        })
+        .map(|(sil, obs)| view_normal(sil, obs, level))
         .reduce(Normal::zero, Normal::merge);
     (normal, silhouettes)
+}
+
+/// One view's Cauchy-weighted normal equations.
+fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level) -> Normal {
+    let c = level.robust_scale_px;
+    let mut n = Normal::zero();
+    view_residuals(sil, obs, &level.camera, |res| match res.r {
+        Some(r) => n.add(r, &res.j, res.ds, c),
+        None => n.add_outlier(res.cap, res.ds, c),
+    });
+    n
 }
 
 /// One outline residual of a view: where it sits, what it is and how it moves with the pose.

@@ -12,8 +12,9 @@
 //! - **A model-error floor** for what no residual shows: mesh and kinematic deviations of the
 //!   real robot from its URDF and intrinsics error. It is added per axis of the increment.
 //!
-//! Disagreement between views needs no term of its own: it shows as residual pulls, which the
-//! sandwich counts.
+//! Disagreement between views shows only partly as residual pulls: on real frames most of a
+//! view's systematic error sits past the tight Cauchy scale, where it barely pulls. The view
+//! jackknife (module `disagreement`) measures it and adds what it shows beyond this covariance.
 
 use std::collections::HashMap;
 
@@ -69,8 +70,7 @@ pub(super) fn pose_covariance(
     // then stands in: tighter, but a finite answer where the slope has none.
     let h_weight: Matrix6<f64> = parts.iter().map(|p| p.h_weight).sum();
     let h_inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
-    let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
-    Some(h_inv * meat * h_inv + floor)
+    Some(h_inv * meat * h_inv)
 }
 
 /// The model-error floor's covariance of the left increment `(rho, phi)`: `translation_mm`

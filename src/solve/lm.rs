@@ -19,18 +19,13 @@ pub(super) fn solve_lm(
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Result<(Isometry3<f64>, usize, Vec<Isometry3<f64>>)> {
-    let debug = tracing::enabled!(tracing::Level::DEBUG);
-    let mut pose = *initial;
-    let mut iterations = 0;
-    let mut trajectory = vec![pose];
+    let mut walk = Walk {
+        pose: *initial,
+        iterations: 0,
+        trajectory: vec![*initial],
+    };
     for &factor in &opts.pyramid {
-        let started = std::time::Instant::now();
-        let scale = if factor == 1 {
-            opts.fine_robust_scale_px
-        } else {
-            opts.robust_scale_px
-        };
-        let level = Level::new(camera, views, factor, scale);
+        let level = Level::new(camera, views, factor, robust_scale_at(factor, opts));
         // Coarse levels see the robot through big pixels: a mesh clustered to a fraction of a
         // pixel renders the same silhouette at a fraction of the cost.
         let cell_m = opts.coarse_cell_fraction * f64::from(factor) / camera.fx.max(camera.fy);
@@ -47,8 +42,56 @@ pub(super) fn solve_lm(
         } else {
             decimated.iter().collect()
         };
-        let mut current = accumulate(renderer, &level_views, &level, &pose, opts);
-        iterations += 1;
+        let cap = iteration_cap(factor, views.len(), opts);
+        walk.level(renderer, &level, &level_views, factor, cap, opts)?;
+    }
+    Ok((walk.pose, walk.iterations, walk.trajectory))
+}
+
+/// The Cauchy scale at pyramid `factor`: wide at coarse levels, tight at full resolution.
+pub(super) fn robust_scale_at(factor: u32, opts: &SolveOptions) -> f64 {
+    if factor == 1 {
+        opts.fine_robust_scale_px
+    } else {
+        opts.robust_scale_px
+    }
+}
+
+/// LM iterations allowed at pyramid `factor` over `views` views.
+pub(super) fn iteration_cap(factor: u32, views: usize, opts: &SolveOptions) -> usize {
+    // Coarse levels only have to land in the next level's basin; at the finest, the
+    // posterior refinement ([`super::refine`]) finishes what LM's rough end-game would grind
+    // on. Fine levels get a render budget of ~40 view-renders (8 iterations at 5 views).
+    if factor >= 4 {
+        opts.max_iterations_per_level.min(10)
+    } else {
+        (40 / views.max(1))
+            .max(8)
+            .min(opts.max_iterations_per_level.max(1))
+    }
+}
+
+/// An LM descent through the pyramid: where it stands, the renders it took, its iterates.
+pub(super) struct Walk {
+    pub(super) pose: Isometry3<f64>,
+    pub(super) iterations: usize,
+    pub(super) trajectory: Vec<Isometry3<f64>>,
+}
+
+impl Walk {
+    /// At most `cap` LM iterations on `level`, whose observations belong to `robots`.
+    pub(super) fn level(
+        &mut self,
+        renderer: &dyn SilhouetteRenderer,
+        level: &Level,
+        robots: &[&PosedRobot],
+        factor: u32,
+        cap: usize,
+        opts: &SolveOptions,
+    ) -> Result<()> {
+        let started = std::time::Instant::now();
+        let mut current = accumulate(renderer, robots, level, &self.pose, opts);
+        self.iterations += 1;
         if current.length == 0.0 {
             return Err(Error::Solve(
                 "the robot is not visible from the initial guess in any view: check initial_guess.camera_from_base (direction and units)".into(),
@@ -58,17 +101,6 @@ pub(super) fn solve_lm(
         let mut level_iterations = 0;
         // Steps below ~1/100 pixel of the level are noise.
         let tolerance = 1e-5 * f64::from(factor);
-        // Coarse levels only have to land in the next level's basin; at the finest, the
-        // posterior refinement ([`refine`]) finishes what LM's rough end-game would grind on.
-        // Fine levels get a render budget of ~40 view-renders (8 iterations at 5 views).
-        let fine_cap = (40 / views.len().max(1))
-            .max(8)
-            .min(opts.max_iterations_per_level.max(1));
-        let cap = if factor >= 4 {
-            opts.max_iterations_per_level.min(10)
-        } else {
-            fine_cap
-        };
         for _ in 0..cap {
             let mut a = current.h;
             for k in 0..6 {
@@ -78,14 +110,14 @@ pub(super) fn solve_lm(
                 lambda *= 10.0;
                 continue;
             };
-            let candidate = exp_se3(&step) * pose;
-            let next = accumulate(renderer, &level_views, &level, &candidate, opts);
-            iterations += 1;
+            let candidate = exp_se3(&step) * self.pose;
+            let next = accumulate(renderer, robots, level, &candidate, opts);
+            self.iterations += 1;
             level_iterations += 1;
             if next.length > 0.0 && total_cost(&next) <= total_cost(&current) {
-                pose = candidate;
+                self.pose = candidate;
                 current = next;
-                trajectory.push(pose);
+                self.trajectory.push(self.pose);
                 lambda = (lambda / 3.0).max(1e-7);
                 let rot = step.fixed_rows::<3>(3).norm();
                 let trans = step.fixed_rows::<3>(0).norm();
@@ -99,14 +131,12 @@ pub(super) fn solve_lm(
                 }
             }
         }
-        if debug {
-            tracing::debug!(
-                "level {factor}: {level_iterations} iterations, {:.3} s, cost {:.1} over {:.0} px of outline",
-                started.elapsed().as_secs_f64(),
-                total_cost(&current),
-                current.length
-            );
-        }
+        tracing::debug!(
+            "level {factor}: {level_iterations} iterations, {:.3} s, cost {:.1} over {:.0} px of outline",
+            started.elapsed().as_secs_f64(),
+            total_cost(&current),
+            current.length
+        );
+        Ok(())
     }
-    Ok((pose, iterations, trajectory))
 }

@@ -11,9 +11,10 @@
 //!
 //! Layout: `boundary` holds the outline residuals and their normal equations, `lm` and `adam`
 //! the two optimisers, `search` the coarse global search a poor fit falls back to, `refine`
-//! the posterior refinement after LM, `covariance` the reported covariance (a sandwich built to
-//! cover the true error, docs/uncertainty.md), and `uncertainty` its summaries (1-sigma per
-//! axis, the 95% camera-centre bound).
+//! the posterior refinement after LM, `covariance` the outline residuals' covariance (a
+//! sandwich built to cover the true error, docs/uncertainty.md), `disagreement` the
+//! view-level jackknife that widens it to what the views' disagreement shows, and
+//! `uncertainty` its summaries (1-sigma per axis, the 95% camera-centre bound).
 
 use nalgebra::{Isometry3, Matrix6};
 use rayon::prelude::*;
@@ -28,6 +29,7 @@ use crate::render::{PosedRobot, SilhouetteRenderer};
 mod adam;
 mod boundary;
 mod covariance;
+mod disagreement;
 mod lm;
 mod refine;
 mod search;
@@ -35,6 +37,7 @@ mod shared_joints;
 mod uncertainty;
 
 pub use covariance::model_floor;
+pub use disagreement::{JACKKNIFE_MIN_VIEWS, MAX_GROUPS};
 pub use search::coarse_search;
 pub use shared_joints::{
     refine_with_joint_corrections, solve_with_shared_joints, CameraSolve, SharedCamera,
@@ -157,8 +160,13 @@ pub struct SolveReport {
     /// The estimate.
     pub camera_from_base: Isometry3<f64>,
     /// 6x6 covariance of the left increment `(rho, phi)` at the estimate: the reported one,
-    /// built to cover the true error (module `covariance`).
+    /// built to cover the true error: the statistical covariance, widened by what the views'
+    /// disagreement shows beyond it, plus the model floor.
     pub covariance: Matrix6<f64>,
+    /// The outline residuals' covariance alone (module `covariance`), without the floor.
+    pub statistical_covariance: Matrix6<f64>,
+    /// What the views' disagreement showed (module `disagreement`).
+    pub disagreement: Disagreement,
     /// The covariance the posterior refinement and exploration draw pose hypotheses from:
     /// the fit's curvature scaled by the outline noise. Their settings were tuned on it; it
     /// is no promise about the error.
@@ -176,6 +184,71 @@ pub struct SolveReport {
     pub iterations: usize,
     /// Accepted iterates, first to last (exploration's "trajectory" candidates).
     pub trajectory: Vec<Isometry3<f64>>,
+}
+
+/// The inter-view term of a report's covariance.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum Disagreement {
+    /// Not measured: an intermediate solve, whose covariance is the statistical one.
+    #[default]
+    NotMeasured,
+    /// Too few views for a jackknife (fewer than [`JACKKNIFE_MIN_VIEWS`]), or a left-out
+    /// solve lost the robot: the covariance is the statistical one.
+    Unavailable,
+    /// Measured: what the view jackknife added to the statistical covariance (zero when the
+    /// views disagree no more than chance allows).
+    Measured(Box<Matrix6<f64>>),
+}
+
+/// Which term sets a reported covariance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DominantTerm {
+    /// The outline residuals' own scatter.
+    Statistical,
+    /// The views' disagreement.
+    InterView,
+    /// The configured model-error floor.
+    ModelFloor,
+}
+
+impl DominantTerm {
+    /// The name `result.json` and the page use.
+    pub fn name(self) -> &'static str {
+        match self {
+            DominantTerm::Statistical => "statistical",
+            DominantTerm::InterView => "inter-view",
+            DominantTerm::ModelFloor => "model floor",
+        }
+    }
+}
+
+/// Widens `report`'s covariance to cover what its views' disagreement shows (a view-level
+/// jackknife, module `disagreement`): what a reported result gets once, after its last
+/// solve. Intermediate solves skip it; it costs about as much as the solve itself.
+pub fn with_view_disagreement(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Intrinsics,
+    views: &[View],
+    mut report: SolveReport,
+    opts: &SolveOptions,
+) -> SolveReport {
+    if report.disagreement != Disagreement::NotMeasured || opts.optimizer == Optimizer::Adam {
+        return report;
+    }
+    let pose = report.camera_from_base;
+    let camera = camera.undistorted();
+    let Some((jackknife, dof)) =
+        disagreement::view_jackknife(renderer, &camera, views, &pose, opts)
+    else {
+        report.disagreement = Disagreement::Unavailable;
+        return report;
+    };
+    let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
+    let widened = disagreement::with_excess(&report.statistical_covariance, &jackknife, dof);
+    report.covariance = widened + floor;
+    report.uncertainty = uncertainty_of(&report.covariance, &pose);
+    report.disagreement = Disagreement::Measured(Box::new(widened - report.statistical_covariance));
+    report
 }
 
 /// Solves for `camera_from_base` from `views`, starting at `initial`.
@@ -232,6 +305,39 @@ impl SolveReport {
     pub fn mean_iou(&self) -> f64 {
         mean(&self.per_view_iou)
     }
+
+    /// The term whose 95% camera-centre bound is largest on its own.
+    pub fn dominant_term(&self, opts: &SolveOptions) -> DominantTerm {
+        let bound =
+            |c: &Matrix6<f64>| uncertainty_of(c, &self.camera_from_base).camera_centre_95_mm;
+        let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
+        let mut terms = vec![
+            (
+                DominantTerm::Statistical,
+                bound(&self.statistical_covariance),
+            ),
+            (DominantTerm::ModelFloor, bound(&floor)),
+        ];
+        if let Disagreement::Measured(c) = &self.disagreement {
+            terms.push((DominantTerm::InterView, bound(c)));
+        }
+        terms
+            .into_iter()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(DominantTerm::Statistical, |t| t.0)
+    }
+
+    /// The 95% camera-centre bound of the statistical term and of what the inter-view term
+    /// added (when measured) on their own, millimetres.
+    pub fn term_bounds_mm(&self) -> (f64, Option<f64>) {
+        let bound =
+            |c: &Matrix6<f64>| uncertainty_of(c, &self.camera_from_base).camera_centre_95_mm;
+        let views = match &self.disagreement {
+            Disagreement::Measured(c) => Some(bound(c)),
+            _ => None,
+        };
+        (bound(&self.statistical_covariance), views)
+    }
 }
 
 /// The report at `pose`: full-resolution normal equations give the covariance and outline
@@ -251,8 +357,11 @@ fn finish(
     let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
     let unpinned = || Matrix6::from_diagonal_element(f64::INFINITY);
-    let covariance = covariance::pose_covariance(&level, &silhouettes, &robots, &pose, opts)
-        .unwrap_or_else(unpinned);
+    let statistical_covariance =
+        covariance::pose_covariance(&level, &silhouettes, &robots, &pose, opts)
+            .unwrap_or_else(unpinned);
+    let covariance =
+        statistical_covariance + model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
     let sampling_covariance =
         n.h.try_inverse()
             .map_or_else(unpinned, |inv| inv * sigma2 * opts.correlation_length_px);
@@ -266,6 +375,8 @@ fn finish(
     Ok(SolveReport {
         camera_from_base: pose,
         covariance,
+        statistical_covariance,
+        disagreement: Disagreement::NotMeasured,
         sampling_covariance,
         uncertainty,
         outline_noise_px2: sigma2 * opts.correlation_length_px,

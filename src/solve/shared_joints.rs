@@ -184,6 +184,9 @@ pub fn solve_with_shared_joints(
                 let mut report =
                     super::solve(renderer, c.camera, &views, start, &resolve_opts).ok()?;
                 if let Some(left) = &refined.left_joint_covariance {
+                    // Statistical too: the inter-view term widens that one, and a joint offset
+                    // common to every view shows in no view's disagreement.
+                    report.statistical_covariance += left[k];
                     report.covariance += left[k];
                     report.uncertainty =
                         uncertainty_of(&report.covariance, &report.camera_from_base);

@@ -354,9 +354,20 @@ function showActive(a) {
     $("unc-trans").textContent = r.uncertainty.translation_mm.map((v) => v.toFixed(3)).join(", ") + " mm";
     const bound = r.uncertainty.camera_centre_95_mm;
     $("unc-centre").textContent = bound == null ? "—" : "within " + bound.toFixed(2) + " mm";
+    $("unc-dominant").textContent = termsText(r.uncertainty.terms);
   }
   $("views-used").textContent = r.views_used.join(", ");
   $("result-reason").textContent = r.stop_reason;
+}
+
+// Which term sets the uncertainty, with each term's own 95% centre bound.
+function termsText(t) {
+  if (!t) return "—";
+  const parts = ["statistical " + t.statistical_centre_95_mm.toFixed(2) + " mm"];
+  if (t.inter_view_centre_95_mm != null) {
+    parts.push("inter-view " + t.inter_view_centre_95_mm.toFixed(2) + " mm");
+  }
+  return t.dominant + " (" + parts.join(", ") + ")";
 }
 
 // A cell of several cameras: one row per camera with its active calibration and last check.
