@@ -71,7 +71,7 @@ fn panda_example_solves_to_the_same_pose_with_and_without_its_guess() {
     );
 }
 
-/// Issue 6 on real photographs: with the example's masks withheld, `--segmenter builtin`
+/// Images only, on real photographs: with the example's masks withheld, `--segmenter builtin`
 /// must draw masks at mean IoU ≥ 0.85 against the hand-annotated ones, and the calibration
 /// from the images alone must land within 0.5° / 5 mm of the calibration from those masks.
 /// Only two of the ten views' joints describe their images, so this passes only if the

@@ -1,4 +1,4 @@
-//! The simulated camera's harder frames (issue 6 item 3): each effect does what it claims,
+//! The simulated camera's harder frames: each effect does what it claims,
 //! frames are a function of (seed, frame index), and seeded hard cells come out of
 //! `synth::generate_frames` and into run directories with images.
 

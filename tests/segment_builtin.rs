@@ -1,4 +1,4 @@
-//! The `builtin` segmenter (issue 6 item 1) on hard simulated frames: mask IoU against the
+//! The `builtin` segmenter on hard simulated frames: mask IoU against the
 //! simulator's truth, and a calibration from the colour frames alone (no side-channel masks)
 //! through segment → solve → re-segment.
 
