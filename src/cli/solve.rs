@@ -8,7 +8,7 @@ use clap::{Args, ValueEnum};
 use easyhec::config::{RendererChoice, SegmenterConfig};
 use easyhec::explore::Selection;
 use easyhec::pipeline::offline::{is_rig_run, solve_rig_run, solve_run, OfflineSolve};
-use easyhec::solve::Optimizer;
+use easyhec::solve::{DominantTerm, Optimizer};
 
 #[derive(Args)]
 pub struct SolveArgs {
@@ -140,6 +140,19 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         report.uncertainty.camera_centre_95_mm,
         outcome.out.display()
     );
+    let dominant = outcome
+        .result
+        .uncertainty
+        .as_ref()
+        .and_then(|u| u.terms.as_ref())
+        .map(|t| t.dominant.as_str());
+    if dominant == Some(DominantTerm::InterView.name()) {
+        // On real frames this is the usual case: say so, or a user compares the bound with
+        // the simulator's figures.
+        outln!(
+            "the uncertainty is set by how far the views disagree (each view's outline pulls the pose its own way: mesh, joint or mask errors), not by outline noise"
+        );
+    }
     if let Some((path, rot, trans)) = &outcome.truth_error {
         outln!(
             "error vs {}: rotation {rot:.4} deg, translation {trans:.3} mm",
