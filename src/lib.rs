@@ -56,3 +56,45 @@ pub mod time;
 
 pub use error::{Error, Result};
 pub use nalgebra;
+
+/// The cargo features, each with whether this build has it, in `Cargo.toml`'s order: the one
+/// list of them in Rust. `easyhec --version` prints the ones built in, so a bug report says
+/// which drivers and renderers were there; `./test` reads the same list from `Cargo.toml`, and
+/// a unit test keeps the two equal.
+pub const FEATURES: &[(&str, bool)] = &[
+    ("sim", cfg!(feature = "sim")),
+    ("wgpu", cfg!(feature = "wgpu")),
+    ("ur", cfg!(feature = "ur")),
+    ("socketcan", cfg!(feature = "socketcan")),
+    ("v4l2", cfg!(feature = "v4l2")),
+    ("aravis", cfg!(feature = "aravis")),
+    ("onnx", cfg!(feature = "onnx")),
+    ("ros2", cfg!(feature = "ros2")),
+];
+
+#[cfg(test)]
+mod tests {
+    /// Every feature `Cargo.toml` declares (but `default`) is in [`super::FEATURES`] and
+    /// nothing else is: a new feature fails here until it is listed.
+    #[test]
+    fn features_are_cargo_tomls() {
+        let manifest: toml::Table = toml::from_str(include_str!(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/Cargo.toml"
+        )))
+        .unwrap();
+        let declared: Vec<&str> = manifest["features"]
+            .as_table()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .filter(|k| *k != "default")
+            .collect();
+        let listed: Vec<&str> = super::FEATURES.iter().map(|(name, _)| *name).collect();
+        let mut sorted = listed.clone();
+        sorted.sort_unstable();
+        let mut declared_sorted = declared.clone();
+        declared_sorted.sort_unstable();
+        assert_eq!(sorted, declared_sorted);
+    }
+}

@@ -10,7 +10,7 @@
 //! `active.json`, `runs/`, everything in it) is byte-identical to before the bad requests.
 //! All failures are collected and reported together, with the case names.
 
-mod daemon_common;
+mod common;
 
 use std::collections::BTreeMap;
 use std::io::{ErrorKind, Read, Write};
@@ -18,7 +18,7 @@ use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use daemon_common::{
+use common::daemon::{
     call, call_as, get_bytes, real_time_arm, record, result_json, start, wait_final, wait_for,
     write_config, write_index, write_result, POSE, TOKEN,
 };

@@ -4,6 +4,8 @@
 //! shipped template parses; without a camera's feature the cell says how to rebuild; with it,
 //! a camera that is not there is one line naming it, and Aravis's Fake camera builds a cell.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use easyhec::cell::Cell;
@@ -12,12 +14,8 @@ use easyhec::config::{read_config, CameraCalibration, CameraConfig};
 use easyhec_drivers::intrinsics::load_intrinsics;
 use easyhec_drivers::Intrinsics;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 fn fixture(name: &str) -> PathBuf {
-    root().join("tests/fixtures").join(name)
+    common::repo_root().join("tests/fixtures").join(name)
 }
 
 /// A cell on the shipped xArm6 URDF with a simulated arm and `camera` as its camera table.
@@ -35,7 +33,9 @@ start = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0]
 [segmenter]
 kind = "sim-truth"
 "#,
-        root().join("robots/xarm6/robot.urdf").display()
+        common::repo_root()
+            .join("robots/xarm6/robot.urdf")
+            .display()
     )
 }
 
@@ -74,7 +74,7 @@ fn ros_and_opencv_files_give_the_same_intrinsics() {
     assert_eq!(ros, expected());
     assert_eq!(opencv, expected());
     // Through the cell config, relative to the config's folder.
-    let config = root().join("tests/cell.toml");
+    let config = common::repo_root().join("tests/cell.toml");
     for name in ["webcam_ros.yaml", "webcam_opencv.yaml"] {
         let camera: CameraConfig = toml::from_str(
             &v4l2_table(640, 480, &Path::new("fixtures").join(name)).replace("[camera]\n", ""),
@@ -89,7 +89,7 @@ fn ros_and_opencv_files_give_the_same_intrinsics() {
             camera.calibration(&config).unwrap(),
             Some(CameraCalibration {
                 intrinsics: expected(),
-                file: root().join("tests/fixtures").join(name),
+                file: common::repo_root().join("tests/fixtures").join(name),
             })
         );
     }
@@ -228,7 +228,7 @@ fn aravis_cell_without_the_feature_says_how_to_rebuild_and_with_it_opens_the_fak
 
 #[test]
 fn shipped_camera_template_parses_with_either_table() {
-    let path = root().join("config/webcam-xarm6.toml.example");
+    let path = common::repo_root().join("config/webcam-xarm6.toml.example");
     let cfg = read_config(&path).unwrap();
     let CameraConfig::V4l2 {
         device,

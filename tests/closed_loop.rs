@@ -13,41 +13,12 @@ use easyhec::config::{read_config, ArmConfig, CellConfig, FaultConfig};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::run::load_run;
 
-fn config_path(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("config")
-        .join(name)
-}
-
 fn run(cell: &Cell, out: &Path, opts: &RunOptions) -> easyhec::Result<Outcome> {
     tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .unwrap()
         .block_on(calibrate(cell, out, opts))
-}
-
-/// Every command the simulated arm received was accepted by it and passes the checker from
-/// where the arm truly was; each executed path is also re-checked 20x finer than the
-/// checker's own sampling. Returns the number of commands.
-fn assert_every_command_safe(cell: &Cell) -> usize {
-    let sim = cell.sim.arm.as_ref().expect("simulated arm");
-    let commands = sim.commands();
-    let speed_cap = cell.checker.speed_cap_rad_s();
-    for (i, c) in commands.iter().enumerate() {
-        assert!(
-            c.accepted,
-            "command {i} was refused by the arm: {:?}",
-            c.outcome
-        );
-        assert!(
-            c.speed_rad_s <= speed_cap,
-            "command {i} speed {}",
-            c.speed_rad_s
-        );
-        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
-    }
-    commands.len()
 }
 
 /// Rotation (degrees) and translation (mm) of the loop's result against the simulated truth.
@@ -94,7 +65,7 @@ fn every_shipped_config_parses_and_builds() {
 /// The cell's model-error floor reaches the loop's reported uncertainty.
 #[test]
 fn the_loop_stops_once_the_centre_bound_meets_its_target() {
-    let path = config_path("sim-xarm6.toml");
+    let path = common::config_path("sim-xarm6.toml");
     let stop_with_floor = |target: Option<f64>, floor_mm: f64| {
         let mut cfg = quick(read_config(&path).unwrap(), 4);
         cfg.calibration.min_views = 2;
@@ -145,7 +116,7 @@ fn the_loop_stops_once_the_centre_bound_meets_its_target() {
 
 #[test]
 fn simulated_xarm6_calibration_reaches_the_truth_and_records_a_solvable_run() {
-    let path = config_path("sim-xarm6.toml");
+    let path = common::config_path("sim-xarm6.toml");
     let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
@@ -166,26 +137,26 @@ fn simulated_xarm6_calibration_reaches_the_truth_and_records_a_solvable_run() {
         assert!(out.join(v.image.as_ref().unwrap()).is_file());
     }
     assert_eq!(outcome.rounds.len(), views);
-    let moves = assert_every_command_safe(&cell);
+    let moves = common::assert_every_command_safe(&cell);
     assert_eq!(moves, views - 1, "one move per added view");
 }
 
 #[test]
 fn ur5e_and_panda_cells_calibrate() {
     for name in ["sim-ur5e.toml", "sim-panda.toml"] {
-        let path = config_path(name);
+        let path = common::config_path(name);
         let cell = Cell::build(quick(read_config(&path).unwrap(), 3), &path).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
         let (r, t) = truth_error(&cell, &outcome);
         assert!(r < 0.2 && t < 2.0, "{name}: error {r:.4} deg {t:.3} mm");
-        assert_every_command_safe(&cell);
+        common::assert_every_command_safe(&cell);
     }
 }
 
 #[test]
 fn obstacle_heavy_cell_never_commands_an_unsafe_move() {
-    let path = config_path("sim-xarm6.toml");
+    let path = common::config_path("sim-xarm6.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 4);
     let obstacles = [
         r#"kind = "box"
@@ -223,7 +194,7 @@ size = [2.0, 2.0, 0.02]"#,
     cell.checker.check_pose(&start).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let outcome = run(&cell, &dir.path().join("run"), &RunOptions::default()).unwrap();
-    let moves = assert_every_command_safe(&cell);
+    let moves = common::assert_every_command_safe(&cell);
     assert!(
         moves >= 2,
         "the cell still leaves room to calibrate: {}",
@@ -236,7 +207,7 @@ size = [2.0, 2.0, 0.02]"#,
 
 #[test]
 fn fault_injecting_arm_is_handled_and_stays_safe() {
-    let path = config_path("sim-xarm6.toml");
+    let path = common::config_path("sim-xarm6.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 4);
     let ArmConfig::Sim { faults, .. } = &mut cfg.arm else {
         panic!("a simulated arm")
@@ -318,7 +289,7 @@ fn assert_every_command_safe_accepted_only(cell: &Cell) {
 
 #[test]
 fn dry_run_plans_checked_poses_and_never_moves() {
-    let path = config_path("sim-xarm6.toml");
+    let path = common::config_path("sim-xarm6.toml");
     let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let outcome = run(
@@ -384,7 +355,7 @@ fn bad_cell_configs_get_one_line_errors_naming_the_key() {
 
 #[test]
 fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
-    let path = config_path("sim-panda.toml");
+    let path = common::config_path("sim-panda.toml");
     let cell = Cell::open(&path).unwrap();
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -469,7 +440,7 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
     use easyhec::config::SegmenterConfig;
     use easyhec::mask::Mask;
     use easyhec::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
-    let path = config_path("sim-xarm6-hard.toml");
+    let path = common::config_path("sim-xarm6-hard.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 5);
     cfg.calibration.min_views = 5;
     cfg.segmenter = SegmenterConfig::by_name("builtin").unwrap();
@@ -503,5 +474,5 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
         ious[0] >= 0.8 && ious[2] >= 0.87,
         "mask IoU at the truth {ious:?}"
     );
-    assert_every_command_safe(&cell);
+    common::assert_every_command_safe(&cell);
 }

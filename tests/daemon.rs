@@ -6,14 +6,13 @@
 //! server's limits (1,000 idle connections, timeouts, the connection limit).
 
 mod common;
-mod daemon_common;
 
 use std::io::BufRead;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use daemon_common::{
+use common::daemon::{
     assert_refused, call, call_as, full_resolution, get_bytes, quarantined, raise_open_files,
     read_events, real_time_arm, record, refused_activation, result_json, start, wait_final,
     wait_for, write_config, write_index, write_result, POSE, TOKEN,
@@ -1156,7 +1155,7 @@ fn percentile_ms(sorted: &[Duration], p: usize) -> f64 {
 }
 
 /// Waits until the daemon holds `n` connections open.
-fn wait_open(d: &daemon_common::Running, n: u64) {
+fn wait_open(d: &common::daemon::Running, n: u64) {
     let t = Instant::now();
     let open = || {
         d.daemon
@@ -1274,7 +1273,7 @@ fn the_connection_limit_and_the_timeouts_close_clients_that_hold_the_daemon() {
     let mut stalled = std::net::TcpStream::connect(&addr).unwrap();
     let head = format!(
         "POST /api/v1/calibrations HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {}\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{{\"dry_run\"",
-        daemon_common::TOKEN
+        common::daemon::TOKEN
     );
     stalled.write_all(head.as_bytes()).unwrap();
     let (_, took) = read_to_close(&mut stalled);

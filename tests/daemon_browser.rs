@@ -5,14 +5,14 @@
 //! see its overlays; a screenshot goes to `target/daemon-browser.png`. Without Chromium the test fails under CI (`CI=true`) and
 //! prints SKIPPED elsewhere.
 
-mod daemon_common;
+mod common;
 
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use daemon_common::{
+use common::daemon::{
     assert_refused, call, get_bytes, start, wait_final, write_config, write_shipped_config, TOKEN,
 };
 use serde_json::{json, Value};
@@ -418,9 +418,9 @@ fn web_page_follows_every_camera_of_a_list() {
 
 /// Clicks every download button: each fetch succeeds, and the daemon's file is exactly what
 /// `easyhec export` writes for that result.
-fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: &str) {
-    let formats = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
-    for format in formats {
+fn downloads_every_export_format(session: &str, d: &common::daemon::Running, id: &str) {
+    let formats = easyhec::interop::ExportFormat::ALL.map(easyhec::interop::ExportFormat::name);
+    for format in &formats {
         click(
             session,
             &format!("#downloads button[data-format='{format}']"),
@@ -436,7 +436,7 @@ fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: 
     let run_dir = d.daemon.store().dir().join(&record.run_dir);
     let result = easyhec::run::ResultFile::read(&run_dir.join("result.json")).unwrap();
     let edge = easyhec::daemon::exports::edge(None, &result).unwrap();
-    for format in formats {
+    for format in &formats {
         let (code, _, body) = get_bytes(&format!(
             "{}/api/v1/calibrations/{id}/export/{format}",
             d.base
@@ -458,7 +458,7 @@ fn downloads_every_export_format(session: &str, d: &daemon_common::Running, id: 
 }
 
 /// After a newer (dry) run, picking the first run in the history shows its overlays again.
-fn shows_a_past_runs_overlays(session: &str, d: &daemon_common::Running, id: &str, views: usize) {
+fn shows_a_past_runs_overlays(session: &str, d: &common::daemon::Running, id: &str, views: usize) {
     let (code, body) = call(
         "POST",
         &format!("{}/api/v1/calibrations", d.base),
@@ -542,7 +542,7 @@ fn previews_every_camera(session: &str) {
 
 /// In a list, a dry run's planned poses are drawn over every camera's first view, each under
 /// that camera's estimate (a camera without one would give no image), and nothing moves.
-fn draws_every_cameras_plan(session: &str, d: &daemon_common::Running) {
+fn draws_every_cameras_plan(session: &str, d: &common::daemon::Running) {
     let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
     let before = arm.commands().len();
     click(session, "#dry-run");
@@ -574,7 +574,7 @@ fn draws_every_cameras_plan(session: &str, d: &daemon_common::Running) {
 
 /// With "dry run" ticked, Calibrate plans and draws each planned pose over the first view,
 /// and the arm receives no command.
-fn draws_a_dry_runs_plan_without_moving(session: &str, d: &daemon_common::Running) -> String {
+fn draws_a_dry_runs_plan_without_moving(session: &str, d: &common::daemon::Running) -> String {
     let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
     let before = arm.commands().len();
     click(session, "#dry-run");

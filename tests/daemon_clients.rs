@@ -3,13 +3,13 @@
 //! growing, and requests that are almost right (an array body, a token with extra spaces,
 //! a flood of plan overlays, a result that does not fit its run).
 
-mod daemon_common;
+mod common;
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
-use daemon_common::{call, call_as, real_time_arm, start, wait_final, write_config, TOKEN};
+use common::daemon::{call, call_as, real_time_arm, start, wait_final, write_config, TOKEN};
 use serde_json::{json, Value};
 
 /// Sends a raw request head (and body) and returns the status code of the reply.
@@ -288,7 +288,7 @@ fn plan_overlays_are_rendered_once_however_often_they_are_read() {
     };
     let before = renders();
     for _ in 0..20 {
-        let (code, _, png) = daemon_common::get_bytes(&format!(
+        let (code, _, png) = common::daemon::get_bytes(&format!(
             "{base}/api/v1/calibrations/{id}/plan/0/overlay.png"
         ));
         assert_eq!(code, 200);
@@ -310,7 +310,7 @@ fn activation_refuses_a_result_whose_views_are_not_its_runs() {
     let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&result).unwrap()).unwrap();
     v["views_used"].as_array_mut().unwrap().push(json!(99));
     std::fs::write(&result, serde_json::to_string_pretty(&v).unwrap()).unwrap();
-    let msg = daemon_common::refused_activation(&base, &id, "views_used");
+    let msg = common::daemon::refused_activation(&base, &id, "views_used");
     assert!(msg.contains("99"), "{msg}");
     let (code, _) = call("GET", &format!("{base}/api/v1/calibration"), None);
     assert_eq!(code, 404, "nothing became active");

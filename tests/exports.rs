@@ -295,3 +295,26 @@ fn optical_from_child_moves_the_edge_to_the_camera_root_link() {
         "base_from_link · link_from_optical",
     );
 }
+
+/// The page takes the export formats from the download route's `format` parameter in
+/// `/openapi.json`: that enum is `ExportFormat`'s list, in its order.
+#[test]
+fn the_api_description_lists_every_export_format() {
+    let doc: serde_json::Value =
+        serde_json::from_str(easyhec::daemon::openapi::document()).unwrap();
+    let route = &doc["paths"]["/api/v1/calibrations/{id}/export/{format}"]["get"];
+    let param = route["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "format")
+        .expect("a format parameter");
+    let listed: Vec<&str> = param["schema"]["enum"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{}", param["schema"]))
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    let names = easyhec::interop::ExportFormat::ALL.map(easyhec::interop::ExportFormat::name);
+    assert_eq!(listed, names);
+}

@@ -5,18 +5,10 @@
 
 mod common;
 
-use std::path::PathBuf;
-
 use easyhec::cell::Cell;
 use easyhec::config::{read_config, CellConfig, Mount};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::run::load_run;
-
-fn config_path(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("config")
-        .join(name)
-}
 
 fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
     cfg.calibration.max_views = views;
@@ -25,26 +17,13 @@ fn quick(mut cfg: CellConfig, views: usize) -> CellConfig {
     cfg
 }
 
-/// Every command the simulated arm received was accepted and passes the checker from where
-/// the arm truly was, along a path re-checked finer than the checker samples it.
-fn assert_every_command_safe(cell: &Cell) -> usize {
-    let sim = cell.sim.arm.as_ref().expect("simulated arm");
-    let commands = sim.commands();
-    for (i, c) in commands.iter().enumerate() {
-        assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
-        assert!(c.speed_rad_s <= cell.checker.speed_cap_rad_s());
-        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
-    }
-    commands.len()
-}
-
 #[test]
 fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
     for (name, link) in [
         ("sim-xarm6-eye-in-hand.toml", "link6"),
         ("sim-ur5e-eye-in-hand.toml", "wrist_3_link"),
     ] {
-        let path = config_path(name);
+        let path = common::config_path(name);
         let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
         assert_eq!(cell.config.camera.mount(), &Mount::Link(link.into()));
         let dir = tempfile::tempdir().unwrap();
@@ -64,7 +43,11 @@ fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
         assert_eq!(outcome.result.base_link, link);
         let views = outcome.result.views_used.len();
         assert_eq!(views, 4, "{name}: {}", outcome.result.stop_reason);
-        assert_eq!(assert_every_command_safe(&cell), views - 1, "{name}");
+        assert_eq!(
+            common::assert_every_command_safe(&cell),
+            views - 1,
+            "{name}"
+        );
 
         // The run records the mount, and the offline solve finds the same transform.
         let loaded = load_run(&out).unwrap();
@@ -146,7 +129,7 @@ fn a_mount_the_robot_cannot_carry_is_refused_with_the_key() {
 /// first view instead of wandering.
 #[test]
 fn no_pose_that_shows_the_robot_is_said_plainly() {
-    let path = config_path("sim-xarm6-eye-in-hand.toml");
+    let path = common::config_path("sim-xarm6-eye-in-hand.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 4);
     // Nothing can cover 95% of the image clear of the lens.
     cfg.calibration.min_robot_image_fraction = 0.95;
@@ -161,5 +144,5 @@ fn no_pose_that_shows_the_robot_is_said_plainly() {
         "{}",
         outcome.result.stop_reason
     );
-    assert_eq!(assert_every_command_safe(&cell), 0);
+    assert_eq!(common::assert_every_command_safe(&cell), 0);
 }

@@ -2,17 +2,15 @@
 //! points at a module on a lower layer. The table is read from ARCHITECTURE.md itself, so the
 //! document and the code cannot drift apart; a new module without a row fails too.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// `module -> layer` from the rows of ARCHITECTURE.md's "Layers of the library" table
 /// (`| 3 | `render` | … |`).
 fn layers() -> BTreeMap<String, u32> {
-    let text = std::fs::read_to_string(root().join("ARCHITECTURE.md")).unwrap();
+    let text = std::fs::read_to_string(common::repo_root().join("ARCHITECTURE.md")).unwrap();
     let section = text
         .split("## Layers of the library")
         .nth(1)
@@ -43,14 +41,14 @@ fn layers() -> BTreeMap<String, u32> {
 /// `cell`); the binary (`main.rs`, `cli/`) and `lib.rs` sit above every layer.
 fn library_files() -> Vec<(String, PathBuf)> {
     let mut out = Vec::new();
-    let mut stack = vec![root().join("src")];
+    let mut stack = vec![common::repo_root().join("src")];
     while let Some(dir) = stack.pop() {
         for entry in std::fs::read_dir(&dir).unwrap() {
             let path = entry.unwrap().path();
             if path.is_dir() {
                 stack.push(path);
             } else if path.extension().is_some_and(|e| e == "rs") {
-                let rel = path.strip_prefix(root().join("src")).unwrap();
+                let rel = path.strip_prefix(common::repo_root().join("src")).unwrap();
                 let top = rel
                     .components()
                     .next()
@@ -160,4 +158,210 @@ fn an_upward_import_is_reported() {
     assert_eq!(crate_imports(&file), vec!["daemon", "mask", "solve"]);
     let layers = layers();
     assert!(layers["daemon"] > layers["mask"]);
+}
+
+/// A library file's module path: `src/daemon/store.rs` → `daemon::store`,
+/// `src/daemon/api/mod.rs` → `daemon::api`.
+fn module_path(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap();
+    let mut parts: Vec<String> = rel
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().to_string())
+        .collect();
+    let last = parts.pop().unwrap();
+    if last != "mod.rs" {
+        parts.push(last.trim_end_matches(".rs").to_string());
+    }
+    parts
+}
+
+/// The module paths (as written, before resolution) a file's code names through `crate::`,
+/// `super::` and `self::`, outside comments and before its first `#[cfg(test)]` (a test
+/// module's `super` is the file itself), groups expanded: `use super::{a::X, b}` gives
+/// `super::a::X` and `super::b`.
+fn relative_paths(text: &str) -> Vec<Vec<String>> {
+    let code: String = text
+        .split("#[cfg(test)]")
+        .next()
+        .unwrap()
+        .lines()
+        .map(|l| l.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let chars: Vec<char> = code.chars().collect();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < chars.len() {
+        let starts_word = i == 0
+            || !(chars[i - 1].is_alphanumeric() || chars[i - 1] == '_' || chars[i - 1] == ':');
+        let rest: String = chars[i..chars.len().min(i + 8)].iter().collect();
+        if starts_word
+            && ["crate::", "super::", "self::"]
+                .iter()
+                .any(|p| rest.starts_with(p))
+        {
+            i = parse_path(&chars, i, Vec::new(), &mut out);
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+/// Parses one path at `i` (segments joined by `::`, ending in a name or a `{…}` group) with
+/// `prefix` before it; pushes every full path to `out` and returns the index after it.
+fn parse_path(
+    chars: &[char],
+    mut i: usize,
+    mut prefix: Vec<String>,
+    out: &mut Vec<Vec<String>>,
+) -> usize {
+    loop {
+        while i < chars.len() && chars[i].is_whitespace() {
+            i += 1;
+        }
+        if i < chars.len() && chars[i] == '{' {
+            i += 1;
+            loop {
+                while i < chars.len() && (chars[i].is_whitespace() || chars[i] == ',') {
+                    i += 1;
+                }
+                if i >= chars.len() || chars[i] == '}' {
+                    return i + 1;
+                }
+                i = parse_path(chars, i, prefix.clone(), out);
+            }
+        }
+        let start = i;
+        while i < chars.len() && (chars[i].is_alphanumeric() || chars[i] == '_') {
+            i += 1;
+        }
+        prefix.push(chars[start..i].iter().collect());
+        if chars.get(i) == Some(&':') && chars.get(i + 1) == Some(&':') {
+            i += 2;
+        } else {
+            out.push(prefix);
+            // Skip an `as alias` and anything else up to the item's end.
+            return i;
+        }
+    }
+}
+
+/// A written path resolved against the module `at` and cut to the longest prefix that is a
+/// module file under `src`.
+fn resolve(src: &Path, at: &[String], written: &[String]) -> Vec<String> {
+    let mut path: Vec<String> = Vec::new();
+    let mut rest = written;
+    match written.first().map(String::as_str) {
+        Some("crate") => rest = &written[1..],
+        Some("self") => {
+            path = at.to_vec();
+            rest = &written[1..];
+        }
+        Some("super") => {
+            path = at.to_vec();
+            while rest.first().map(String::as_str) == Some("super") {
+                path.pop();
+                rest = &rest[1..];
+            }
+        }
+        _ => {}
+    }
+    let is_module = |p: &[String]| {
+        let dir = p.iter().fold(src.to_path_buf(), |d, s| d.join(s));
+        dir.with_extension("rs").is_file() || dir.join("mod.rs").is_file()
+    };
+    for seg in rest {
+        path.push(seg.clone());
+        if !is_module(&path) {
+            path.pop();
+            break;
+        }
+    }
+    path
+}
+
+/// Pairs of sibling modules (children of one folder, a folder counting as one module) that
+/// use each other, besides `allowed`, read from the library under `src`.
+fn mutual_imports(src: &Path, allowed: &[(&str, &str)]) -> Vec<String> {
+    let mut files = Vec::new();
+    let mut stack = vec![src.to_path_buf()];
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                files.push(path);
+            }
+        }
+    }
+    let mut edges = std::collections::BTreeSet::new();
+    for file in files {
+        let from = module_path(src, &file);
+        if matches!(
+            from.first().map(String::as_str),
+            Some("main" | "lib" | "cli")
+        ) {
+            continue;
+        }
+        for written in relative_paths(&std::fs::read_to_string(&file).unwrap()) {
+            let to = resolve(src, &from, &written);
+            let common = from.iter().zip(&to).take_while(|(a, b)| a == b).count();
+            if from.len() > common && to.len() > common {
+                edges.insert((from[..=common].join("::"), to[..=common].join("::")));
+            }
+        }
+    }
+    edges
+        .iter()
+        .filter(|(a, b)| a < b && edges.contains(&(b.clone(), a.clone())))
+        .filter(|(a, b)| {
+            !allowed.iter().any(|(x, y)| {
+                (a, b) == (&x.to_string(), &y.to_string())
+                    || (a, b) == (&y.to_string(), &x.to_string())
+            })
+        })
+        .map(|(a, b)| format!("{a} and {b} use each other"))
+        .collect()
+}
+
+/// No two modules use each other, inside folders too: one of them would have to come first
+/// for a reader and for a change. The API's routes and its OpenAPI document are tied by
+/// utoipa-axum's macros (the routes carry the document, the document is read off the
+/// routes), so that pair stays.
+#[test]
+fn no_two_modules_use_each_other() {
+    let problems = mutual_imports(
+        &common::repo_root().join("src"),
+        &[("daemon::api", "daemon::openapi")],
+    );
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The check itself can fail: two made-up sibling files that use each other, one through
+/// `super::` and one through `crate::` in a group, are reported; a parent using its child
+/// is not.
+#[test]
+fn two_modules_that_use_each_other_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path();
+    std::fs::create_dir_all(src.join("x")).unwrap();
+    std::fs::write(
+        src.join("x/mod.rs"),
+        "pub mod a;\npub mod b;\nuse self::a::A;\n",
+    )
+    .unwrap();
+    std::fs::write(
+        src.join("x/a.rs"),
+        "use super::b::B;\n// use crate::x::c;\n",
+    )
+    .unwrap();
+    std::fs::write(src.join("x/b.rs"), "use crate::{x::{a::A, self}};\n").unwrap();
+    std::fs::write(src.join("y.rs"), "use crate::x::a::A;\n").unwrap();
+    assert_eq!(
+        mutual_imports(src, &[]),
+        vec!["x::a and x::b use each other"]
+    );
+    assert!(mutual_imports(src, &[("x::b", "x::a")]).is_empty());
 }

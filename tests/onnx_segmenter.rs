@@ -7,14 +7,10 @@
 //! and keys fail when the segmenter is built with one line naming the config, the field and
 //! the model. Without the `onnx` feature a cell that asks for it says how to rebuild.
 
-use std::path::PathBuf;
+mod common;
 
 use easyhec::cell::Cell;
 use easyhec::config::SegmenterConfig;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// A cell on the shipped xArm6 URDF with a simulated arm and camera and `segmenter` as its
 /// segmenter table.
@@ -39,7 +35,9 @@ truth = {{ eye = [1.25, 0.55, 0.75], look_at = [0.15, 0.0, 0.3] }}
 
 {segmenter}
 "#,
-        root().join("robots/xarm6/robot.urdf").display()
+        common::repo_root()
+            .join("robots/xarm6/robot.urdf")
+            .display()
     )
 }
 
@@ -626,8 +624,10 @@ mod with_tract {
 
     #[test]
     fn shipped_template_parses() {
-        let cfg = easyhec::config::read_config(&root().join("config/onnx-segmenter.toml.example"))
-            .unwrap_or_else(|e| panic!("{e}"));
+        let cfg = easyhec::config::read_config(
+            &common::repo_root().join("config/onnx-segmenter.toml.example"),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         let SegmenterConfig::Onnx(onnx) = &cfg.segmenter else {
             panic!("{:?}", cfg.segmenter)
         };

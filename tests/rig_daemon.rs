@@ -5,14 +5,15 @@
 //! beside a fixed one is activated and checked against its own mount, and each camera's
 //! downloads are what `easyhec export` writes for it.
 
-mod daemon_common;
+mod common;
 
 use std::path::{Path, PathBuf};
 
-use daemon_common::{
+use common::daemon::{
     assert_refused, call, get_bytes, start, wait_final, write_shipped_config, TOKEN,
 };
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::interop::ExportFormat;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 
@@ -45,19 +46,14 @@ fn cameras(base: &str) -> Vec<(String, Value)> {
 fn assert_exports_match_the_cli(base: &str, data: &Path, id: &str, names: &[&str]) {
     let out = data.parent().unwrap().join("exported");
     let result = data.join("runs").join(id).join("result.json");
-    for (format, ext) in [
-        ("opencv", "yaml"),
-        ("ros", "launch.py"),
-        ("easy-handeye", "calib"),
-        ("easy-handeye-ros1", "yaml"),
-        ("urdf", "urdf"),
-    ] {
+    for kind in ExportFormat::ALL {
+        let format = kind.name();
         let cli = std::process::Command::new(env!("CARGO_BIN_EXE_easyhec"))
             .args([
                 "export",
                 result.to_str().unwrap(),
                 "--format",
-                format,
+                &format,
                 "--out",
             ])
             .arg(&out)
@@ -70,9 +66,13 @@ fn assert_exports_match_the_cli(base: &str, data: &Path, id: &str, names: &[&str
         );
         for name in names {
             let url = format!("{base}/api/v1/calibrations/{id}/export/{format}?camera={name}");
-            let (code, _, body) = get_bytes(&url);
+            let (code, content_type, body) = get_bytes(&url);
             assert_eq!(code, 200, "{url}: {}", String::from_utf8_lossy(&body));
-            let want = std::fs::read(out.join(format!("{name}.{ext}"))).unwrap();
+            assert!(
+                content_type.starts_with(kind.content_type()),
+                "{url}: {content_type}"
+            );
+            let want = std::fs::read(out.join(kind.file_name(name))).unwrap();
             assert_eq!(body, want, "{url}");
         }
     }
@@ -278,7 +278,7 @@ fn a_knocked_camera_is_recalibrated_alone_and_the_others_keep_their_results() {
 
     // A cell of one camera does not take this folder's per-camera calibrations as its own.
     std::fs::create_dir_all(dir.path().join("one")).unwrap();
-    let single = daemon_common::write_config(&dir.path().join("one"), |_| {});
+    let single = common::daemon::write_config(&dir.path().join("one"), |_| {});
     let cell = easyhec::cell::Cell::open(&single).unwrap();
     let refused = easyhec::daemon::Daemon::open(cell, &data, TOKEN.into())
         .err()

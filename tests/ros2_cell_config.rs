@@ -2,22 +2,20 @@
 //! every build; without the `ros2` feature such a cell says how to rebuild. Nothing here joins
 //! a DDS graph (tests/ros2_arm.rs drives a real one, in a private network namespace).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 
 use easyhec::cell::Cell;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// The shipped simulated xArm6 cell with its arm on ROS 2 and its camera filming
 /// `/joint_states`.
 fn base() -> String {
-    std::fs::read_to_string(root().join("config/sim-xarm6.toml"))
+    std::fs::read_to_string(common::repo_root().join("config/sim-xarm6.toml"))
         .unwrap()
         .replace(
             "../robots/xarm6/robot.urdf",
-            &root().join("robots/xarm6/robot.urdf").display().to_string(),
+            &common::repo_root().join("robots/xarm6/robot.urdf").display().to_string(),
         )
         .replace(
             "kind = \"sim\"\nstart = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0]\nencoder_noise_rad = 0.0005\nseed = 1\n",
@@ -120,11 +118,14 @@ fn without_the_feature_a_ros2_cell_says_how_to_rebuild() {
     );
     assert!(!e.contains('\n'), "{e}");
     // A ROS 2 camera beside a simulated arm.
-    let sim_arm = std::fs::read_to_string(root().join("config/sim-xarm6.toml"))
+    let sim_arm = std::fs::read_to_string(common::repo_root().join("config/sim-xarm6.toml"))
         .unwrap()
         .replace(
             "../robots/xarm6/robot.urdf",
-            &root().join("robots/xarm6/robot.urdf").display().to_string(),
+            &common::repo_root()
+                .join("robots/xarm6/robot.urdf")
+                .display()
+                .to_string(),
         );
     let e = error_for(dir.path(), "camera.toml", &ros2_camera(&sim_arm, ""));
     assert!(

@@ -9,7 +9,7 @@
 #[path = "ros2/peers.rs"]
 mod peers;
 
-mod daemon_common;
+mod common;
 
 use std::path::Path;
 
@@ -51,7 +51,7 @@ fn the_active_calibration_is_published_on_activation_and_after_a_restart() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    daemon_common::write_config(dir.path(), |c| {
+    common::daemon::write_config(dir.path(), |c| {
         c.ros2 = Some(Ros2Settings {
             domain_id: Some(19),
             namespace: "/".into(),
@@ -63,7 +63,7 @@ fn the_active_calibration_is_published_on_activation_and_after_a_restart() {
         })
     });
     std::fs::write(dir.path().join("calibrate.py"), CALIBRATE).unwrap();
-    let token = daemon_common::TOKEN;
+    let token = common::daemon::TOKEN;
     let body = format!(
         r#"
 start() {{ "$EASYHEC" daemon --config cell.toml --data data --listen 127.0.0.1:8787 2> "$1" & }}
@@ -166,7 +166,7 @@ fn every_camera_of_a_list_is_published_and_a_lone_recalibration_keeps_the_others
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let config = daemon_common::write_shipped_config(dir.path(), "sim-xarm6-fixed-and-wrist.toml");
+    let config = common::daemon::write_shipped_config(dir.path(), "sim-xarm6-fixed-and-wrist.toml");
     let text = std::fs::read_to_string(&config).unwrap();
     std::fs::write(
         &config,
@@ -179,7 +179,7 @@ fn every_camera_of_a_list_is_published_and_a_lone_recalibration_keeps_the_others
     );
     std::fs::write(dir.path().join("calibrate1.py"), CALIBRATE_LIST).unwrap();
     std::fs::write(dir.path().join("calibrate2.py"), again).unwrap();
-    let token = daemon_common::TOKEN;
+    let token = common::daemon::TOKEN;
     let body = format!(
         r#"
 "$EASYHEC" daemon --config cell.toml --data data --listen 127.0.0.1:8787 2> daemon.log &

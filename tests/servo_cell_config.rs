@@ -3,16 +3,14 @@
 //! bad tables get one line naming the key; a Piper cell without the `socketcan` feature says
 //! how to get it.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 
 use easyhec::cell::Cell;
 
 use easyhec::config::{read_config, ArmConfig};
 use easyhec_drivers::piper::PIPER_LIMITS_RAD;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// A cell on the shipped xArm6 URDF (six joints `joint1`…`joint6`) with `arm` as its arm
 /// table; the simulated camera takes its joints from an (absent) report port, which building
@@ -38,7 +36,9 @@ joints_from = {{ kind = "xarm-report", addr = "127.0.0.1:9" }}
 [segmenter]
 kind = "sim-truth"
 "#,
-        root().join("robots/xarm6/robot.urdf").display()
+        common::repo_root()
+            .join("robots/xarm6/robot.urdf")
+            .display()
     )
 }
 
@@ -66,7 +66,7 @@ fn open(dir: &Path, text: &str) -> easyhec::error::Result<Cell> {
 
 #[test]
 fn so101_example_parses_as_a_feetech_arm() {
-    let cfg = read_config(&root().join("config/so101-feetech.toml.example")).unwrap();
+    let cfg = read_config(&common::repo_root().join("config/so101-feetech.toml.example")).unwrap();
     let ArmConfig::Feetech(t) = &cfg.arm else {
         panic!("{:?}", cfg.arm)
     };

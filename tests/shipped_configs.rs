@@ -3,19 +3,16 @@
 //! shipped file means. Regenerate after an intended change with
 //! `UPDATE_SHIPPED_CONFIGS=1 cargo test --release --test shipped_configs` and review the diff.
 
+mod common;
+
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 use easyhec::config::read_config;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 /// Each config file's parse: its JSON form, or the one-line error it gives.
 fn parsed() -> BTreeMap<String, serde_json::Value> {
     let mut out = BTreeMap::new();
-    for entry in std::fs::read_dir(root().join("config")).unwrap() {
+    for entry in std::fs::read_dir(common::repo_root().join("config")).unwrap() {
         let path = entry.unwrap().path();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
         if !name.contains(".toml") {
@@ -32,7 +29,7 @@ fn parsed() -> BTreeMap<String, serde_json::Value> {
 
 #[test]
 fn every_shipped_config_parses_as_the_fixture_records() {
-    let fixture = root().join("tests/fixtures/shipped_configs.json");
+    let fixture = common::repo_root().join("tests/fixtures/shipped_configs.json");
     let now = parsed();
     if std::env::var_os("UPDATE_SHIPPED_CONFIGS").is_some() {
         let text = serde_json::to_string_pretty(&now).unwrap();
@@ -57,7 +54,7 @@ fn every_shipped_config_parses_as_the_fixture_records() {
 fn every_template_parses_and_segments_real_frames_with_a_real_segmenter() {
     use easyhec::config::{CameraConfig, SegmenterConfig};
     let mut seen = 0;
-    for entry in std::fs::read_dir(root().join("config")).unwrap() {
+    for entry in std::fs::read_dir(common::repo_root().join("config")).unwrap() {
         let path = entry.unwrap().path();
         let name = path.file_name().unwrap().to_string_lossy().to_string();
         if !name.ends_with(".toml.example") {

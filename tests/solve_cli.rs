@@ -6,6 +6,7 @@ use std::path::Path;
 use std::process::Command;
 
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
+use easyhec::interop::ExportFormat;
 use easyhec::run::GroundTruth;
 use easyhec::run::ResultFile;
 
@@ -320,10 +321,6 @@ fn help_lists_every_choice_flags_values() {
                 "first", "explore", "random", "lm", "adam", "cpu", "wgpu", "auto", "builtin",
             ],
         ),
-        (
-            &["export"],
-            &["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"],
-        ),
         (&["calibrate"], &["cpu", "wgpu", "auto"]),
         (
             &["bench", "loop"],
@@ -339,7 +336,10 @@ fn help_lists_every_choice_flags_values() {
             &["standard", "segmenter", "blurred", "none"],
         ),
     ];
-    for (command, values) in expected {
+    let formats: Vec<String> = ExportFormat::ALL.map(ExportFormat::name).into();
+    let formats: Vec<&str> = formats.iter().map(String::as_str).collect();
+    let export: &[&str] = &["export"];
+    for (command, values) in expected.iter().chain([(export, formats.as_slice())].iter()) {
         let text = help(command);
         assert!(text.contains("ossible values"), "{command:?}: {text}");
         for v in *values {
@@ -359,7 +359,7 @@ fn help_lists_every_choice_flags_values() {
     assert!(!out.status.success());
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(
-        stderr.contains("allowed: opencv, ros, easy-handeye, easy-handeye-ros1, urdf"),
+        stderr.contains(&format!("allowed: {}", ExportFormat::names())),
         "{stderr}"
     );
 }

@@ -24,11 +24,9 @@ use crate::safety::Clearance;
 use crate::solve::SolveReport;
 
 pub use motion_cost::MotionCost;
-pub use planner::{
-    choose_reachable, in_image_fraction, rank_poses, PlanCamera, PlanRequest, PlanStats, Ranked,
-};
+pub use planner::{choose_reachable, rank_poses, PlanCamera, PlanRequest, PlanStats, Ranked};
 pub use recorder::Recorder;
-pub use visibility::VisibilityRule;
+pub use visibility::{in_image_fraction, VisibilityRule};
 
 /// One round of the loop, as `rounds.json` records it.
 #[derive(Clone, Debug, Serialize, Deserialize)]

@@ -25,31 +25,6 @@ use crate::robot::RobotModel;
 use crate::safety::CheckedMove;
 use crate::solve::SolveReport;
 
-/// Fraction of the robot's (decimated) surface points that land inside the image.
-pub fn in_image_fraction(
-    robot: &PosedRobot,
-    camera: &Intrinsics,
-    camera_from_base: &Isometry3<f64>,
-) -> f64 {
-    if robot.vertices_base.is_empty() {
-        return 0.0;
-    }
-    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
-    let inside = robot
-        .vertices_base
-        .iter()
-        .filter(|p| {
-            let c = camera_from_base * **p;
-            if c.z <= 0.05 {
-                return false;
-            }
-            let x = camera.project(&c);
-            x[0] >= 0.0 && x[1] >= 0.0 && x[0] <= w - 1.0 && x[1] <= h - 1.0
-        })
-        .count();
-    inside as f64 / robot.vertices_base.len() as f64
-}
-
 /// A scored joint sample that passed the static checks.
 #[derive(Clone, Debug)]
 pub struct Ranked {

@@ -10,11 +10,35 @@
 
 use nalgebra::Isometry3;
 
-use super::planner::in_image_fraction;
 use crate::camera::Intrinsics;
 use crate::cell::Cell;
 use crate::config::Mount;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
+
+/// Fraction of the robot's (decimated) surface points that land inside the image.
+pub fn in_image_fraction(
+    robot: &PosedRobot,
+    camera: &Intrinsics,
+    camera_from_base: &Isometry3<f64>,
+) -> f64 {
+    if robot.vertices_base.is_empty() {
+        return 0.0;
+    }
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let inside = robot
+        .vertices_base
+        .iter()
+        .filter(|p| {
+            let c = camera_from_base * **p;
+            if c.z <= 0.05 {
+                return false;
+            }
+            let x = camera.project(&c);
+            x[0] >= 0.0 && x[1] >= 0.0 && x[0] <= w - 1.0 && x[1] <= h - 1.0
+        })
+        .count();
+    inside as f64 / robot.vertices_base.len() as f64
+}
 
 /// Depth (metres) below which robot geometry counts as touching the lens.
 const LENS_CLEARANCE_M: f64 = 0.05;

@@ -81,7 +81,7 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
             )
         })?;
         let text = export(&result, a.format, edge)?;
-        let path = dir.join(format!("{}.{}", cam.name, extension(a.format)));
+        let path = dir.join(a.format.file_name(&cam.name));
         files.push((&cam.name, &edge.child, path, text));
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -91,14 +91,4 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
         outln!("{name}: {child} -> {}", path.display());
     }
     Ok(())
-}
-
-/// The file extension of each export form.
-fn extension(format: ExportFormat) -> &'static str {
-    match format {
-        ExportFormat::Opencv | ExportFormat::EasyHandeyeRos1 => "yaml",
-        ExportFormat::Ros => "launch.py",
-        ExportFormat::EasyHandeye => "calib",
-        ExportFormat::Urdf => "urdf",
-    }
 }

@@ -3,23 +3,11 @@
 
 use std::sync::OnceLock;
 
-/// Features that change what the binary can drive or render, in `Cargo.toml`'s order.
-const FEATURES: &[(&str, bool)] = &[
-    ("sim", cfg!(feature = "sim")),
-    ("wgpu", cfg!(feature = "wgpu")),
-    ("ur", cfg!(feature = "ur")),
-    ("socketcan", cfg!(feature = "socketcan")),
-    ("v4l2", cfg!(feature = "v4l2")),
-    ("aravis", cfg!(feature = "aravis")),
-    ("onnx", cfg!(feature = "onnx")),
-    ("ros2", cfg!(feature = "ros2")),
-];
-
 /// `0.1.0 (features: sim, wgpu)`.
 pub fn version_line() -> &'static str {
     static LINE: OnceLock<String> = OnceLock::new();
     LINE.get_or_init(|| {
-        let on: Vec<&str> = FEATURES
+        let on: Vec<&str> = easyhec::FEATURES
             .iter()
             .filter(|(_, enabled)| *enabled)
             .map(|(name, _)| *name)

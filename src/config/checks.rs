@@ -107,22 +107,7 @@ impl CellConfig {
             }
         }
         check_segmenter(&c, &self.segmenter)?;
-        for (i, cam) in self.camera.cameras().iter().enumerate() {
-            let own = cam.segmenter.is_some();
-            let seg = cam.segmenter.as_ref().unwrap_or(&self.segmenter);
-            if self.camera.cameras().len() > 1 && matches!(seg, SegmenterConfig::Builtin { .. }) {
-                let key = if own {
-                    format!("camera[{i}].segmenter.kind")
-                } else {
-                    "segmenter.kind".to_string()
-                };
-                return Err(Error::input(
-                    path,
-                    key,
-                    format!("\"builtin\" for camera '{}': it reads the whole run and serves one camera; allowed in a list of cameras: per-frame segmenters (\"onnx\", \"sim-truth\")", cam.name),
-                ));
-            }
-        }
+        self.check_whole_run_segmenters(path, self.camera.cameras().len() > 1)?;
         if self.camera.cameras().len() > 1 && self.calibration.initial_guess.is_some() {
             return Err(Error::input(
                 path,
@@ -136,6 +121,33 @@ impl CellConfig {
             r.validate(path)?;
         }
         self.calibration.validate(path)
+    }
+
+    /// The one rule for segmenters that read a whole run (`builtin`: its background plate and
+    /// priors come from the other views of the same camera): refused for every camera when
+    /// `several` (a cell of several cameras; the daemon also counts a single `[[camera]]`
+    /// table, whose bump check reads a run of a list), naming the key that chose it.
+    pub fn check_whole_run_segmenters(&self, path: &Path, several: bool) -> Result<()> {
+        if !several {
+            return Ok(());
+        }
+        for (i, cam) in self.camera.cameras().iter().enumerate() {
+            let seg = cam.segmenter.as_ref().unwrap_or(&self.segmenter);
+            if !seg.reads_whole_run() {
+                continue;
+            }
+            let key = if cam.segmenter.is_some() {
+                format!("camera[{i}].segmenter.kind")
+            } else {
+                "segmenter.kind".to_string()
+            };
+            return Err(Error::input(
+                path,
+                key,
+                format!("\"builtin\" for camera '{}': it reads the whole run of one camera (the background from its other views), so it cannot serve a list of cameras; allowed there: per-frame segmenters (\"onnx\", \"sim-truth\")", cam.name),
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -316,6 +316,13 @@ impl SegmenterConfig {
         }
     }
 
+    /// Whether this segmenter reads a whole run of one camera (its other views, the prior
+    /// silhouettes) rather than one frame at a time: the config-side twin of
+    /// `Segmenter::uses_context`, for the rule in `CellConfig::check_whole_run_segmenters`.
+    pub fn reads_whole_run(&self) -> bool {
+        matches!(self, SegmenterConfig::Builtin { .. })
+    }
+
     /// The narrowest band of the last re-segmentation once the estimate has settled and fits:
     /// `builtin`'s `final_band_px`, the default for any other kind.
     pub fn final_band_px(&self) -> f32 {

@@ -59,7 +59,8 @@ fn edge_to_child(
 }
 
 /// `result` (of `camera`, in a list) rendered in `format`, with the file name a download
-/// should get (`cal-0003-front.urdf` for a camera of a list).
+/// should get ([`ExportFormat::file_name`]: `cal-0003.opencv.yaml`, `cal-0003-front.urdf` for a
+/// camera of a list).
 pub fn render(
     id: &str,
     settings: Option<&Ros2Settings>,
@@ -72,17 +73,5 @@ pub fn render(
         Some(name) => format!("{id}-{name}"),
         None => id.to_string(),
     };
-    Ok((file_name(&stem, format), text))
-}
-
-/// `cal-0003.yaml`, `cal-0003.launch.py`, `cal-0003.calib`, `cal-0003.urdf`.
-fn file_name(id: &str, format: ExportFormat) -> String {
-    let extension = match format {
-        ExportFormat::Opencv => "opencv.yaml",
-        ExportFormat::Ros => "launch.py",
-        ExportFormat::EasyHandeye => "calib",
-        ExportFormat::EasyHandeyeRos1 => "easy_handeye.yaml",
-        ExportFormat::Urdf => "urdf",
-    };
-    format!("{id}.{extension}")
+    Ok((format.file_name(&stem), text))
 }

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
-use super::store::{
+use super::records::{
     ActiveFile, CalibrationRecord, CheckRecord, Recovery, RigActiveFile, State, ACTIVE_FORMAT,
     CHECKS_FORMAT, INDEX_FORMAT, RIG_ACTIVE_FORMAT,
 };

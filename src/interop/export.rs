@@ -14,8 +14,14 @@ use super::tf_edge::TfEdge;
 
 pub use crate::config::ros2::{check_frame_name, MAX_FRAME_NAME_LEN};
 
-/// Export targets.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+/// Export targets: the one list of them. The CLI (`--format`, its help and errors), the
+/// daemon's download route (its OpenAPI enum, file names and content types) and the web page
+/// (which reads the names from `/openapi.json`) all take the names, extensions and content
+/// types from here. The names are clap's and serde's kebab-case of the variants.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, utoipa::ToSchema,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum ExportFormat {
     /// OpenCV FileStorage YAML with the 4x4 `camera_from_base` and `base_from_camera` (the
     /// optical frame, whatever child frame is named).
@@ -31,14 +37,70 @@ pub enum ExportFormat {
     Urdf,
 }
 
+/// What a file of one export format is: its extension (no leading dot; distinct per
+/// format, so every format can be exported into one folder) and its HTTP content type.
+struct FormatFile {
+    extension: &'static str,
+    content_type: &'static str,
+}
+
+impl ExportFormat {
+    /// Every format, in the order help texts and the page list them.
+    pub const ALL: [ExportFormat; 5] = [
+        ExportFormat::Opencv,
+        ExportFormat::Ros,
+        ExportFormat::EasyHandeye,
+        ExportFormat::EasyHandeyeRos1,
+        ExportFormat::Urdf,
+    ];
+
+    fn file(self) -> FormatFile {
+        let (extension, content_type) = match self {
+            ExportFormat::Opencv => ("opencv.yaml", "application/yaml"),
+            ExportFormat::Ros => ("launch.py", "text/x-python"),
+            ExportFormat::EasyHandeye => ("calib", "application/yaml"),
+            ExportFormat::EasyHandeyeRos1 => ("easy_handeye.yaml", "application/yaml"),
+            ExportFormat::Urdf => ("urdf", "application/xml"),
+        };
+        FormatFile {
+            extension,
+            content_type,
+        }
+    }
+
+    /// The name on the command line, in the route and on the page (`easy-handeye-ros1`).
+    pub fn name(self) -> String {
+        clap::ValueEnum::to_possible_value(&self)
+            .map(|v| v.get_name().to_string())
+            .unwrap_or_default()
+    }
+
+    /// The file extension, without the leading dot (`opencv.yaml`, `launch.py`).
+    pub fn extension(self) -> &'static str {
+        self.file().extension
+    }
+
+    /// The HTTP content type of a download.
+    pub fn content_type(self) -> &'static str {
+        self.file().content_type
+    }
+
+    /// `STEM.EXTENSION`: the CLI's file per camera and the daemon's download name.
+    pub fn file_name(self, stem: &str) -> String {
+        format!("{stem}.{}", self.extension())
+    }
+
+    /// Every name, comma-separated, for error messages.
+    pub fn names() -> String {
+        Self::ALL.map(Self::name).join(", ")
+    }
+}
+
 impl std::str::FromStr for ExportFormat {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
-        <ExportFormat as clap::ValueEnum>::from_str(s, false).map_err(|_| {
-            format!(
-                "unknown export format '{s}': use opencv, ros, easy-handeye, easy-handeye-ros1 or urdf"
-            )
-        })
+        <ExportFormat as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown export format '{s}': use {}", Self::names()))
     }
 }
 
@@ -255,7 +317,27 @@ fn urdf_joint(edge: &TfEdge) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::number;
+    use super::{number, ExportFormat};
+
+    /// The names clap takes are the names serde writes (the OpenAPI enum the page reads),
+    /// `ALL` holds every variant once, and no two formats share a file extension (so they
+    /// can all be exported into one folder).
+    #[test]
+    fn one_list_of_formats_with_distinct_files() {
+        let mut extensions = std::collections::BTreeSet::new();
+        for f in ExportFormat::ALL {
+            let json = serde_json::to_value(f).unwrap();
+            assert_eq!(json.as_str(), Some(f.name().as_str()));
+            assert_eq!(f.name().parse::<ExportFormat>(), Ok(f));
+            assert!(extensions.insert(f.extension()), "{f:?}: {}", f.extension());
+        }
+        let all = <ExportFormat as clap::ValueEnum>::value_variants();
+        assert_eq!(all, ExportFormat::ALL.as_slice());
+        assert_eq!(
+            ExportFormat::Opencv.file_name("cal-0003"),
+            "cal-0003.opencv.yaml"
+        );
+    }
 
     #[test]
     fn numbers_read_back_exactly_and_always_look_like_floats() {

@@ -14,8 +14,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use crate::error::{Error, Result};
 use crate::run::ResultFile;
 
-use super::export::check_frame_name;
-
+use crate::config::ros2::check_frame_name;
 pub use crate::config::ros2::DEFAULT_CHILD_FRAME;
 
 /// How far a given quaternion's norm may be from 1 (values copied from `tf2_echo` carry three

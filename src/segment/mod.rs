@@ -201,3 +201,24 @@ fn onnx_segmenter(_cfg: &OnnxConfig, config_path: &Path) -> Result<Box<dyn Segme
 pub fn resolve_model_path(config_path: &Path, model: &Path) -> PathBuf {
     config_path.parent().unwrap_or(Path::new(".")).join(model)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The config's rule (`reads_whole_run`, which refuses such segmenters for a list of
+    /// cameras) and the segmenter's behaviour (`uses_context`) agree for every kind this
+    /// build can make without a model file.
+    #[test]
+    fn reads_whole_run_is_uses_context() {
+        let mut kinds = vec!["kind = \"builtin\""];
+        if cfg!(feature = "sim") {
+            kinds.push("kind = \"sim-truth\"");
+        }
+        for text in kinds {
+            let config: SegmenterConfig = toml::from_str(text).unwrap();
+            let segmenter = build(&config, Path::new("cell.toml")).unwrap();
+            assert_eq!(segmenter.uses_context(), config.reads_whole_run(), "{text}");
+        }
+    }
+}

@@ -1,7 +1,22 @@
-//! Shared helpers for integration tests.
+//! Shared helpers for integration tests: one module tree, included by a test file as
+//! `mod common;`. `daemon` holds the daemon tests' helpers (a test daemon on a loopback port
+//! and a plain HTTP client). Each test binary compiles all of it and uses a part, so dead code
+//! is allowed here.
 #![allow(dead_code)]
 
+pub mod daemon;
+
 use std::path::PathBuf;
+
+/// The repository's root (the crate's manifest folder).
+pub fn repo_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A config shipped in `config/`.
+pub fn config_path(name: &str) -> PathBuf {
+    repo_root().join("config").join(name)
+}
 
 use easyhec::robot::RobotModel;
 
@@ -214,4 +229,27 @@ pub fn write_easyhec_source(run: &std::path::Path, src: &std::path::Path, with_c
         c["fx"], c["cx"], c["fy"], c["cy"]
     );
     std::fs::write(src.join("K.txt"), k).unwrap();
+}
+
+/// Every command the simulated arm received was accepted by it and passes the checker from
+/// where the arm truly was; each executed path is also re-checked 20x finer than the
+/// checker's own sampling. Returns the number of commands.
+pub fn assert_every_command_safe(cell: &easyhec::cell::Cell) -> usize {
+    let sim = cell.sim.arm.as_ref().expect("simulated arm");
+    let commands = sim.commands();
+    let speed_cap = cell.checker.speed_cap_rad_s();
+    for (i, c) in commands.iter().enumerate() {
+        assert!(
+            c.accepted,
+            "command {i} was refused by the arm: {:?}",
+            c.outcome
+        );
+        assert!(
+            c.speed_rad_s <= speed_cap,
+            "command {i} speed {}",
+            c.speed_rad_s
+        );
+        assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
+    }
+    commands.len()
 }

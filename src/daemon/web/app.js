@@ -12,7 +12,8 @@ let following = null; // id whose event stream is open
 let shownId = null; // calibration whose views are in the overlay strip
 const overlayViews = new Map(); // view index -> <img>
 let pinned = null; // a past calibration the user picked in the history, shown until cleared
-const EXPORT_FORMATS = ["opencv", "ros", "easy-handeye", "easy-handeye-ros1", "urdf"];
+// The export formats' names, read once from /openapi.json (the daemon's one list of them).
+let exportFormats = null;
 const rounds = []; // per-round points of the calibration in the chart
 let chartId = null;
 // The cell's camera names when its config lists [[camera]] tables (each camera then has its
@@ -172,6 +173,19 @@ async function showOverlays(s, reloadAll) {
   }
 }
 
+// The export formats the download route takes: the enum of its `format` parameter in the
+// daemon's own API description, so the page never keeps a list of its own.
+async function loadExportFormats() {
+  if (exportFormats) return;
+  const resp = await fetch("/openapi.json");
+  if (!resp.ok) return;
+  const doc = await resp.json();
+  const route = doc.paths["/api/v1/calibrations/{id}/export/{format}"];
+  const param = route && route.get.parameters.find((p) => p.name === "format");
+  const schema = param ? param.schema : {};
+  exportFormats = schema.enum || (schema.oneOf || []).flatMap((o) => o.enum || []);
+}
+
 // The result's forms as download buttons, once the calibration has a result.
 function showDownloads(s) {
   const box = $("downloads");
@@ -193,7 +207,7 @@ function showDownloads(s) {
       const row = document.createElement("div");
       if (camera !== null) row.append(camera + ": ");
       row.dataset.camera = camera === null ? "" : camera;
-      for (const format of EXPORT_FORMATS) {
+      for (const format of exportFormats || []) {
         const b = document.createElement("button");
         b.textContent = format;
         b.dataset.format = format;
@@ -612,7 +626,7 @@ function boot() {
   $("cancel").onclick = cancel;
   $("check").onclick = check;
   $("preview-button").onclick = preview;
-  refresh();
+  loadExportFormats().finally(refresh);
 }
 
 boot();

@@ -1,5 +1,15 @@
 //! One calibration's state from round to round, and the steps of a round: plan, check the
-//! stop rules, move, capture, solve, record.
+//! stop rules, move, capture, solve, record. The stop rules (`stop`), the moves (`motion`) and
+//! the set-up and reporting helpers (`setup`) have files of their own.
+
+mod motion;
+mod setup;
+mod stop;
+
+use setup::{
+    camera_result, check_only_cameras, emit_round, emit_view, initial_guess, judge_loop_fit,
+    progress_bar, robot_entry, run_settings, track,
+};
 
 use std::path::Path;
 use std::sync::Arc;
@@ -7,12 +17,11 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use easyhec_drivers::ArmStatus;
 use nalgebra::Isometry3;
 
 use super::motion_cost::{self, MotionCost};
 use super::planner::{choose_reachable, rank_poses, PlanCamera, PlanRequest, Ranked};
-use super::recorder::{self, RecordedCamera, Recorder};
+use super::recorder::{RecordedCamera, Recorder};
 use super::{CameraOutcome, CameraRound, Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
 use crate::backend::{open_renderer, Backend};
 use crate::camera::{Intrinsics, LensWarp};
@@ -25,12 +34,8 @@ use crate::io::write_json_atomic;
 use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
 use crate::render::PosedRobot;
 use crate::run::rig::{CameraResult, JointCorrections, RigResultFile, RIG_RESULT_FORMAT};
-use crate::run::{CameraEntry, PerView, ResultFile, RobotEntry, UncertaintyEntry};
-use crate::safety::CheckedMove;
-use crate::solve::{
-    solve, solve_with_shared_joints, with_view_disagreement, CameraSolve, SolveOptions,
-    SolveReport, View,
-};
+use crate::run::CameraEntry;
+use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
 /// starting pose (a fixed camera: below [`POOR_FIT_IOU`]). A fixed camera sees the whole arm,
@@ -133,7 +138,7 @@ impl<'a> Session<'a> {
                         )
                     })?;
                 let warm = opts.camera_guesses.get(unit.name).copied();
-                track(cell, unit, warm.or(own).or(guess))
+                track(unit, warm.or(own).or(guess))
             })
             .collect::<Result<Vec<_>>>()?;
         let recorded = tracks
@@ -389,111 +394,6 @@ impl<'a> Session<'a> {
         })
     }
 
-    /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
-    /// the camera centre within `stop_centre_95_mm`, for every camera. The bound is
-    /// calibrated to cover the true error (docs/uncertainty.md), so stopping on it keeps the
-    /// promise.
-    ///
-    /// The statistical bound is checked first; only when it passes does each camera's view
-    /// jackknife run (it costs about a solve), and the widened bound must pass too.
-    fn precise_enough(&mut self) -> Option<String> {
-        let target = self.settings.stop_centre_95_mm?;
-        if !self.bounds_within(target) {
-            return None;
-        }
-        self.measure_view_disagreement();
-        if !self.bounds_within(target) {
-            return None;
-        }
-        let worst = self
-            .tracks
-            .iter()
-            .map(|t| t.report().uncertainty.camera_centre_95_mm)
-            .fold(0.0, f64::max);
-        let which = if self.is_rig() {
-            " for every camera"
-        } else {
-            ""
-        };
-        Some(format!(
-            "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
-            self.views()
-        ))
-    }
-
-    /// Enough views, every one fitting, and every camera's 95% centre bound within `target`.
-    fn bounds_within(&self, target: f64) -> bool {
-        self.views() >= self.settings.min_views
-            && self.tracks.iter().all(|t| {
-                t.report.as_ref().is_some_and(|report| {
-                    let fits = report.per_view_iou.iter().all(|&iou| iou >= POOR_FIT_IOU);
-                    let bound = report.uncertainty.camera_centre_95_mm;
-                    // A NaN bound promises nothing: it never stops the loop.
-                    fits && !bound.is_nan() && bound <= target
-                })
-            })
-    }
-
-    /// Widens every camera's covariance by what its views' disagreement shows (once per
-    /// solve: a report that has it keeps it).
-    fn measure_view_disagreement(&mut self) {
-        let started = Instant::now();
-        let renderer = self.renderer.as_ref();
-        let opts = &self.solve_opts;
-        self.tracks.par_iter_mut().for_each(|t| {
-            if let Some(report) = t.report.take() {
-                t.report = Some(with_view_disagreement(
-                    renderer, &t.camera, &t.views, report, opts,
-                ));
-            }
-        });
-        self.solve_s += started.elapsed().as_secs_f64();
-    }
-
-    /// The variance rule of a single camera: the best disagreement settled, enough views,
-    /// and the estimate barely moved in the last round. (A rig's cameras each converge on
-    /// their own: [`Session::mark_converged`].)
-    fn converged(&self, best: Option<f64>) -> Option<String> {
-        if self.is_rig() {
-            return None;
-        }
-        let s = &self.settings;
-        let last = self.rounds.last()?;
-        let (Some(prev), Some(best), Some([deg, mm])) =
-            (self.previous_best, best, last.pose_change)
-        else {
-            return None;
-        };
-        let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
-        (settled && self.views() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm)
-            .then(|| format!("variance converged after {} views", self.views()))
-    }
-
-    /// A rig's cameras that have converged: enough views, and the estimate moved less than
-    /// the pose tolerances in the last round. Such a camera stops asking for views; it keeps
-    /// every view the others ask for.
-    fn mark_converged(&mut self) {
-        if !self.is_rig() {
-            return;
-        }
-        let (s, n) = (&self.settings, self.taken.len());
-        for t in self.tracks.iter_mut().filter(|t| t.done.is_none()) {
-            if let Some([deg, mm]) = t.change {
-                if n >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm {
-                    t.done = Some(format!(
-                        "converged after {n} views (moved {deg:.4} deg / {mm:.3} mm in the last round)"
-                    ));
-                }
-            }
-        }
-    }
-
-    /// The rig's stop: every camera converged.
-    fn rig_converged(&self) -> Option<String> {
-        (self.is_rig() && self.tracks.iter().all(|t| t.done.is_some()))
-            .then(|| format!("every camera converged after {} views", self.views()))
-    }
-
     /// A dry run plans the whole sequence from the first view's estimate, chaining paths,
     /// and moves nothing.
     fn plan_dry_run(&mut self, ranked: &[Ranked], from: &[f64]) -> String {
@@ -525,88 +425,6 @@ impl<'a> Session<'a> {
             "dry run: planned {} poses, nothing moved",
             self.planned.len()
         )
-    }
-
-    /// Asks the operator (when configured), then sends the checked move and watches it, the
-    /// cancel flag included; a failed move is recorded and, within the failure budget,
-    /// retried from wherever the arm stopped.
-    async fn move_to(&mut self, pose: &PlannedPose, mv: &CheckedMove) -> Result<MoveOutcome> {
-        let n = self.views();
-        if let Some(confirm) = &self.opts.confirm {
-            if !self.pb.suspend(|| confirm(pose)) {
-                return Ok(MoveOutcome::Stop(format!(
-                    "operator declined a move after {n} views"
-                )));
-            }
-        }
-        if self.opts.cancelled() {
-            self.cancelled = true;
-            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
-        }
-        self.last_round().next_joints = Some(pose.joints.clone());
-        self.pb.set_message(format!("moving to view {}", n + 1));
-        self.opts.emit(Progress::Moving {
-            view: n,
-            joints: pose.joints.clone(),
-        });
-        let t = Instant::now();
-        let moved = self.execute(mv).await;
-        self.motion_s += t.elapsed().as_secs_f64();
-        if self.opts.cancelled() {
-            if moved.is_err() {
-                let _ = self.cell.arm.stop().await;
-                self.last_round()
-                    .events
-                    .push("move stopped: calibration cancelled".into());
-            }
-            self.cancelled = true;
-            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
-        }
-        match moved {
-            Ok(()) => Ok(MoveOutcome::Arrived),
-            Err(e) => self.after_failed_move(e).await,
-        }
-    }
-
-    /// Sends a checked move and waits for it, stopping the arm if the run is cancelled.
-    async fn execute(&self, mv: &CheckedMove) -> Result<()> {
-        let motion = self.cell.arm.execute(mv).await?;
-        tokio::select! {
-            r = motion.wait() => r.map_err(Error::from),
-            () = self.opts.wait_cancelled() => {
-                // Stop first; the motion future is dropped, the arm halts where it is.
-                let _ = self.cell.arm.stop().await;
-                Err(Error::Hardware("move stopped: calibration cancelled".into()))
-            }
-        }
-    }
-
-    /// Records a failed move and decides: retry (clearing a fault when allowed) or stop.
-    async fn after_failed_move(&mut self, e: Error) -> Result<MoveOutcome> {
-        self.failures += 1;
-        let note = format!("move failed: {e}");
-        self.last_round().events.push(note.clone());
-        self.rec.write_rounds(&self.rounds)?;
-        let _ = self.cell.arm.stop().await;
-        let status = self.cell.arm.status().await?;
-        let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
-        if self.failures > self.settings.max_motion_failures {
-            self.faulted = true;
-            return Ok(MoveOutcome::Stop(format!(
-                "gave up after {} failed moves ({note})",
-                self.failures
-            )));
-        }
-        if faulted {
-            if !self.settings.clear_faults {
-                self.faulted = true;
-                return Ok(MoveOutcome::Stop(format!(
-                    "arm fault, not cleared (calibration.clear_faults = false): {e}"
-                )));
-            }
-            self.cell.arm.clear_fault().await?;
-        }
-        Ok(MoveOutcome::Retry)
     }
 
     /// Captures the view at the new pose, solves every camera from its previous estimate
@@ -961,209 +779,5 @@ impl<'a> Session<'a> {
             cancelled: self.cancelled,
             faulted: self.faulted,
         })
-    }
-}
-
-/// One camera's `easyhec-result/1` record of the loop's final solve.
-fn camera_result(
-    report: &SolveReport,
-    seen: &crate::robot::RobotModel,
-    stop_reason: String,
-    timings_s: &std::collections::BTreeMap<String, f64>,
-    opts: &SolveOptions,
-) -> ResultFile {
-    let mut result = ResultFile::new(&report.camera_from_base, &seen.links[seen.base]);
-    result.views_used = (0..report.per_view_iou.len()).collect();
-    result.per_view = report
-        .per_view_iou
-        .iter()
-        .enumerate()
-        .map(|(i, &iou)| PerView { view: i, iou })
-        .collect();
-    result.uncertainty = UncertaintyEntry::of_report(report, opts);
-    result.stop_reason = stop_reason;
-    result.timings_s = timings_s.clone();
-    result
-}
-
-/// `only_cameras` names cameras of the cell, each once, and at least one.
-fn check_only_cameras(cell: &Cell, names: Option<&[String]>) -> Result<()> {
-    let Some(names) = names else {
-        return Ok(());
-    };
-    let known: Vec<&str> = cell.cameras().iter().map(|c| c.name).collect();
-    match crate::config::cameras::selection_problem(&known, names) {
-        Some(m) => Err(Error::Usage(m)),
-        None => Ok(()),
-    }
-}
-
-/// A camera of the cell as a track: its intrinsics, its starting pose, and the frames a
-/// context-aware segmenter keeps (refused in a rig, whose cameras segment frame by frame).
-fn track<'a>(
-    cell: &'a Cell,
-    unit: CameraRef<'a>,
-    guess: Option<Isometry3<f64>>,
-) -> Result<Track<'a>> {
-    let live = unit.segmenter.uses_context().then(|| LiveFrames {
-        frames: Vec::new(),
-        min_band_px: unit.segmenter_config.min_band_px(),
-        final_band_px: unit.segmenter_config.final_band_px(),
-    });
-    if live.is_some() && !cell.more_cameras.is_empty() {
-        return Err(Error::input(
-            &cell.config_path,
-            "segmenter",
-            format!("camera '{}': a segmenter that reads the whole run (builtin) serves one camera; a list of cameras needs per-frame segmenters (onnx, sim-truth)", unit.name),
-        ));
-    }
-    Ok(Track {
-        camera: unit.device.intrinsics().clone(),
-        unit,
-        guess,
-        live,
-        views: Vec::new(),
-        report: None,
-        change: None,
-        done: None,
-    })
-}
-
-/// Refuses to write a result whose silhouettes do not match the masks (mean IoU under
-/// [`POOR_FIT_IOU`]): its covariance would describe a wrong pose and still look tight. The
-/// run directory keeps every view for a look and an offline re-solve.
-fn judge_loop_fit(report: &SolveReport, camera: Option<&str>, run_dir: &Path) -> Result<()> {
-    let camera = camera
-        .map(|n| format!("camera '{n}': "))
-        .unwrap_or_default();
-    let mean = report.mean_iou();
-    if mean.is_nan() || mean < POOR_FIT_IOU {
-        let poor: Vec<usize> = report
-            .per_view_iou
-            .iter()
-            .enumerate()
-            .filter(|(_, &iou)| iou < POOR_FIT_IOU)
-            .map(|(i, _)| i)
-            .collect();
-        return Err(Error::Solve(format!(
-            "{camera}poor fit: mean IoU {mean:.3} is below {POOR_FIT_IOU} (views {poor:?} fit poorly); no result written. The views are in {}: check the masks, joints and initial_guess, then re-solve them with `easyhec solve` (`--allow-poor-fit` writes a poor result anyway)",
-            run_dir.display()
-        )));
-    }
-    Ok(())
-}
-
-/// The `[calibration]` settings of this run: `RunOptions::max_views` applied, the commanded
-/// speed checked against the safety cap.
-fn run_settings(cell: &Cell, opts: &RunOptions) -> Result<CalibrationSettings> {
-    let mut settings = cell.config.calibration.clone();
-    if let Some(m) = opts.max_views {
-        if m == 0 {
-            return Err(Error::input(
-                &cell.config_path,
-                "calibration.max_views",
-                "a run needs at least 1 view",
-            ));
-        }
-        settings.max_views = m;
-        settings.min_views = settings.min_views.min(m);
-    }
-    let speed = settings.speed_rad_s;
-    let cap = cell.checker.speed_cap_rad_s();
-    if speed > cap {
-        return Err(Error::input(
-            &cell.config_path,
-            "calibration.speed_rad_s",
-            format!("{speed} rad/s is above the safety cap of {cap} rad/s (safety.speed_cap_rad_s and the joints' velocity limits)"),
-        ));
-    }
-    Ok(settings)
-}
-
-/// The starting pose: the run's own (a warm start), else the config's, else none.
-fn initial_guess(
-    cell: &Cell,
-    opts: &RunOptions,
-    settings: &CalibrationSettings,
-) -> Result<Option<Isometry3<f64>>> {
-    let given = opts.initial_guess.is_some() || settings.initial_guess.is_some();
-    if given && !cell.more_cameras.is_empty() {
-        return Err(Error::input(
-            &cell.config_path,
-            "calibration.initial_guess",
-            "one starting pose cannot serve several cameras: leave it out, and each fixed camera of the list is found by the automatic initialisation",
-        ));
-    }
-    Ok(match (&opts.initial_guess, &settings.initial_guess) {
-        (Some(g), _) => Some(*g),
-        (None, Some(g)) => Some(
-            g.camera_from_base()
-                .map_err(|m| Error::input(&cell.config_path, "calibration.initial_guess", m))?,
-        ),
-        (None, None) => None,
-    })
-}
-
-/// The run's `robot` entry: absolute paths, so the run solves from anywhere.
-fn robot_entry(cell: &Cell) -> RobotEntry {
-    let src = &cell.robot.source;
-    RobotEntry {
-        urdf: recorder::absolute(&src.urdf),
-        package_dirs: src
-            .package_dirs
-            .iter()
-            .map(|(k, v)| (k.clone(), recorder::absolute(v)))
-            .collect(),
-        package_paths: src
-            .package_paths
-            .iter()
-            .map(|p| recorder::absolute(p))
-            .collect(),
-        base_link: Some(cell.robot.links[cell.robot.base].clone()),
-        ignore_links: src.ignore_links.clone(),
-        joints: cell
-            .robot
-            .joint_names()
-            .iter()
-            .map(|s| s.to_string())
-            .collect(),
-        xacro_args: src.xacro_args.clone(),
-    }
-}
-
-fn progress_bar(opts: &RunOptions, max_views: usize) -> indicatif::ProgressBar {
-    if !opts.progress {
-        return indicatif::ProgressBar::hidden();
-    }
-    let pb = indicatif::ProgressBar::new(max_views as u64);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} views {pos}/{len} {wide_msg} [{elapsed}]",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    pb.enable_steady_tick(std::time::Duration::from_millis(200));
-    pb
-}
-
-fn emit_view(opts: &RunOptions, taken: &[Vec<f64>]) {
-    if let Some(joints) = taken.last() {
-        opts.emit(Progress::ViewCaptured {
-            index: taken.len() - 1,
-            joints: joints.clone(),
-        });
-    }
-}
-
-fn emit_round(opts: &RunOptions, rounds: &[RoundRecord], report: &SolveReport) {
-    if let Some(r) = rounds.last() {
-        opts.emit(Progress::Round {
-            round: r.round,
-            views: r.views,
-            loss: r.loss,
-            mean_iou: r.mean_iou,
-            camera_from_base: r.camera_from_base,
-            uncertainty: UncertaintyEntry::of(&report.uncertainty).map(Box::new),
-        });
     }
 }

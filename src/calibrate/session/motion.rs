@@ -1,0 +1,100 @@
+//! Moving the arm to a planned pose: the checked move, and what a failed one leaves (a
+//! fault is cleared once, a refusal skips the pose).
+
+use std::time::Instant;
+
+use easyhec_drivers::ArmStatus;
+
+use crate::calibrate::{PlannedPose, Progress};
+use crate::error::{Error, Result};
+use crate::safety::CheckedMove;
+
+use super::{MoveOutcome, Session};
+
+impl Session<'_> {
+    /// Asks the operator (when configured), then sends the checked move and watches it, the
+    /// cancel flag included; a failed move is recorded and, within the failure budget,
+    /// retried from wherever the arm stopped.
+    pub(super) async fn move_to(
+        &mut self,
+        pose: &PlannedPose,
+        mv: &CheckedMove,
+    ) -> Result<MoveOutcome> {
+        let n = self.views();
+        if let Some(confirm) = &self.opts.confirm {
+            if !self.pb.suspend(|| confirm(pose)) {
+                return Ok(MoveOutcome::Stop(format!(
+                    "operator declined a move after {n} views"
+                )));
+            }
+        }
+        if self.opts.cancelled() {
+            self.cancelled = true;
+            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+        }
+        self.last_round().next_joints = Some(pose.joints.clone());
+        self.pb.set_message(format!("moving to view {}", n + 1));
+        self.opts.emit(Progress::Moving {
+            view: n,
+            joints: pose.joints.clone(),
+        });
+        let t = Instant::now();
+        let moved = self.execute(mv).await;
+        self.motion_s += t.elapsed().as_secs_f64();
+        if self.opts.cancelled() {
+            if moved.is_err() {
+                let _ = self.cell.arm.stop().await;
+                self.last_round()
+                    .events
+                    .push("move stopped: calibration cancelled".into());
+            }
+            self.cancelled = true;
+            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+        }
+        match moved {
+            Ok(()) => Ok(MoveOutcome::Arrived),
+            Err(e) => self.after_failed_move(e).await,
+        }
+    }
+
+    /// Sends a checked move and waits for it, stopping the arm if the run is cancelled.
+    pub(super) async fn execute(&self, mv: &CheckedMove) -> Result<()> {
+        let motion = self.cell.arm.execute(mv).await?;
+        tokio::select! {
+            r = motion.wait() => r.map_err(Error::from),
+            () = self.opts.wait_cancelled() => {
+                // Stop first; the motion future is dropped, the arm halts where it is.
+                let _ = self.cell.arm.stop().await;
+                Err(Error::Hardware("move stopped: calibration cancelled".into()))
+            }
+        }
+    }
+
+    /// Records a failed move and decides: retry (clearing a fault when allowed) or stop.
+    pub(super) async fn after_failed_move(&mut self, e: Error) -> Result<MoveOutcome> {
+        self.failures += 1;
+        let note = format!("move failed: {e}");
+        self.last_round().events.push(note.clone());
+        self.rec.write_rounds(&self.rounds)?;
+        let _ = self.cell.arm.stop().await;
+        let status = self.cell.arm.status().await?;
+        let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
+        if self.failures > self.settings.max_motion_failures {
+            self.faulted = true;
+            return Ok(MoveOutcome::Stop(format!(
+                "gave up after {} failed moves ({note})",
+                self.failures
+            )));
+        }
+        if faulted {
+            if !self.settings.clear_faults {
+                self.faulted = true;
+                return Ok(MoveOutcome::Stop(format!(
+                    "arm fault, not cleared (calibration.clear_faults = false): {e}"
+                )));
+            }
+            self.cell.arm.clear_fault().await?;
+        }
+        Ok(MoveOutcome::Retry)
+    }
+}
