@@ -57,8 +57,7 @@ pub mod time;
 pub use error::{Error, Result};
 pub use nalgebra;
 
-/// The cargo features, each with whether this build has it, in `Cargo.toml`'s order: the one
-/// list of them in Rust. `easyhec --version` prints the ones built in, so a bug report says
+/// The cargo features, each with whether this build has it: the one list of them in Rust. `easyhec --version` prints the ones built in, so a bug report says
 /// which drivers and renderers were there; `./test` reads the same list from `Cargo.toml`, and
 /// a unit test keeps the two equal.
 pub const FEATURES: &[(&str, bool)] = &[

@@ -757,6 +757,55 @@ fn solve_cases() -> Vec<Case> {
             }),
         ),
         case(
+            "--initial-guess without camera_from_base",
+            &["solve", "run", "--initial-guess", "guess.json"],
+            &["guess.json", "camera_from_base"],
+            |d: &Path| std::fs::write(d.join("guess.json"), "{\"pose\": 1}").unwrap(),
+        ),
+        case(
+            "--initial-guess not a rigid transform",
+            &["solve", "run", "--initial-guess", "guess.json"],
+            &["guess.json", "camera_from_base"],
+            |d: &Path| {
+                let rows = "[[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]";
+                std::fs::write(
+                    d.join("guess.json"),
+                    format!("{{\"camera_from_base\": {rows}}}"),
+                )
+                .unwrap()
+            },
+        ),
+        case(
+            "--initial-guess from another frame",
+            &["solve", "run", "--initial-guess", "guess.json"],
+            &["guess.json", "base_link", "link6"],
+            |d: &Path| {
+                let rows = "[[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]]";
+                let text = format!("{{\"camera_from_base\": {rows}, \"base_link\": \"link6\"}}");
+                std::fs::write(d.join("guess.json"), text).unwrap()
+            },
+        ),
+        case(
+            "--initial-guess that is also --out",
+            &[
+                "solve",
+                "run",
+                "--initial-guess",
+                "guess.json",
+                "--out",
+                "guess.json",
+            ],
+            &["--out", "reads"],
+            |d: &Path| {
+                let rows = "[[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]]";
+                std::fs::write(
+                    d.join("guess.json"),
+                    format!("{{\"camera_from_base\": {rows}}}"),
+                )
+                .unwrap()
+            },
+        ),
+        case(
             "--views 0",
             &["solve", "run", "--views", "0"],
             &["--views"],

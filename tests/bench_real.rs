@@ -73,3 +73,28 @@ fn bench_real_compares_the_reported_sigma_with_the_views_jackknife() {
         .unwrap();
     assert!(mm < 20.0, "{from}");
 }
+
+/// The images-only figures of `bench real --images` on the same four views: the builtin
+/// segmenter's calibration from the rough guess is a pose (not an error line), its masks
+/// overlap the provided SAM 2 masks, and it lands within a loose bound of the mask pose
+/// (10 views: 0.14° / 11 mm, docs/benchmarks.md, where the images-only targets are).
+#[test]
+fn images_only_figures_compare_the_builtin_calibration_with_the_mask_pose() {
+    use easyhec::bench::real::{images_only, real_figures, Start};
+    use easyhec::config::RendererChoice;
+    let dir = common::repo_root().join("../shared/datasets/xarm7_realsense_roboreg");
+    let figures = real_figures(&dir, RendererChoice::Cpu, Some(4), &mut |_| {}).unwrap();
+    let i = images_only(
+        &dir,
+        RendererChoice::Cpu,
+        Some(4),
+        Start::RoughGuess,
+        &figures.mask_pose,
+    )
+    .unwrap();
+    let (from_masks, from_reference) = i.apart.clone().unwrap();
+    assert_eq!(i.mask_iou.len(), 4, "{i:?}");
+    assert!(i.mask_iou.iter().all(|v| *v > 0.8), "{i:?}");
+    assert!(from_masks[0] < 1.0 && from_masks[1] < 30.0, "{i:?}");
+    assert!(from_reference[1] < 40.0, "{i:?}");
+}

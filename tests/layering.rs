@@ -180,14 +180,12 @@ fn module_path(src: &Path, file: &Path) -> Vec<String> {
 /// module's `super` is the file itself), groups expanded: `use super::{a::X, b}` gives
 /// `super::a::X` and `super::b`.
 fn relative_paths(text: &str) -> Vec<Vec<String>> {
-    let code: String = text
-        .split("#[cfg(test)]")
-        .next()
-        .unwrap()
-        .lines()
-        .map(|l| l.split("//").next().unwrap_or(""))
-        .collect::<Vec<_>>()
-        .join("\n");
+    let code = without_comments(text);
+    let code = ["#[cfg(test)]", "#[cfg(all(test"]
+        .iter()
+        .filter_map(|attr| code.find(attr))
+        .min()
+        .map_or(code.as_str(), |at| &code[..at]);
     let chars: Vec<char> = code.chars().collect();
     let mut out = Vec::new();
     let mut i = 0;
@@ -208,18 +206,53 @@ fn relative_paths(text: &str) -> Vec<Vec<String>> {
     out
 }
 
-/// Parses one path at `i` (segments joined by `::`, ending in a name or a `{…}` group) with
-/// `prefix` before it; pushes every full path to `out` and returns the index after it.
+/// `text` without `//` line comments and `/* */` block comments (doc comments included).
+fn without_comments(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while !rest.is_empty() {
+        match (rest.find("//"), rest.find("/*")) {
+            (Some(l), b) if b.is_none_or(|b| l < b) => {
+                out.push_str(&rest[..l]);
+                rest = rest[l..].find('\n').map_or("", |e| &rest[l + e..]);
+            }
+            (_, Some(b)) => {
+                out.push_str(&rest[..b]);
+                rest = rest[b..].find("*/").map_or("", |e| &rest[b + e + 2..]);
+            }
+            _ => {
+                out.push_str(rest);
+                rest = "";
+            }
+        }
+    }
+    out
+}
+
+/// Parses one path at `i` (segments joined by `::`, ending in a name, a `*` or a `{…}` group,
+/// an `as alias` skipped) with `prefix` before it; pushes every full path to `out` and returns
+/// the index after it (always past `i`, so a stray character cannot stall the scan).
 fn parse_path(
     chars: &[char],
     mut i: usize,
     mut prefix: Vec<String>,
     out: &mut Vec<Vec<String>>,
 ) -> usize {
-    loop {
+    let skip_space = |mut i: usize| {
         while i < chars.len() && chars[i].is_whitespace() {
             i += 1;
         }
+        i
+    };
+    let ident_end = |mut i: usize| {
+        while i < chars.len() && (chars[i].is_alphanumeric() || chars[i] == '_') {
+            i += 1;
+        }
+        i
+    };
+    let start = i;
+    loop {
+        i = skip_space(i);
         if i < chars.len() && chars[i] == '{' {
             i += 1;
             loop {
@@ -232,18 +265,29 @@ fn parse_path(
                 i = parse_path(chars, i, prefix.clone(), out);
             }
         }
-        let start = i;
-        while i < chars.len() && (chars[i].is_alphanumeric() || chars[i] == '_') {
-            i += 1;
+        let name_start = i;
+        i = ident_end(i);
+        if i == name_start {
+            // `*`, or something that is no path: what came before is the path.
+            if !prefix.is_empty() {
+                out.push(prefix);
+            }
+            return (i + 1).max(start + 1);
         }
-        prefix.push(chars[start..i].iter().collect());
+        prefix.push(chars[name_start..i].iter().collect());
         if chars.get(i) == Some(&':') && chars.get(i + 1) == Some(&':') {
             i += 2;
-        } else {
-            out.push(prefix);
-            // Skip an `as alias` and anything else up to the item's end.
-            return i;
+            continue;
         }
+        out.push(prefix);
+        let after = skip_space(i);
+        if chars[after..].starts_with(&['a', 's'])
+            && after + 2 < chars.len()
+            && chars[after + 2].is_whitespace()
+        {
+            return ident_end(skip_space(after + 2));
+        }
+        return i;
     }
 }
 
@@ -340,25 +384,30 @@ fn no_two_modules_use_each_other() {
 }
 
 /// The check itself can fail: two made-up sibling files that use each other, one through
-/// `super::` and one through `crate::` in a group, are reported; a parent using its child
-/// is not.
+/// `super::` and one through a `crate::` group with a glob, are reported; a parent using its
+/// child is not, nor are paths in comments or a test module, nor an alias that happens to
+/// be a sibling's name.
 #[test]
 fn two_modules_that_use_each_other_are_reported() {
     let dir = tempfile::tempdir().unwrap();
     let src = dir.path();
     std::fs::create_dir_all(src.join("x")).unwrap();
-    std::fs::write(
-        src.join("x/mod.rs"),
-        "pub mod a;\npub mod b;\nuse self::a::A;\n",
-    )
-    .unwrap();
-    std::fs::write(
-        src.join("x/a.rs"),
-        "use super::b::B;\n// use crate::x::c;\n",
-    )
-    .unwrap();
-    std::fs::write(src.join("x/b.rs"), "use crate::{x::{a::A, self}};\n").unwrap();
-    std::fs::write(src.join("y.rs"), "use crate::x::a::A;\n").unwrap();
+    let files = [
+        ("x/mod.rs", "pub mod a;\npub mod b;\npub mod c;\nuse self::a::A;\n"),
+        (
+            "x/a.rs",
+            "use super::b::B;\n// use crate::x::c;\n/* crate::x::c */\n#[cfg(test)]\nmod t { use crate::x::c::C; }\n",
+        ),
+        (
+            "x/b.rs",
+            "use crate::{x::{a::*, self}};\nuse super::{a::A as c /* z */};\n",
+        ),
+        ("x/c.rs", "use super::b::B;\nuse super::a::A;\n"),
+        ("y.rs", "use crate::x::a::A;\n"),
+    ];
+    for (name, text) in files {
+        std::fs::write(src.join(name), text).unwrap();
+    }
     assert_eq!(
         mutual_imports(src, &[]),
         vec!["x::a and x::b use each other"]

@@ -224,6 +224,44 @@ fn no_initial_guess_is_found_automatically() {
     assert_near_truth(&run, "without a guess");
 }
 
+/// `--initial-guess FILE` starts a run that has no guess of its own from another file's
+/// `camera_from_base` (here the truth moved about 3° and 5 cm), leaving run.json unchanged; the
+/// solve lands on the truth without the automatic initialisation.
+#[test]
+fn the_initial_guess_can_come_from_a_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    synth(&run, &["--no-initial-guess"]);
+    let run_json = std::fs::read_to_string(run.join("run.json")).unwrap();
+    let truth: GroundTruth =
+        serde_json::from_str(&std::fs::read_to_string(run.join("ground_truth.json")).unwrap())
+            .unwrap();
+    let off = easyhec::geometry::exp_se3(&easyhec::geometry::Twist::new(
+        0.04,
+        -0.03,
+        0.02,
+        1.5f64.to_radians(),
+        (-2.0f64).to_radians(),
+        2.0f64.to_radians(),
+    ));
+    let guess = off * from_rows(&truth.camera_from_base).unwrap();
+    let file = dir.path().join("guess.json");
+    let rows = easyhec::geometry::to_rows(&guess);
+    std::fs::write(
+        &file,
+        serde_json::json!({ "camera_from_base": rows }).to_string(),
+    )
+    .unwrap();
+    let out = solve(&run, &["--initial-guess", file.to_str().unwrap()]);
+    assert_ok(&out);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("automatic initialisation"));
+    assert_eq!(
+        std::fs::read_to_string(run.join("run.json")).unwrap(),
+        run_json
+    );
+    assert_near_truth(&run, "from --initial-guess");
+}
+
 #[test]
 fn failed_automatic_initialisation_is_reported_not_returned() {
     let dir = tempfile::tempdir().unwrap();
@@ -359,7 +397,8 @@ fn help_lists_every_choice_flags_values() {
     assert!(!out.status.success());
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(
-        stderr.contains(&format!("allowed: {}", ExportFormat::names())),
+        stderr.contains(&format!("allowed: {}", ExportFormat::names()))
+            && stderr.contains("easy-handeye-ros1"),
         "{stderr}"
     );
 }

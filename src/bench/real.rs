@@ -15,13 +15,18 @@ use nalgebra::{Isometry3, Matrix6};
 
 use super::Report;
 use crate::backend::{open_renderer, Backend};
-use crate::config::RendererChoice;
+use crate::camera::LensWarp;
+use crate::config::{RendererChoice, SegmenterConfig};
 use crate::error::{Error, Result};
+use crate::explore::Selection;
 use crate::geometry::{
-    camera_centre_error_mm, from_rows, log_se3, rotation_error_deg, translation_error_mm, Twist,
+    camera_centre_error_mm, log_se3, rotation_error_deg, translation_error_mm, Twist,
 };
+use crate::mask::Mask;
+use crate::pipeline::offline::{solve_run, OfflineSolve};
 use crate::render::PosedRobot;
-use crate::run::{load_run, PoseEntry};
+use crate::run::{load_run, read_pose_file};
+use crate::solve::Optimizer;
 use crate::solve::{
     solve, uncertainty_of, with_view_disagreement, SolveOptions, SolveReport, Uncertainty, View,
 };
@@ -38,6 +43,24 @@ pub struct RealBench {
     /// Use the first N views (default: all).
     #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(2..=100))]
     pub views: Option<usize>,
+    /// Also calibrate from the colour frames alone (`easyhec solve --segmenter builtin
+    /// --ignore-masks`), from the rough guess and with no guess, against the mask pose.
+    #[arg(long)]
+    pub images: bool,
+}
+
+/// An images-only calibration of the run against the pose its provided masks give.
+#[derive(Clone, Debug)]
+pub struct ImagesOnly {
+    /// How it started: `rough_guess.json` or the automatic initialisation.
+    pub start: &'static str,
+    /// Rotation, translation and camera-centre distance (deg, mm, mm) from the mask pose
+    /// and from the reference, or why the solve failed.
+    pub apart: std::result::Result<([f64; 3], [f64; 3]), String>,
+    /// Per-view IoU of the segmenter's masks against the provided ones.
+    pub mask_iou: Vec<f64>,
+    /// Wall time, seconds.
+    pub wall_s: f64,
 }
 
 /// What `bench real` measured.
@@ -59,23 +82,24 @@ pub struct RealFigures {
     pub solve_s: f64,
     /// The part of it the fit took (the solve without the view jackknife), seconds.
     pub fit_s: f64,
+    /// The all-view pose from the provided masks.
+    pub mask_pose: Isometry3<f64>,
 }
 
 impl RealBench {
     /// Runs the benchmark; per-solve lines go to `log`.
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
         let f = real_figures(&self.run, self.renderer, self.views, log)?;
-        Ok(report_of(&self.run, &f))
+        let mut report = report_of(&self.run, &f);
+        if self.images {
+            let views = Some(f.per_view_iou.len());
+            for start in [Start::RoughGuess, Start::Automatic] {
+                let i = images_only(&self.run, self.renderer, views, start, &f.mask_pose)?;
+                report.line(images_line(&i));
+            }
+        }
+        Ok(report)
     }
-}
-
-/// `DIR/NAME` read as a pose file (`{"camera_from_base": 4x4}`).
-fn pose_file(dir: &Path, name: &str) -> Result<Isometry3<f64>> {
-    let path = dir.join(name);
-    let text = crate::io::read_text_input(&path)?;
-    let entry: PoseEntry = serde_json::from_str(&text)
-        .map_err(|e| Error::input(&path, "camera_from_base", e.to_string()))?;
-    from_rows(&entry.camera_from_base).map_err(|m| Error::input(&path, "camera_from_base", m))
 }
 
 /// Solves the run from its rough guess, then once per left-out view, and compares.
@@ -85,8 +109,8 @@ pub fn real_figures(
     views: Option<usize>,
     log: &mut dyn FnMut(&str),
 ) -> Result<RealFigures> {
-    let reference = pose_file(dir, "reference.json")?;
-    let guess = pose_file(dir, "rough_guess.json")?;
+    let reference = read_pose_file(&dir.join("reference.json"))?;
+    let guess = read_pose_file(&dir.join("rough_guess.json"))?;
     let run = load_run(dir)?;
     let k = views.unwrap_or(run.views.len()).min(run.views.len());
     let all: Vec<View> = run.views[..k]
@@ -140,6 +164,7 @@ pub fn real_figures(
         jackknife,
         solve_s,
         fit_s,
+        mask_pose: est,
     })
 }
 
@@ -232,4 +257,114 @@ fn report_of(dir: &Path, f: &RealFigures) -> Report {
         f.from_reference[2]
     ));
     r
+}
+
+/// Where an images-only solve starts.
+#[derive(Clone, Copy, Debug)]
+pub enum Start {
+    /// From `rough_guess.json`.
+    RoughGuess,
+    /// From the automatic initialisation (no guess).
+    Automatic,
+}
+
+/// `easyhec solve RUN --segmenter builtin --ignore-masks` (from the rough guess, or with no
+/// guess), its pose against `mask_pose` and the reference, and its masks against the
+/// provided ones. A solve that fails is a figure too (its error line), not an error.
+pub fn images_only(
+    dir: &Path,
+    renderer: RendererChoice,
+    views: Option<usize>,
+    start: Start,
+    mask_pose: &Isometry3<f64>,
+) -> Result<ImagesOnly> {
+    let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let masks_dir = scratch.path().join("masks");
+    let request = OfflineSolve {
+        run: dir.to_path_buf(),
+        views,
+        selection: Selection::First,
+        seed: 0,
+        optimizer: Optimizer::Lm,
+        out: Some(scratch.path().join("result.json")),
+        initial_guess: matches!(start, Start::RoughGuess).then(|| dir.join("rough_guess.json")),
+        overlays: None,
+        renderer,
+        keep_all_views: false,
+        segmenter: Some(SegmenterConfig::by_name("builtin").map_err(Error::Usage)?),
+        ignore_masks: true,
+        masks_out: Some(masks_dir.clone()),
+        allow_poor_fit: true,
+        joint_noise_rad: 5e-4,
+        model_floor: (0.0, 0.0),
+    };
+    let t = Instant::now();
+    let solved = solve_run(&request, &mut |_| {});
+    let wall_s = t.elapsed().as_secs_f64();
+    let start_name = match start {
+        Start::RoughGuess => "from rough_guess.json",
+        Start::Automatic => "with no guess",
+    };
+    let outcome = match solved {
+        Ok(o) => o,
+        Err(e) => {
+            return Ok(ImagesOnly {
+                start: start_name,
+                apart: Err(e.to_string()),
+                mask_iou: Vec::new(),
+                wall_s,
+            })
+        }
+    };
+    let est = outcome.report.camera_from_base;
+    let reference = read_pose_file(&dir.join("reference.json"))?;
+    let apart = |other: &Isometry3<f64>| {
+        [
+            rotation_error_deg(&est, other),
+            translation_error_mm(&est, other),
+            camera_centre_error_mm(&est, other),
+        ]
+    };
+    let run = load_run(dir)?;
+    let mask_iou = run
+        .views
+        .iter()
+        .take(views.unwrap_or(usize::MAX))
+        .enumerate()
+        .map(|(position, v)| {
+            let made = Mask::load(&masks_dir.join(crate::run::mask_file_name(position)))?;
+            Ok(run.camera.undistort_mask(&made).iou(&v.observed))
+        })
+        .collect::<Result<Vec<f64>>>()?;
+    Ok(ImagesOnly {
+        start: start_name,
+        apart: Ok((apart(mask_pose), apart(&reference))),
+        mask_iou,
+        wall_s,
+    })
+}
+
+/// One line per images-only solve.
+fn images_line(i: &ImagesOnly) -> String {
+    let (m, r) = match &i.apart {
+        Ok(figures) => figures,
+        Err(e) => {
+            return format!(
+                "images only, {}: failed after {:.1} s: {e}",
+                i.start, i.wall_s
+            )
+        }
+    };
+    format!(
+        "images only, {}: {:.3} deg, {:.2} mm (camera centre {:.2} mm) from the mask pose; {:.3} deg, {:.2} mm from the reference; mask IoU against the provided masks mean {:.3} (min {:.3}); {:.1} s",
+        i.start,
+        m[0],
+        m[1],
+        m[2],
+        r[0],
+        r[1],
+        i.mask_iou.iter().sum::<f64>() / i.mask_iou.len().max(1) as f64,
+        i.mask_iou.iter().copied().fold(f64::INFINITY, f64::min),
+        i.wall_s
+    )
 }

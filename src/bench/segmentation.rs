@@ -189,6 +189,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         seed: 0,
         optimizer: Optimizer::Lm,
         out: Some(scratch.path().join(out)),
+        initial_guess: None,
         overlays: None,
         renderer,
         keep_all_views: false,

@@ -26,6 +26,10 @@ pub struct SolveArgs {
     /// Result path (default RUN/result.json).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Start from this pose instead of the run's initial_guess: a JSON file with
+    /// `camera_from_base` (4x4, row-major), such as another solve's result.json.
+    #[arg(long)]
+    pub initial_guess: Option<PathBuf>,
     /// The optimiser.
     #[arg(long, value_enum, default_value_t = Optimizer::Lm)]
     pub optimizer: Optimizer,
@@ -106,6 +110,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         seed: a.seed,
         optimizer,
         out: a.out,
+        initial_guess: a.initial_guess,
         overlays: a.overlays,
         renderer: a.renderer,
         keep_all_views: a.keep_all_views,

@@ -180,6 +180,57 @@ pub struct PoseEntry {
     pub camera_from_base: [[f64; 4]; 4],
 }
 
+/// A pose file: any JSON object with a `camera_from_base` 4x4 (row-major), such as a
+/// `result.json` or a reference pose; other fields are ignored.
+pub fn read_pose_file(path: &Path) -> Result<Isometry3<f64>> {
+    Ok(read_pose_file_framed(path)?.0)
+}
+
+/// [`read_pose_file`], with the file's `base_link` when it names one (a `result.json` does):
+/// the frame its `camera_from_base` starts from.
+fn read_pose_file_framed(path: &Path) -> Result<(Isometry3<f64>, Option<String>)> {
+    #[derive(Deserialize)]
+    struct Framed {
+        camera_from_base: [[f64; 4]; 4],
+        #[serde(default)]
+        base_link: Option<String>,
+    }
+    let text = crate::io::read_text_input(path)?;
+    let entry: Framed = serde_json::from_str(&text)
+        .map_err(|e| Error::input(path, "camera_from_base", e.to_string()))?;
+    let pose = from_rows(&entry.camera_from_base)
+        .map_err(|m| Error::input(path, "camera_from_base", m))?;
+    Ok((pose, entry.base_link))
+}
+
+/// [`load_run_with`], starting from the pose in `guess_file` ([`read_pose_file`]) instead of
+/// `run.json`'s `initial_guess`, which stays as it is on disk. A run whose camera is on a
+/// link needs a guess, and this one counts. A file that names its `base_link` must name the
+/// frame the run solves from (the robot's base, or the camera's link): a wrist camera's
+/// `camera_from_link6` is no guess for a fixed camera.
+pub fn load_run_with_guess(
+    path: &Path,
+    mask_source: MaskSource,
+    guess_file: &Path,
+) -> Result<LoadedRun> {
+    let (pose, frame) = read_pose_file_framed(guess_file)?;
+    let (json, dir) = run_paths(path);
+    let mut file = RunFile::read(&json)?;
+    file.initial_guess = Some(PoseEntry {
+        camera_from_base: to_rows(&pose),
+    });
+    let run = load_run_file(json, dir, file, mask_source)?;
+    let solved_from = &run.robot.links[run.robot.base];
+    match frame {
+        Some(f) if &f != solved_from => Err(Error::input(
+            guess_file,
+            "base_link",
+            format!("is '{f}', but this run solves the camera from '{solved_from}'; allowed: a pose from '{solved_from}' (or a file without base_link)"),
+        )),
+        _ => Ok(run),
+    }
+}
+
 /// `run.json` → `views[i]`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct ViewEntry {

@@ -16,7 +16,7 @@
 //! view's systematic error sits past the tight Cauchy scale, where it barely pulls. The view
 //! jackknife (module `disagreement`) measures it and adds what it shows beyond this covariance.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 use nalgebra::{Isometry3, Matrix6};
 use rayon::prelude::*;
@@ -117,7 +117,7 @@ fn view_part(
     };
     let mut h = Matrix6::zeros();
     let mut h_weight = Matrix6::zeros();
-    let mut tiles: HashMap<(i64, i64), Tile> = HashMap::new();
+    let mut tiles: BTreeMap<(i64, i64), Tile> = BTreeMap::new();
     view_residuals(sil, obs, &level.camera, |res| {
         let Some(r) = res.r else { return };
         let u = (r / c) * (r / c);
@@ -159,7 +159,7 @@ fn view_part(
 /// sum_t b_tk b_tk^T)`, `b_tk` joint k's pull in tile t, `b_k` its sum. The within-tile part
 /// is left out because the tile scatter of the residuals already holds it. Clamped to
 /// positive semi-definite.
-fn joints_meat(tiles: &HashMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Matrix6<f64> {
+fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Matrix6<f64> {
     let q2 = noise_rad * noise_rad;
     if q2 <= 0.0 || joints == 0 {
         return Matrix6::zeros();

@@ -1,5 +1,6 @@
-//! Moving the arm to a planned pose: the checked move, and what a failed one leaves (a
-//! fault is cleared once, a refusal skips the pose).
+//! Moving the arm to a planned pose: the operator's confirmation, the checked move watched
+//! to its end, and a failed or refused move (its fault cleared, counted against the failure
+//! budget, the round re-planned from where the arm stopped).
 
 use std::time::Instant;
 

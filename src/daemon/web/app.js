@@ -175,24 +175,32 @@ async function showOverlays(s, reloadAll) {
 
 // The export formats the download route takes: the enum of its `format` parameter in the
 // daemon's own API description, so the page never keeps a list of its own.
+// Tried again on each refresh until it succeeds.
 async function loadExportFormats() {
   if (exportFormats) return;
-  const resp = await fetch("/openapi.json");
-  if (!resp.ok) return;
-  const doc = await resp.json();
-  const route = doc.paths["/api/v1/calibrations/{id}/export/{format}"];
-  const param = route && route.get.parameters.find((p) => p.name === "format");
-  const schema = param ? param.schema : {};
-  exportFormats = schema.enum || (schema.oneOf || []).flatMap((o) => o.enum || []);
+  try {
+    const resp = await fetch("/openapi.json");
+    if (!resp.ok) return;
+    const doc = await resp.json();
+    const route = doc.paths["/api/v1/calibrations/{id}/export/{format}"];
+    const param = route && route.get.parameters.find((p) => p.name === "format");
+    const schema = param ? param.schema : {};
+    const names = schema.enum || (schema.oneOf || []).flatMap((o) => o.enum || []);
+    if (names.length > 0) exportFormats = names;
+  } catch (e) {
+    $("message").textContent = "cannot read the export formats from /openapi.json: " + e;
+  }
 }
 
 // The result's forms as download buttons, once the calibration has a result.
 function showDownloads(s) {
   const box = $("downloads");
   const ready = Boolean(s.camera_from_base) && !s.dry_run && !["running", "queued"].includes(s.state);
-  if (box.dataset.id === s.id && box.dataset.ready === String(ready)) return;
+  const formats = String((exportFormats || []).length);
+  if (box.dataset.id === s.id && box.dataset.ready === String(ready) && box.dataset.formats === formats) return;
   box.dataset.id = s.id;
   box.dataset.ready = String(ready);
+  box.dataset.formats = formats;
   if (!ready) {
     const note = document.createElement("span");
     note.className = "muted";
@@ -484,6 +492,7 @@ function showHistory(list, activeId) {
 }
 
 async function refresh() {
+  await loadExportFormats();
   try {
     const [hist, active, checks, cams] = await Promise.all([
       json("/api/v1/calibrations"),
@@ -626,7 +635,7 @@ function boot() {
   $("cancel").onclick = cancel;
   $("check").onclick = check;
   $("preview-button").onclick = preview;
-  loadExportFormats().finally(refresh);
+  refresh();
 }
 
 boot();

@@ -9,7 +9,6 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use crate::backend::{open_renderer, Backend};
-use crate::camera::LensWarp;
 use crate::config::{RendererChoice, SegmenterConfig};
 use crate::consensus::{find_consensus, ConsensusOptions};
 use crate::error::{Error, Result};
@@ -17,7 +16,7 @@ use crate::explore::{solve_selected, ExploreOptions, Selection, StopRule};
 use crate::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::overlay::write_overlay;
-use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
+use crate::pipeline::segment_solve::POOR_FIT_IOU;
 use crate::render::PosedRobot;
 use crate::run::rig::{JointCorrections, RigGroundTruth};
 use crate::run::{
@@ -27,6 +26,10 @@ use crate::solve::{
     solve_with_shared_joints, with_view_disagreement, CameraSolve, Optimizer, SolveOptions,
     SolveReport, View,
 };
+
+mod segment;
+
+use segment::segment_run;
 
 /// What to solve and how (`easyhec solve`'s flags).
 #[derive(Clone, Debug)]
@@ -43,6 +46,8 @@ pub struct OfflineSolve {
     pub optimizer: Optimizer,
     /// Result path (default `RUN/result.json`).
     pub out: Option<PathBuf>,
+    /// A pose file to start from instead of the run's `initial_guess` (one camera only).
+    pub initial_guess: Option<PathBuf>,
     /// Folder for one agreement overlay per view.
     pub overlays: Option<PathBuf>,
     /// Renderer backend.
@@ -90,7 +95,9 @@ pub struct OfflineOutcome {
 pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
     let started = Instant::now();
     let (run, k) = load_requested(req)?;
-    check_outputs(req, &run.files_read())?;
+    let mut reads = run.files_read();
+    reads.extend(req.initial_guess.clone());
+    check_outputs(req, &reads)?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
     let fitted = fit_loaded(
@@ -166,6 +173,11 @@ pub fn is_rig_run(run: &Path) -> Result<bool> {
 pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<RigOfflineOutcome> {
     use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
     let started = Instant::now();
+    if req.initial_guess.is_some() {
+        return Err(Error::Usage(
+            "--initial-guess: a run of several cameras starts each camera from its own initial_guess in run.json; the flag is for a run of one camera".into(),
+        ));
+    }
     let cameras = crate::run::load_cameras_with(&req.run, mask_source(req))?;
     let reads: Vec<PathBuf> = cameras
         .iter()
@@ -469,8 +481,6 @@ fn requested_views(req: &OfflineSolve, total: usize) -> Result<usize> {
     Ok(k)
 }
 
-/// Loads the run the way the request reads it (recorded masks, or images for a segmenter) and
-/// checks `--views` against it, before any renderer is opened.
 /// The solve's outputs against the output policy ([`crate::io::output_file_problem`]),
 /// before anything is computed: the result file and the masks and overlays folders must be
 /// none of the files the solve reads, nor hold them.
@@ -493,8 +503,14 @@ fn check_outputs(req: &OfflineSolve, reads: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
+/// Loads the run the way the request reads it (recorded masks, or images for a segmenter;
+/// from `--initial-guess` when given) and checks `--views` against it, before any renderer is
+/// opened.
 fn load_requested(req: &OfflineSolve) -> Result<(LoadedRun, usize)> {
-    let run = load_run_with(&req.run, mask_source(req))?;
+    let run = match &req.initial_guess {
+        Some(guess) => crate::run::load_run_with_guess(&req.run, mask_source(req), guess)?,
+        None => load_run_with(&req.run, mask_source(req))?,
+    };
     let k = requested_views(req, run.views.len())?;
     Ok((run, k))
 }
@@ -695,160 +711,4 @@ fn truth_error(dir: &Path, estimate: &Isometry3<f64>) -> Option<(PathBuf, f64, f
         rotation_error_deg(estimate, &truth),
         translation_error_mm(estimate, &truth),
     ))
-}
-
-/// Fills the masks of views that need one: segment → solve → re-segment over those views
-/// until the masks settle (`pipeline::segment_solve`). Returns the settled pose when it fits
-/// (mean IoU ≥ 0.8): the solve that follows starts there, since masks drawn near that pose's
-/// render are what it must fit, and a start back at the guess can stop in another basin (hard
-/// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose).
-fn segment_run(
-    run: &mut LoadedRun,
-    config: &SegmenterConfig,
-    renderer: &dyn Backend,
-    masks_out: Option<&Path>,
-    note: &mut dyn FnMut(&str),
-) -> Result<Option<Isometry3<f64>>> {
-    let segmenter = crate::segment::build(config, &run.dir.join("run.json"))?;
-    let name = segmenter.name().to_string();
-    let need: Vec<usize> = (0..run.views.len())
-        .filter(|&i| run.views[i].needs_mask)
-        .collect();
-    if need.is_empty() {
-        return Ok(None);
-    }
-    let mut frames = Vec::with_capacity(need.len());
-    for &i in &need {
-        let path = run.views[i].image.clone().ok_or_else(|| {
-            Error::input(
-                run.dir.join("run.json"),
-                format!("views[{i}].image"),
-                "absent",
-            )
-        })?;
-        frames.push(crate::segment::read_frame(
-            &path,
-            run.camera.width,
-            run.camera.height,
-        )?);
-    }
-    let robots: Vec<PosedRobot> = need
-        .iter()
-        .map(|&i| PosedRobot::new(&run.robot, &run.views[i].joints))
-        .collect();
-    let guess = run.initial_guess;
-    let camera = run.camera.clone();
-    let start = |views: &[View]| -> Result<Isometry3<f64>> {
-        match guess {
-            Some(g) => Ok(g),
-            None => Ok(initialise(
-                renderer,
-                &camera,
-                &views[..views.len().min(3)],
-                &SolveOptions::default(),
-                &InitOptions::default(),
-            )?
-            .camera_from_base),
-        }
-    };
-    let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
-    let settled = segment_solve::segment_and_solve(
-        renderer,
-        &run.camera,
-        segmenter.as_ref(),
-        &frame_refs,
-        &robots,
-        &start,
-        guess.as_ref().map(|g| (g, segment_solve::GUESS_BAND_PX)),
-        config.min_band_px(),
-        config.final_band_px(),
-        &SolveOptions::default(),
-        4,
-    )?;
-    note(&format!(
-        "segmenter {name}: {} views segmented in {} segment-and-solve rounds (mean IoU {:.3} at the last solve)",
-        need.len(),
-        settled.rounds,
-        settled.report.mean_iou()
-    ));
-    let settled = if settled.report.mean_iou() < POOR_FIT_IOU && segmenter.uses_context() {
-        let joints: Vec<Vec<f64>> = need.iter().map(|&i| run.views[i].joints.clone()).collect();
-        let scene = PairScene {
-            renderer,
-            run,
-            segmenter: segmenter.as_ref(),
-            frames: &frame_refs,
-            joints: &joints,
-            need: &need,
-        };
-        scene.search(settled, &name, note)?
-    } else {
-        settled
-    };
-    for (&i, mask) in need.iter().zip(&settled.masks) {
-        if let Some(dir) = masks_out {
-            crate::io::write_atomic(
-                &dir.join(crate::run::mask_file_name(i)),
-                &mask.to_png_bytes(),
-            )?;
-        }
-        run.views[i].observed = run.camera.undistort_mask(mask);
-        run.views[i].needs_mask = false;
-    }
-    Ok((settled.report.mean_iou() >= POOR_FIT_IOU).then_some(settled.report.camera_from_base))
-}
-
-/// What the view-pair search needs of the run being segmented.
-struct PairScene<'a> {
-    renderer: &'a dyn Backend,
-    run: &'a LoadedRun,
-    segmenter: &'a dyn crate::segment::Segmenter,
-    frames: &'a [&'a easyhec_drivers::Frame],
-    joints: &'a [Vec<f64>],
-    need: &'a [usize],
-}
-
-impl PairScene<'_> {
-    /// No pose fits the masks: some views' joints may not describe their images. Finds the
-    /// two views that agree on a pose, from the images alone; keeps `settled` when none do.
-    fn search(
-        &self,
-        settled: segment_solve::Settled,
-        name: &str,
-        note: &mut dyn FnMut(&str),
-    ) -> Result<segment_solve::Settled> {
-        let t = Instant::now();
-        let need = self.need;
-        let found = segment_solve::search_view_pairs(
-            self.renderer,
-            &self.run.camera,
-            self.segmenter,
-            self.frames,
-            &self.run.robot,
-            self.joints,
-            &settled.report.camera_from_base,
-            &SolveOptions::default(),
-            &PairSearchOptions::default(),
-        )?;
-        let Some(found) = found else {
-            note(&format!(
-                "segmenter {name}: the masks fit no pose and no pair of views agrees on one ({:.1} s)",
-                t.elapsed().as_secs_f64()
-            ));
-            return Ok(settled);
-        };
-        let (i, j) = found.pair;
-        let runner_up = found.runner_up.map_or(String::new(), |((a, b), s)| {
-            format!(", next views {} and {} at {s:.3}", need[a], need[b])
-        });
-        note(&format!(
-            "segmenter {name}: the masks fit no pose, so every pair of views was tried: views {} and {} agree best (IoU {:.3} on masks under their own pose{runner_up}; {:.1} s); masks redrawn around joints refitted to each image, the pair fits them at IoU {:.3}",
-            need[i],
-            need[j],
-            found.score,
-            t.elapsed().as_secs_f64(),
-            found.settled.report.mean_iou()
-        ));
-        Ok(found.settled)
-    }
 }
