@@ -342,6 +342,22 @@ fn the_daemon_serves_camera_lists_and_refuses_tf_settings_that_fit_one_camera() 
         assert!(!e.contains('\n'), "{e}");
         assert_eq!(std::fs::read_dir(&data).unwrap().count(), 0);
     }
+    // A segmenter that reads a whole run serves no `[[camera]]` table, even a single one (the
+    // daemon's bump check reads a run of a list): refused at start, naming the key, before
+    // the data folder is touched; `calibrate` takes the same config (one camera).
+    let single = dir.path().join("rig-one-builtin.toml");
+    let text = one_builtin(&three);
+    std::fs::write(&single, &text).unwrap();
+    let cell = Cell::open(&single).unwrap();
+    let data = dir.path().join("data-builtin");
+    std::fs::create_dir(&data).unwrap();
+    let e = match easyhec::daemon::Daemon::open(cell, &data, "token".into()) {
+        Ok(_) => panic!("a daemon took a builtin segmenter for a [[camera]] table"),
+        Err(e) => e.to_string(),
+    };
+    assert!(e.contains("rig-one-builtin.toml: segmenter.kind"), "{e}");
+    assert!(e.contains("[[camera]]") && !e.contains('\n'), "{e}");
+    assert_eq!(std::fs::read_dir(&data).unwrap().count(), 0);
     // One parent for cameras that all hang from the base is fine: whatever refuses this
     // config (a build without ROS 2), it is not the frames.
     let path = dir.path().join("rig-frame.toml");
@@ -355,6 +371,19 @@ fn the_daemon_serves_camera_lists_and_refuses_tf_settings_that_fit_one_camera() 
     if let Err(e) = easyhec::daemon::Daemon::open(cell, &data, "token".into()) {
         assert!(!e.to_string().contains("ros2.frame_id"), "{e}");
     }
+}
+
+/// `three` (the shipped three-camera config) cut to its first `[[camera]]` table, with the
+/// `builtin` segmenter.
+fn one_builtin(three: &str) -> String {
+    let cut = three.find("[[camera]]\nname = \"side\"").unwrap();
+    let rest = three[cut..].find("[segmenter]").unwrap() + cut;
+    let end = three[rest..].find("\n\n").map_or(three.len(), |e| rest + e);
+    format!(
+        "{}[segmenter]\nkind = \"builtin\"{}",
+        &three[..cut],
+        &three[end..]
+    )
 }
 
 /// Each camera stops asking for views once its estimate settles; the loop stops when all
