@@ -237,6 +237,11 @@ fn first_mesh_scale(text: String, scale: &str) -> String {
 
 fn nothing(_: &Path) {}
 
+/// `DIR/guess.json` holding `text`, for `solve --initial-guess guess.json`.
+fn guess_file(text: &'static str) -> impl Fn(&Path) + Send + Sync {
+    move |d: &Path| std::fs::write(d.join("guess.json"), text).unwrap()
+}
+
 /// The cell config with `text` appended (a new `[[table]]` entry).
 fn append_cell(text: &'static str) -> impl Fn(&Path) + Send + Sync {
     move |d: &Path| {
@@ -760,30 +765,21 @@ fn solve_cases() -> Vec<Case> {
             "--initial-guess without camera_from_base",
             &["solve", "run", "--initial-guess", "guess.json"],
             &["guess.json", "camera_from_base"],
-            |d: &Path| std::fs::write(d.join("guess.json"), "{\"pose\": 1}").unwrap(),
+            guess_file(r#"{"pose": 1}"#),
         ),
         case(
             "--initial-guess not a rigid transform",
             &["solve", "run", "--initial-guess", "guess.json"],
             &["guess.json", "camera_from_base"],
-            |d: &Path| {
-                let rows = "[[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]";
-                std::fs::write(
-                    d.join("guess.json"),
-                    format!("{{\"camera_from_base\": {rows}}}"),
-                )
-                .unwrap()
-            },
+            guess_file(r#"{"camera_from_base": [[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}"#),
         ),
         case(
             "--initial-guess from another frame",
             &["solve", "run", "--initial-guess", "guess.json"],
             &["guess.json", "base_link", "link6"],
-            |d: &Path| {
-                let rows = "[[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]]";
-                let text = format!("{{\"camera_from_base\": {rows}, \"base_link\": \"link6\"}}");
-                std::fs::write(d.join("guess.json"), text).unwrap()
-            },
+            guess_file(
+                r#"{"camera_from_base": [[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]], "base_link": "link6"}"#,
+            ),
         ),
         case(
             "--initial-guess that is also --out",
@@ -796,14 +792,7 @@ fn solve_cases() -> Vec<Case> {
                 "guess.json",
             ],
             &["--out", "reads"],
-            |d: &Path| {
-                let rows = "[[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]]";
-                std::fs::write(
-                    d.join("guess.json"),
-                    format!("{{\"camera_from_base\": {rows}}}"),
-                )
-                .unwrap()
-            },
+            guess_file(r#"{"camera_from_base": [[1,0,0,0],[0,1,0,0],[0,0,1,1],[0,0,0,1]]}"#),
         ),
         case(
             "--views 0",

@@ -40,25 +40,25 @@ fn layers() -> BTreeMap<String, u32> {
 /// Every library source file with the top-level module it belongs to (`src/cell/sim.rs` →
 /// `cell`); the binary (`main.rs`, `cli/`) and `lib.rs` sit above every layer.
 fn library_files() -> Vec<(String, PathBuf)> {
+    let src = common::repo_root().join("src");
+    rust_files(&src)
+        .into_iter()
+        .map(|path| (module_path(&src, &path).remove(0), path))
+        .filter(|(module, _)| !matches!(module.as_str(), "main" | "lib" | "cli"))
+        .collect()
+}
+
+/// Every `.rs` file under `dir`, sorted.
+fn rust_files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
-    let mut stack = vec![common::repo_root().join("src")];
+    let mut stack = vec![dir.to_path_buf()];
     while let Some(dir) = stack.pop() {
         for entry in std::fs::read_dir(&dir).unwrap() {
             let path = entry.unwrap().path();
             if path.is_dir() {
                 stack.push(path);
             } else if path.extension().is_some_and(|e| e == "rs") {
-                let rel = path.strip_prefix(common::repo_root().join("src")).unwrap();
-                let top = rel
-                    .components()
-                    .next()
-                    .unwrap()
-                    .as_os_str()
-                    .to_string_lossy();
-                let module = top.trim_end_matches(".rs").to_string();
-                if !matches!(module.as_str(), "main" | "lib" | "cli") {
-                    out.push((module, path));
-                }
+                out.push(path);
             }
         }
     }
@@ -328,20 +328,8 @@ fn resolve(src: &Path, at: &[String], written: &[String]) -> Vec<String> {
 /// Pairs of sibling modules (children of one folder, a folder counting as one module) that
 /// use each other, besides `allowed`, read from the library under `src`.
 fn mutual_imports(src: &Path, allowed: &[(&str, &str)]) -> Vec<String> {
-    let mut files = Vec::new();
-    let mut stack = vec![src.to_path_buf()];
-    while let Some(dir) = stack.pop() {
-        for entry in std::fs::read_dir(&dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                stack.push(path);
-            } else if path.extension().is_some_and(|e| e == "rs") {
-                files.push(path);
-            }
-        }
-    }
     let mut edges = std::collections::BTreeSet::new();
-    for file in files {
+    for file in rust_files(src) {
         let from = module_path(src, &file);
         if matches!(
             from.first().map(String::as_str),

@@ -40,12 +40,17 @@ fn assert_near_truth(run: &Path, context: &str) {
     );
 }
 
-fn errors(run: &Path) -> (f64, f64) {
+/// The true `camera_from_base` of a synthetic run.
+fn truth_of(run: &Path) -> nalgebra::Isometry3<f64> {
     let truth: GroundTruth =
         serde_json::from_str(&std::fs::read_to_string(run.join("ground_truth.json")).unwrap())
             .unwrap();
+    from_rows(&truth.camera_from_base).unwrap()
+}
+
+fn errors(run: &Path) -> (f64, f64) {
     let result = ResultFile::read(&run.join("result.json")).unwrap();
-    let t = from_rows(&truth.camera_from_base).unwrap();
+    let t = truth_of(run);
     (
         rotation_error_deg(&result.camera_from_base(), &t),
         translation_error_mm(&result.camera_from_base(), &t),
@@ -233,9 +238,6 @@ fn the_initial_guess_can_come_from_a_file() {
     let run = dir.path().join("run");
     synth(&run, &["--no-initial-guess"]);
     let run_json = std::fs::read_to_string(run.join("run.json")).unwrap();
-    let truth: GroundTruth =
-        serde_json::from_str(&std::fs::read_to_string(run.join("ground_truth.json")).unwrap())
-            .unwrap();
     let off = easyhec::geometry::exp_se3(&easyhec::geometry::Twist::new(
         0.04,
         -0.03,
@@ -244,7 +246,7 @@ fn the_initial_guess_can_come_from_a_file() {
         (-2.0f64).to_radians(),
         2.0f64.to_radians(),
     ));
-    let guess = off * from_rows(&truth.camera_from_base).unwrap();
+    let guess = off * truth_of(&run);
     let file = dir.path().join("guess.json");
     let rows = easyhec::geometry::to_rows(&guess);
     std::fs::write(
