@@ -6,6 +6,7 @@
 
 mod common;
 
+use easyhec::config::{AravisSettings, V4l2Settings};
 use std::path::{Path, PathBuf};
 
 use easyhec::cell::Cell;
@@ -203,10 +204,10 @@ fn aravis_cell_without_the_feature_says_how_to_rebuild_and_with_it_opens_the_fak
     std::fs::write(&p, cell_text(table)).unwrap();
     match (cfg!(feature = "aravis"), Cell::open(&p)) {
         (true, Ok(cell)) => {
-            assert_eq!(cell.camera.intrinsics().width, 512);
-            assert_eq!(cell.camera.intrinsics().fx, 612.25);
+            assert_eq!(cell.units[0].device.intrinsics().width, 512);
+            assert_eq!(cell.units[0].device.intrinsics().fx, 612.25);
             let rt = tokio::runtime::Runtime::new().unwrap();
-            let frame = rt.block_on(cell.camera.grab()).unwrap();
+            let frame = rt.block_on(cell.units[0].device.grab()).unwrap();
             assert_eq!((frame.width, frame.height), (512, 512));
             assert!(
                 frame.rgb.iter().any(|&v| v != frame.rgb[0]),
@@ -230,14 +231,14 @@ fn aravis_cell_without_the_feature_says_how_to_rebuild_and_with_it_opens_the_fak
 fn shipped_camera_template_parses_with_either_table() {
     let path = common::repo_root().join("config/webcam-xarm6.toml.example");
     let cfg = read_config(&path).unwrap();
-    let CameraConfig::V4l2 {
+    let CameraConfig::V4l2(V4l2Settings {
         device,
         width,
         height,
         pixel_format,
         exposure_us,
         ..
-    } = &*cfg.camera
+    }) = cfg.camera.first()
     else {
         panic!("{:?}", cfg.camera)
     };
@@ -269,12 +270,12 @@ fn shipped_camera_template_parses_with_either_table() {
     let copy = p.path().join("gige.toml");
     std::fs::write(&copy, swapped).unwrap();
     let cfg = read_config(&copy).unwrap();
-    let CameraConfig::Aravis {
+    let CameraConfig::Aravis(AravisSettings {
         device_id,
         pixel_format,
         gain_db,
         ..
-    } = &*cfg.camera
+    }) = cfg.camera.first()
     else {
         panic!("{:?}", cfg.camera)
     };

@@ -4,6 +4,7 @@
 
 mod common;
 
+use easyhec::config::SimArmSettings;
 use std::path::{Path, PathBuf};
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
@@ -23,7 +24,7 @@ fn run(cell: &Cell, out: &Path, opts: &RunOptions) -> easyhec::Result<Outcome> {
 
 /// Rotation (degrees) and translation (mm) of the loop's result against the simulated truth.
 fn truth_error(cell: &Cell, outcome: &Outcome) -> (f64, f64) {
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     (
         rotation_error_deg(&est, &truth),
@@ -187,7 +188,7 @@ size = [2.0, 2.0, 0.02]"#,
     }
     let cell = Cell::build(cfg, &path).unwrap();
     // The start pose itself is clear (otherwise the test would prove nothing).
-    let ArmConfig::Sim { start, .. } = &cell.config.arm else {
+    let ArmConfig::Sim(SimArmSettings { start, .. }) = &cell.config.arm else {
         panic!("a simulated arm")
     };
     let start = start.clone();
@@ -209,7 +210,7 @@ size = [2.0, 2.0, 0.02]"#,
 fn fault_injecting_arm_is_handled_and_stays_safe() {
     let path = common::config_path("sim-xarm6.toml");
     let mut cfg = quick(read_config(&path).unwrap(), 4);
-    let ArmConfig::Sim { faults, .. } = &mut cfg.arm else {
+    let ArmConfig::Sim(SimArmSettings { faults, .. }) = &mut cfg.arm else {
         panic!("a simulated arm")
     };
     *faults = vec![
@@ -232,7 +233,7 @@ fn fault_injecting_arm_is_handled_and_stays_safe() {
         events.iter().filter(|e| e.contains("move failed")).count() >= 3,
         "{events:?}"
     );
-    let sim = cell.sim.arm.as_ref().unwrap();
+    let sim = cell.sim_arm().unwrap();
     let commands = sim.commands();
     // The refused command is logged as refused; every accepted one was safe, including the
     // moves re-planned from where a fault left the arm mid-path.
@@ -244,13 +245,13 @@ fn fault_injecting_arm_is_handled_and_stays_safe() {
             .unwrap();
     }
     assert!(accepted.len() >= 4, "{commands:?}");
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     assert!(rotation_error_deg(&est, &truth) < 0.2);
 
     // Without clearing faults, the loop stops at the first fault but keeps what it recorded.
     cfg.calibration.clear_faults = false;
-    let ArmConfig::Sim { faults, .. } = &mut cfg.arm else {
+    let ArmConfig::Sim(SimArmSettings { faults, .. }) = &mut cfg.arm else {
         panic!("a simulated arm")
     };
     *faults = vec![FaultConfig::Error {
@@ -273,9 +274,7 @@ fn fault_injecting_arm_is_handled_and_stays_safe() {
 
 fn assert_every_command_safe_accepted_only(cell: &Cell) {
     for c in cell
-        .sim
-        .arm
-        .as_ref()
+        .sim_arm()
         .unwrap()
         .commands()
         .iter()
@@ -301,9 +300,9 @@ fn dry_run_plans_checked_poses_and_never_moves() {
         },
     )
     .unwrap();
-    assert!(cell.sim.arm.as_ref().unwrap().commands().is_empty());
+    assert!(cell.sim_arm().unwrap().commands().is_empty());
     assert_eq!(outcome.planned.len(), 3);
-    let ArmConfig::Sim { start, .. } = &cell.config.arm else {
+    let ArmConfig::Sim(SimArmSettings { start, .. }) = &cell.config.arm else {
         panic!("a simulated arm")
     };
     let mut at = start.clone();
@@ -363,12 +362,12 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
         .unwrap();
     let (a, b) = rt.block_on(async {
         (
-            cell.camera.grab().await.unwrap(),
-            cell.camera.grab().await.unwrap(),
+            cell.units[0].device.grab().await.unwrap(),
+            cell.units[0].device.grab().await.unwrap(),
         )
     });
     // The truth stays with the simulator, looked up by the frame's sequence number.
-    let sim_camera = cell.sim.camera.as_ref().unwrap();
+    let sim_camera = cell.units[0].sim.camera.as_ref().unwrap();
     let mask = &sim_camera.truth_mask(a.sequence).unwrap();
     let n = mask.len();
     let robot = mask.iter().filter(|&&m| m >= 128).count();
@@ -416,11 +415,16 @@ fn simulated_camera_frames_are_textured_noisy_and_match_their_masks() {
         cy: 236.0,
         distortion: None,
     };
-    let sim = cell.sim.arm.as_ref().unwrap();
+    let sim = cell.sim_arm().unwrap();
     let posed = easyhec::render::PosedRobot::new(&cell.robot, &sim.true_joints());
     use easyhec::render::SilhouetteRenderer;
     let pinhole = easyhec::render::CpuRenderer
-        .render(&posed, &cam, &cell.sim.camera_from_base.unwrap(), None)
+        .render(
+            &posed,
+            &cam,
+            &cell.units[0].sim.camera_from_base.unwrap(),
+            None,
+        )
         .mask;
     let observed = easyhec::mask::Mask {
         width: a.width,
@@ -456,7 +460,7 @@ fn hard_cell_calibrates_from_colour_frames_alone() {
     // rendered at the true pose, not an empty or full image.
     let loaded = load_run(&out).unwrap();
     let camera = loaded.camera.undistorted();
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let mut ious = Vec::new();
     for v in &loaded.file.views {
         assert!(out.join(v.image.as_ref().unwrap()).is_file());

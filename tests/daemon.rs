@@ -7,6 +7,7 @@
 
 mod common;
 
+use easyhec::config::SimCameraSettings;
 use std::io::BufRead;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -44,9 +45,7 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
     let data = dir.path().join("data");
     let d = start(&config, &data);
     let base = d.base.clone();
-    let truth = d
-        .daemon
-        .cell()
+    let truth = d.daemon.cell().units[0]
         .sim
         .scene
         .as_ref()
@@ -231,7 +230,7 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
     }
 
     // A dry run plans and never moves; it is not activated.
-    let moves_before = d.daemon.cell().sim.arm.as_ref().unwrap().commands().len();
+    let moves_before = d.daemon.cell().sim_arm().unwrap().commands().len();
     let (code, body) = call(
         "POST",
         &format!("{base}/api/v1/calibrations"),
@@ -243,7 +242,7 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
     assert_eq!(s["state"], "succeeded", "{s}");
     assert!(s["planned_poses"].as_u64().unwrap() >= 1, "{s}");
     assert_eq!(
-        d.daemon.cell().sim.arm.as_ref().unwrap().commands().len(),
+        d.daemon.cell().sim_arm().unwrap().commands().len(),
         moves_before
     );
     let (code, body) = call(
@@ -269,7 +268,14 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
 
     // Every command the arm got was safe.
     let cell = d.daemon.cell();
-    for (i, c) in cell.sim.arm.as_ref().unwrap().commands().iter().enumerate() {
+    for (i, c) in cell
+        .sim_arm()
+        .as_ref()
+        .unwrap()
+        .commands()
+        .iter()
+        .enumerate()
+    {
         assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
         common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
     }
@@ -314,7 +320,7 @@ fn cancel_stops_the_arm_and_ends_cancelled() {
     });
     // Mid-move (moves take about a second in real time).
     std::thread::sleep(Duration::from_millis(200));
-    let arm = d.daemon.cell().sim.arm.clone().unwrap();
+    let arm = d.daemon.cell().sim_arm().cloned().unwrap();
     let t = Instant::now();
     let (code, body) = call(
         "POST",
@@ -393,7 +399,7 @@ fn bump_check_marks_stale_and_a_warm_started_recalibration_recovers_the_new_pose
     });
     let d = start(&config, &dir.path().join("data"));
     let base = d.base.clone();
-    let scene = d.daemon.cell().sim.scene.clone().unwrap();
+    let scene = d.daemon.cell().units[0].sim.scene.clone().unwrap();
 
     let (code, _) = call("POST", &format!("{base}/api/v1/checks"), None);
     assert_eq!(code, 409, "nothing active to check yet");
@@ -493,7 +499,7 @@ fn check_pose_moves_through_the_checker_before_checking() {
     let (_, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
     let id = body["id"].as_str().unwrap().to_string();
     assert_eq!(wait_final(&base, &id)["state"], "succeeded");
-    let arm = d.daemon.cell().sim.arm.clone().unwrap();
+    let arm = d.daemon.cell().sim_arm().cloned().unwrap();
     let before = arm.commands().len();
     let (code, c) = call("POST", &format!("{base}/api/v1/checks"), None);
     assert_eq!(code, 200, "{c}");
@@ -830,13 +836,13 @@ fn builtin_segmenter_bump_checks_segment_with_the_recorded_frames() {
         c.daemon.bump_min_iou = 0.78;
         c.daemon.bump_max_boundary_px = 3.8;
         c.segmenter = SegmenterConfig::by_name("builtin").unwrap();
-        if let CameraConfig::Sim { scene, .. } = &mut *c.camera {
+        if let CameraConfig::Sim(SimCameraSettings { scene, .. }) = c.camera.first_mut() {
             scene.preset = ScenePreset::Hard;
         }
     });
     let d = start(&config, &dir.path().join("data"));
     let base = d.base.clone();
-    let scene = d.daemon.cell().sim.scene.clone().unwrap();
+    let scene = d.daemon.cell().units[0].sim.scene.clone().unwrap();
     let (_, body) = call("POST", &format!("{base}/api/v1/calibrations"), None);
     let id = body["id"].as_str().unwrap().to_string();
     let s = wait_final(&base, &id);

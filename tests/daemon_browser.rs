@@ -543,7 +543,7 @@ fn previews_every_camera(session: &str) {
 /// In a list, a dry run's planned poses are drawn over every camera's first view, each under
 /// that camera's estimate (a camera without one would give no image), and nothing moves.
 fn draws_every_cameras_plan(session: &str, d: &common::daemon::Running) {
-    let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
+    let arm = d.daemon.cell().sim_arm().unwrap();
     let before = arm.commands().len();
     click(session, "#dry-run");
     click(session, "#start");
@@ -575,7 +575,7 @@ fn draws_every_cameras_plan(session: &str, d: &common::daemon::Running) {
 /// With "dry run" ticked, Calibrate plans and draws each planned pose over the first view,
 /// and the arm receives no command.
 fn draws_a_dry_runs_plan_without_moving(session: &str, d: &common::daemon::Running) -> String {
-    let arm = d.daemon.cell().sim.arm.as_ref().unwrap();
+    let arm = d.daemon.cell().sim_arm().unwrap();
     let before = arm.commands().len();
     click(session, "#dry-run");
     click(session, "#start");

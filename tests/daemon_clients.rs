@@ -48,7 +48,7 @@ fn a_client_that_hangs_up_during_a_check_leaves_the_arm_free() {
     let d = start(&config, &dir.path().join("data"));
     let base = d.base.clone();
     assert_eq!(calibrate_once(&base)["state"], "succeeded");
-    let arm = d.daemon.cell().sim.arm.clone().unwrap();
+    let arm = d.daemon.cell().sim_arm().cloned().unwrap();
     let moves_before = arm.commands().len();
 
     // The check's move to its pose takes about a second in real time; hang up at 0.3 s.

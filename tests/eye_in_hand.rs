@@ -25,11 +25,14 @@ fn wrist_cameras_on_two_robots_reach_the_truth_safely() {
     ] {
         let path = common::config_path(name);
         let cell = Cell::build(quick(read_config(&path).unwrap(), 4), &path).unwrap();
-        assert_eq!(cell.config.camera.mount(), &Mount::Link(link.into()));
+        assert_eq!(
+            cell.config.camera.first().mount(),
+            &Mount::Link(link.into())
+        );
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("run");
         let outcome = common::run_loop(&cell, &out);
-        let truth = cell.sim.camera_from_base.unwrap();
+        let truth = cell.units[0].sim.camera_from_base.unwrap();
         let est = outcome.result.camera_from_base();
         let (r, t) = (
             rotation_error_deg(&est, &truth),

@@ -10,6 +10,7 @@
 
 mod common;
 
+use easyhec::config::{SimCameraSettings, UrSettings};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -58,11 +59,11 @@ fn spawn_mock(
 /// The shipped config pointed at `mock`.
 fn cell_config(mock: &MockUr, views: usize) -> CellConfig {
     let mut cfg = read_config(&config_path()).unwrap();
-    let ArmConfig::Ur { host, .. } = &mut cfg.arm else {
+    let ArmConfig::Ur(UrSettings { host, .. }) = &mut cfg.arm else {
         panic!("config/mock-ur.toml drives a UR arm")
     };
     *host = mock.host().to_string();
-    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
+    let CameraConfig::Sim(SimCameraSettings { joints_from, .. }) = cfg.camera.first_mut() else {
         panic!("the camera is simulated")
     };
     let Some(JointsFrom::UrRtde { addr, .. }) = joints_from else {
@@ -113,7 +114,7 @@ fn calibration_through_the_ur_driver_reaches_the_truth_safely() {
     let t = Instant::now();
     let outcome = run(&rt, &cell, &dir.path().join("run")).unwrap();
     let elapsed = t.elapsed();
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     let (r, tr) = (
         rotation_error_deg(&est, &truth),

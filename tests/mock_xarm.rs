@@ -5,6 +5,7 @@
 
 mod common;
 
+use easyhec::config::{SimCameraSettings, XarmSettings};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -49,11 +50,11 @@ fn spawn_mock(
 /// The shipped config pointed at `mock`'s ports.
 fn cell_config(mock: &MockXArm, views: usize) -> CellConfig {
     let mut cfg = read_config(&config_path()).unwrap();
-    let ArmConfig::Xarm { addr, .. } = &mut cfg.arm else {
+    let ArmConfig::Xarm(XarmSettings { addr, .. }) = &mut cfg.arm else {
         panic!("config/mock-xarm.toml drives an xArm")
     };
     *addr = mock.command_addr().to_string();
-    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
+    let CameraConfig::Sim(SimCameraSettings { joints_from, .. }) = cfg.camera.first_mut() else {
         panic!("the camera is simulated")
     };
     let Some(JointsFrom::XarmReport { addr, .. }) = joints_from else {
@@ -114,7 +115,7 @@ fn calibration_through_the_xarm_driver_reaches_the_truth_safely() {
     let t = Instant::now();
     let outcome = run(&rt, &cell, &dir.path().join("run")).unwrap();
     let elapsed = t.elapsed();
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     let (r, tr) = (
         rotation_error_deg(&est, &truth),

@@ -4,6 +4,7 @@
 
 mod common;
 
+use easyhec::config::SimArmSettings;
 use std::path::PathBuf;
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
@@ -14,7 +15,7 @@ use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 fn config(speedup: Option<f64>, weigh: bool) -> (CellConfig, PathBuf) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/sim-xarm6.toml");
     let mut cfg = read_config(&path).unwrap();
-    if let ArmConfig::Sim { speedup: s, .. } = &mut cfg.arm {
+    if let ArmConfig::Sim(SimArmSettings { speedup: s, .. }) = &mut cfg.arm {
         *s = speedup;
     }
     cfg.calibration.weigh_motion_time = weigh;
@@ -42,7 +43,7 @@ fn run(cfg: CellConfig, path: &std::path::Path) -> (Outcome, f64, Cell) {
             &RunOptions::default(),
         ))
         .unwrap();
-    let commands = cell.sim.arm.as_ref().unwrap().commands();
+    let commands = cell.sim_arm().unwrap().commands();
     for (i, c) in commands.iter().enumerate() {
         assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
         common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
@@ -61,7 +62,7 @@ fn run(cfg: CellConfig, path: &std::path::Path) -> (Outcome, f64, Cell) {
 }
 
 fn error(outcome: &Outcome, cell: &Cell) -> (f64, f64) {
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     (
         rotation_error_deg(&est, &truth),

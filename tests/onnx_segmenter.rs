@@ -604,9 +604,9 @@ mod with_tract {
         )
         .unwrap();
         let cell = Cell::open(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(cell.segmenter.name(), "onnx");
+        assert_eq!(cell.units[0].segmenter.name(), "onnx");
         let (frame, truth) = scene(320, 240);
-        let iou = cell.segmenter.segment(&frame).unwrap().iou(&truth);
+        let iou = cell.units[0].segmenter.segment(&frame).unwrap().iou(&truth);
         assert!(iou >= 0.95, "IoU {iou}");
         // A model that is not there stops the cell before the arm or camera is opened.
         std::fs::remove_file(dir.path().join("models/robot.onnx")).unwrap();

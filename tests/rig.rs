@@ -106,7 +106,7 @@ fn assert_corrections_near_the_encoder_error(
         .as_ref()
         .expect("three cameras correct joints");
     assert_eq!(corrections.views, [0, 1, 2, 3]);
-    let commands = cell.sim.arm.as_ref().unwrap().commands();
+    let commands = cell.sim_arm().unwrap().commands();
     let truth: Vec<&Vec<f64>> = std::iter::once(&commands[0].from)
         .chain(commands.iter().map(|c| &c.target))
         .collect();
@@ -135,7 +135,7 @@ fn assert_corrections_near_the_encoder_error(
 
 /// One motion served every camera: 3 moves for 4 views, each accepted and each path safe.
 fn assert_three_safe_moves(cell: &Cell) {
-    let sim = cell.sim.arm.as_ref().unwrap();
+    let sim = cell.sim_arm().unwrap();
     let commands = sim.commands();
     assert_eq!(commands.len(), 3);
     for (i, c) in commands.iter().enumerate() {

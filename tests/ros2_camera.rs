@@ -13,6 +13,7 @@ mod common;
 #[path = "ros2/peers.rs"]
 mod peers;
 
+use easyhec::config::SimCameraSettings;
 use std::path::Path;
 
 use easyhec::config::{CameraConfig, CellConfig};
@@ -34,7 +35,7 @@ fn calibration_from_ros2_topics_alone_reaches_the_truth_safely() {
     let dir = tempfile::tempdir().unwrap();
     let (sim, start) = ros2_sim_cell(DOMAIN);
     write(dir.path(), "sim.toml", &sim);
-    let CameraConfig::Sim { truth, .. } = &*sim.camera else {
+    let CameraConfig::Sim(SimCameraSettings { truth, .. }) = sim.camera.first() else {
         unreachable!()
     };
     let truth = truth.camera_from_base();

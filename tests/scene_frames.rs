@@ -467,7 +467,7 @@ fn the_hard_cell_calibrates_from_its_truth_masks_and_records_hard_frames() {
         .unwrap()
         .block_on(calibrate(&cell, &out, &RunOptions::default()))
         .unwrap();
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let est = outcome.result.camera_from_base();
     let (r, t) = (
         rotation_error_deg(&est, &truth),

@@ -5,6 +5,7 @@
 
 mod common;
 
+use easyhec::config::SimCameraSettings;
 use std::collections::BTreeMap;
 
 use easyhec::config::read_config;
@@ -64,7 +65,7 @@ fn every_template_parses_and_segments_real_frames_with_a_real_segmenter() {
         let cfg = read_config(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         for cam in cfg.camera.cameras() {
             let segmenter = cam.segmenter.as_ref().unwrap_or(&cfg.segmenter);
-            let real_camera = !matches!(cam.config, CameraConfig::Sim { .. });
+            let real_camera = !matches!(cam.config, CameraConfig::Sim(SimCameraSettings { .. }));
             assert!(
                 !(real_camera && matches!(segmenter, SegmenterConfig::SimTruth { .. })),
                 "{name}: camera '{}' is real and its segmenter is sim-truth",

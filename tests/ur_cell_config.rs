@@ -2,6 +2,7 @@
 //! UR tables get one line naming the key; without the `ur` feature building such a cell says
 //! how to get the driver.
 
+use easyhec::config::UrSettings;
 use std::path::PathBuf;
 
 use easyhec::cell::Cell;
@@ -35,7 +36,7 @@ fn base() -> String {
 #[test]
 fn shipped_mock_ur_config_parses() {
     let cfg = read_config(&config_path()).unwrap();
-    assert!(matches!(&cfg.arm, ArmConfig::Ur { host, .. } if host == "127.0.0.1"));
+    assert!(matches!(&cfg.arm, ArmConfig::Ur(UrSettings { host, .. }) if host == "127.0.0.1"));
 }
 
 #[test]

@@ -364,7 +364,7 @@ fn a_vendor_description_loads_from_a_prefix_or_a_clone_and_calibrates() {
     let cell = Cell::build(cfg, &config).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(cell.robot.name, "acme_xarm6");
     let outcome = common::run_loop(&cell, &dir.path().join("run"));
-    let truth = cell.sim.camera_from_base.unwrap();
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
     let estimate = outcome.result.camera_from_base();
     let (deg, mm) = (
         rotation_error_deg(&estimate, &truth),

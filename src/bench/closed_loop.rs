@@ -40,7 +40,7 @@ pub fn run_loop_trial(
     cfg.calibration.max_views = views;
     cfg.calibration.min_views = views;
     let cell = crate::cell::Cell::build(cfg, config_path)?;
-    let truth = cell
+    let truth = cell.units[0]
         .sim
         .camera_from_base
         .ok_or_else(|| crate::Error::Solve("benchmark needs a simulated camera".into()))?;

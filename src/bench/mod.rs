@@ -23,6 +23,7 @@ pub mod segmentation;
 pub mod speed;
 pub mod view_sets;
 
+use crate::config::{SimArmSettings, SimCameraSettings};
 use rayon::prelude::*;
 
 use crate::camera::LensWarp;
@@ -164,7 +165,7 @@ pub fn seeded_sim_cell(
         "this benchmark (bench rig measures several cameras)",
     )?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 9000);
-    if !base.camera.mount().is_fixed() {
+    if !base.camera.first().mount().is_fixed() {
         return seeded_wrist_cell(base, config_path, seed, &mut rng);
     }
     let mut cfg = base.clone();
@@ -186,9 +187,9 @@ pub fn seeded_sim_cell(
         roll_deg: rng.random_range(-5.0..5.0),
     };
     let pose = truth.camera_from_base();
-    let CameraConfig::Sim {
+    let CameraConfig::Sim(SimCameraSettings {
         truth: t, scene, ..
-    } = &mut *cfg.camera
+    }) = cfg.camera.first_mut()
     else {
         return Err(crate::Error::input(
             config_path,
@@ -225,7 +226,7 @@ fn seeded_wrist_cell(
     use crate::config::{CameraConfig, InitialGuess};
     use rand::Rng;
     let mut cfg = base.clone();
-    let CameraConfig::Sim { truth, scene, .. } = &mut *cfg.camera else {
+    let CameraConfig::Sim(SimCameraSettings { truth, scene, .. }) = cfg.camera.first_mut() else {
         return Err(crate::Error::input(
             config_path,
             "camera.kind",
@@ -266,15 +267,16 @@ fn with_visible_start(
     use crate::cell::Cell;
     use crate::config::ArmConfig;
     let cell = Cell::build(cfg.clone(), config_path)?;
-    let pose = cell.sim.camera_from_base.ok_or_else(|| {
+    let pose = cell.units[0].sim.camera_from_base.ok_or_else(|| {
         crate::Error::input(config_path, "camera.kind", "needs a simulated camera")
     })?;
-    let rule = match VisibilityRule::of(&cell, cfg.camera.mount()) {
+    let rule = match VisibilityRule::of(&cell, cfg.camera.first().mount()) {
         VisibilityRule::InImage(_) => VisibilityRule::InImage(0.97),
         coverage => coverage,
     };
     let camera = cfg
         .camera
+        .first()
         .camera()
         .ok_or_else(|| crate::Error::input(config_path, "camera.kind", "needs a simulated camera"))?
         .undistorted();
@@ -284,12 +286,12 @@ fn with_visible_start(
         if cell.checker.check_pose(&q).is_err() {
             continue;
         }
-        let posed = PosedRobot::new(&cell.seen, &q).decimated(0.01);
+        let posed = PosedRobot::new(&cell.units[0].seen, &q).decimated(0.01);
         let shown = |p: &nalgebra::Isometry3<f64>| rule.shows(&posed, &camera, &low, p).is_some();
         if !shown(&pose) || also_under.is_some_and(|g| !shown(&g)) {
             continue;
         }
-        let ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {
+        let ArmConfig::Sim(SimArmSettings { start, seed: s, .. }) = &mut cfg.arm else {
             return Err(crate::Error::Solve(
                 "bench cells need [arm] kind = \"sim\"".into(),
             ));

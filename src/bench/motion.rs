@@ -7,6 +7,7 @@
 //! fresh controller at the same start. The loop stops by its own rules. Reported: total wall
 //! time (motion included), motion time, views and the error against the simulated truth.
 
+use crate::config::{SimArmSettings, SimCameraSettings, XarmSettings};
 use std::path::PathBuf;
 
 use super::{median, seeded_sim_cell, Report};
@@ -139,7 +140,7 @@ fn summary(pairs: &[(MotionTrial, MotionTrial)]) -> Report {
 /// The seeded simulated cell's start pose.
 fn start_of(seeded: &CellConfig) -> Vec<f64> {
     match &seeded.arm {
-        ArmConfig::Sim { start, .. } => start.clone(),
+        ArmConfig::Sim(SimArmSettings { start, .. }) => start.clone(),
         _ => unreachable!("seeded cells have a simulated arm"),
     }
 }
@@ -147,12 +148,12 @@ fn start_of(seeded: &CellConfig) -> Vec<f64> {
 /// The mock xArm cell with the seeded cell's camera, segmenter, guess and seed.
 fn on_mock_arm(base: &CellConfig, seeded: &CellConfig) -> CellConfig {
     let mut cfg = base.clone();
-    let joints_from = match &*base.camera {
-        CameraConfig::Sim { joints_from, .. } => joints_from.clone(),
+    let joints_from = match base.camera.first() {
+        CameraConfig::Sim(SimCameraSettings { joints_from, .. }) => joints_from.clone(),
         _ => None,
     };
     cfg.camera = seeded.camera.clone();
-    if let CameraConfig::Sim { joints_from: j, .. } = &mut *cfg.camera {
+    if let CameraConfig::Sim(SimCameraSettings { joints_from: j, .. }) = cfg.camera.first_mut() {
         *j = joints_from;
     }
     cfg.segmenter = seeded.segmenter.clone();
@@ -176,30 +177,27 @@ fn run_on_mock(
         .map_err(|e| Error::Solve(format!("async runtime: {e}")))?;
     let mut mock_cfg = MockXArmConfig::free_ports(Model::Xarm6);
     mock_cfg.start = Some(start);
-    if let ArmConfig::Xarm {
-        speed_cap_rad_s, ..
-    } = &cfg.arm
-    {
-        mock_cfg.speed_cap_rad_s = speed_cap_rad_s.unwrap_or(1.0);
+    if let ArmConfig::Xarm(t) = &cfg.arm {
+        mock_cfg.speed_cap_rad_s = t.speed_cap_rad_s;
     }
     mock_cfg.speedup = 1.0;
     let mock = runtime
         .block_on(MockXArm::spawn(mock_cfg))
         .map_err(|e| Error::Hardware(format!("mock xArm: {e}")))?;
-    if let ArmConfig::Xarm { addr, .. } = &mut cfg.arm {
+    if let ArmConfig::Xarm(XarmSettings { addr, .. }) = &mut cfg.arm {
         *addr = mock.command_addr().to_string();
     }
-    if let CameraConfig::Sim {
+    if let CameraConfig::Sim(SimCameraSettings {
         joints_from: Some(JointsFrom::XarmReport { addr, .. }),
         ..
-    } = &mut *cfg.camera
+    }) = cfg.camera.first_mut()
     {
         if let Some(a) = mock.real_report_addr() {
             *addr = a.to_string();
         }
     }
     let cell = Cell::build(cfg, config_path)?;
-    let truth = cell
+    let truth = cell.units[0]
         .sim
         .camera_from_base
         .ok_or_else(|| Error::Solve("the benchmark needs a simulated camera".into()))?;

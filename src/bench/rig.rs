@@ -2,6 +2,7 @@
 //! alone, on seeded simulated cells: each camera's median error with the same number of
 //! views, and the wall time of the run against a single-camera calibration.
 
+use crate::config::{SimArmSettings, SimCameraSettings};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -300,7 +301,7 @@ fn trial(cfg: &CellConfig, path: &Path) -> Result<Trial> {
 /// joint's travel over the speed, as `SafeArm` commands a move and the planner's time model
 /// counts it.
 fn commanded_motion_s(cell: &Cell) -> f64 {
-    let Some(arm) = &cell.sim.arm else {
+    let Some(arm) = cell.sim_arm() else {
         return 0.0;
     };
     arm.commands()
@@ -322,7 +323,7 @@ fn seeded_rig(base: &CellConfig, path: &Path, seed: u64, views: usize) -> Result
     cfg.calibration.min_views = views;
     for (k, cam) in cfg.camera.cameras_mut().iter_mut().enumerate() {
         let fixed = cam.config.mount().is_fixed();
-        let CameraConfig::Sim { truth, scene, .. } = &mut cam.config else {
+        let CameraConfig::Sim(SimCameraSettings { truth, scene, .. }) = &mut cam.config else {
             return Err(Error::input(
                 path,
                 format!("camera[{k}].kind"),
@@ -415,7 +416,8 @@ fn visible_start(
         if cell.checker.check_pose(&q).is_err() || !views.iter().all(|v| v.shows(&q)) {
             continue;
         }
-        let crate::config::ArmConfig::Sim { start, seed: s, .. } = &mut cfg.arm else {
+        let crate::config::ArmConfig::Sim(SimArmSettings { start, seed: s, .. }) = &mut cfg.arm
+        else {
             return Err(Error::Solve("bench cells need [arm] kind = \"sim\"".into()));
         };
         *start = q;

@@ -2,6 +2,7 @@
 //! the RGB-only closed-loop calibration error on seeded cells, and its figures on the Panda
 //! photographs (masks withheld) against the provided masks. Nothing here asserts.
 
+use crate::config::SimCameraSettings;
 use std::path::{Path, PathBuf};
 
 use super::{median, seeded_sim_cell, Report};
@@ -59,7 +60,9 @@ pub fn cell_trial(
     preset: crate::config::ScenePreset,
 ) -> Result<CellTrial> {
     let mut cfg = cfg.clone();
-    if let crate::config::CameraConfig::Sim { scene, .. } = &mut *cfg.camera {
+    if let crate::config::CameraConfig::Sim(SimCameraSettings { scene, .. }) =
+        cfg.camera.first_mut()
+    {
         scene.preset = preset;
     }
     cfg.segmenter = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
@@ -69,21 +72,21 @@ pub fn cell_trial(
     let mut cell = Cell::build(cfg, config_path)?;
     let truths = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let inner = std::mem::replace(
-        &mut cell.segmenter,
+        &mut cell.units[0].segmenter,
         crate::segment::build(
             &SegmenterConfig::by_name("builtin").map_err(Error::Solve)?,
             config_path,
         )?,
     );
-    let camera = cell.sim.camera.clone().ok_or_else(|| {
+    let camera = cell.units[0].sim.camera.clone().ok_or_else(|| {
         Error::Solve("the segmentation benchmark needs a simulated camera".into())
     })?;
-    cell.segmenter = Box::new(TruthRecorder {
+    cell.units[0].segmenter = Box::new(TruthRecorder {
         inner,
         truth: camera,
         truths: truths.clone(),
     });
-    let truth = cell
+    let truth = cell.units[0]
         .sim
         .camera_from_base
         .ok_or_else(|| Error::Solve("the segment benchmark needs a simulated camera".into()))?;

@@ -2,6 +2,7 @@
 //! explored pair and random pairs, each solved many times with fresh noise, against the
 //! selection score's prediction.
 
+use crate::config::SimArmSettings;
 use std::path::PathBuf;
 
 use nalgebra::Isometry3;
@@ -128,11 +129,11 @@ impl TrialCell {
         let bad = |why: &str| bad(seed, why);
         let mut cfg = cfg.clone();
         cfg.calibration.selection = SelectionSetting::Explore;
-        let ArmConfig::Sim {
+        let ArmConfig::Sim(SimArmSettings {
             start,
             encoder_noise_rad,
             ..
-        } = &cfg.arm
+        }) = &cfg.arm
         else {
             return Err(bad("view sets need [arm] kind = \"sim\""));
         };
@@ -149,13 +150,14 @@ impl TrialCell {
             .camera_from_base()
             .map_err(|e| bad(&e))?;
         let cell = Cell::build(cfg, config_path)?;
-        let truth = cell
+        let truth = cell.units[0]
             .sim
             .camera_from_base
             .ok_or_else(|| bad("view sets need a simulated camera"))?;
         let camera = cell
             .config
             .camera
+            .first()
             .camera()
             .ok_or_else(|| bad("view sets need a simulated camera"))?
             .undistorted();
@@ -220,8 +222,8 @@ impl TrialCell {
             };
             let one = [PlanCamera {
                 camera,
-                mount: cell.config.camera.mount(),
-                seen: &cell.seen,
+                mount: cell.config.camera.first().mount(),
+                seen: &cell.units[0].seen,
                 report: &report,
                 wants_views: true,
             }];
@@ -480,7 +482,7 @@ impl ViewSetsBench {
             ));
         }
         let base = read_config(&config)?;
-        if !base.camera.mount().is_fixed() {
+        if !base.camera.first().mount().is_fixed() {
             return Err(crate::Error::input(
                 &config,
                 "camera.mount",

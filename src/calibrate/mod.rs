@@ -8,7 +8,10 @@ pub mod motion_cost;
 pub mod planner;
 pub mod recorder;
 mod session;
+mod stop_reason;
 pub mod visibility;
+
+pub use stop_reason::StopReason;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};

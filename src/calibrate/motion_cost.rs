@@ -8,6 +8,7 @@
 //! travel is short next to the overhead, the ranking is the pure information ranking. When a
 //! far pose adds little more than a near one, the near one wins.
 
+use crate::config::SimArmSettings;
 use crate::config::{ArmConfig, CellConfig};
 
 /// The time model of one planning round.
@@ -57,7 +58,7 @@ pub fn travel_s(from: &[f64], to: &[f64], speed_rad_s: f64) -> f64 {
 /// Wall seconds per second of commanded motion for the arm `config` drives.
 pub fn time_scale(config: &CellConfig) -> f64 {
     match &config.arm {
-        ArmConfig::Sim { speedup, .. } => match speedup {
+        ArmConfig::Sim(SimArmSettings { speedup, .. }) => match speedup {
             Some(s) if s.is_finite() && *s > 0.0 => 1.0 / s,
             _ => 0.0,
         },
@@ -90,7 +91,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim-xarm6.toml");
         let mut cfg = crate::config::read_config(&path).unwrap();
         assert_eq!(time_scale(&cfg), 0.0, "the simulated arm arrives at once");
-        if let ArmConfig::Sim { speedup, .. } = &mut cfg.arm {
+        if let ArmConfig::Sim(SimArmSettings { speedup, .. }) = &mut cfg.arm {
             *speedup = Some(20.0);
         }
         assert_eq!(time_scale(&cfg), 0.05);

@@ -9,26 +9,18 @@ use easyhec_drivers::dynamixel::{Family, ServoArm, ServoArmConfig, ServoJoint};
 use easyhec_drivers::xarm::{Model as XArmModel, XArm, XArmConfig};
 use easyhec_drivers::{Arm, Camera as CameraDevice};
 
-use crate::config::{seconds, ArmConfig, CameraCalibration, CameraConfig, ServoArmToml};
+use crate::config::{
+    seconds, AravisSettings, CameraCalibration, PiperSettings, ServoArmSettings, UrSettings,
+    V4l2Settings, XarmSettings,
+};
 use crate::error::{Error, Result};
 use crate::robot::RobotModel;
 
 /// The arm of an `[arm] kind = "xarm"` table.
-pub(super) fn xarm_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
-    let ArmConfig::Xarm {
-        addr,
-        model,
-        speed_cap_rad_s,
-        accel_rad_s2,
-        connect_timeout_s,
-        reply_timeout_s,
-        motion_timeout_margin_s,
-    } = arm
-    else {
-        unreachable!("called for kind = \"xarm\" only")
-    };
+pub(super) fn xarm_arm(t: &XarmSettings, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
     let n = robot.actuated.len();
-    let model: XArmModel = model
+    let model: XArmModel = t
+        .model
         .parse()
         .map_err(|e: String| Error::input(path, "arm.model", e))?;
     if model.axes() != n {
@@ -41,21 +33,16 @@ pub(super) fn xarm_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Resu
             ),
         ));
     }
-    let mut cfg = XArmConfig::new(addr.clone(), model);
+    let mut cfg = XArmConfig::new(t.addr.clone(), model);
     cfg.joint_names = Some(robot.joint_names().iter().map(|s| s.to_string()).collect());
-    if let Some(v) = speed_cap_rad_s {
-        cfg.speed_cap_rad_s = *v;
-    }
-    if let Some(v) = accel_rad_s2 {
-        cfg.accel_rad_s2 = *v;
-    }
-    cfg.connect_timeout = seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 3.0)?;
-    cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", *reply_timeout_s, 2.0)?;
+    cfg.speed_cap_rad_s = t.speed_cap_rad_s;
+    cfg.accel_rad_s2 = t.accel_rad_s2;
+    cfg.connect_timeout = seconds(path, "arm.connect_timeout_s", t.connect_timeout_s)?;
+    cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", t.reply_timeout_s)?;
     cfg.motion_timeout_margin = seconds(
         path,
         "arm.motion_timeout_margin_s",
-        *motion_timeout_margin_s,
-        10.0,
+        t.motion_timeout_margin_s,
     )?;
     let arm = XArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
     Ok(Arc::new(arm))
@@ -63,20 +50,9 @@ pub(super) fn xarm_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Resu
 
 /// The UR arm of an `[arm] kind = "ur"` table.
 #[cfg(feature = "ur")]
-pub(super) fn ur_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+pub(super) fn ur_arm(t: &UrSettings, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
     use easyhec_drivers::ur::{UrArm, UrConfig};
-    let ArmConfig::Ur {
-        host,
-        speed_cap_rad_s,
-        accel_rad_s2,
-        frequency_hz,
-        connect_timeout_s,
-        call_timeout_s,
-        motion_timeout_margin_s,
-    } = arm
-    else {
-        unreachable!("called for kind = \"ur\" only")
-    };
+    let host = &t.host;
     let n = robot.actuated.len();
     if n != 6 {
         return Err(Error::input(
@@ -96,22 +72,15 @@ pub(super) fn ur_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result
     }
     let mut cfg = UrConfig::new(host.clone());
     cfg.joint_names = Some(robot.joint_names().iter().map(|s| s.to_string()).collect());
-    if let Some(v) = speed_cap_rad_s {
-        cfg.speed_cap_rad_s = *v;
-    }
-    if let Some(v) = accel_rad_s2 {
-        cfg.accel_rad_s2 = *v;
-    }
-    if let Some(v) = frequency_hz {
-        cfg.frequency_hz = *v;
-    }
-    cfg.connect_timeout = seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 10.0)?;
-    cfg.call_timeout = seconds(path, "arm.call_timeout_s", *call_timeout_s, 2.0)?;
+    cfg.speed_cap_rad_s = t.speed_cap_rad_s;
+    cfg.accel_rad_s2 = t.accel_rad_s2;
+    cfg.frequency_hz = t.frequency_hz;
+    cfg.connect_timeout = seconds(path, "arm.connect_timeout_s", t.connect_timeout_s)?;
+    cfg.call_timeout = seconds(path, "arm.call_timeout_s", t.call_timeout_s)?;
     cfg.motion_timeout_margin = seconds(
         path,
         "arm.motion_timeout_margin_s",
-        *motion_timeout_margin_s,
-        10.0,
+        t.motion_timeout_margin_s,
     )?;
     let arm = UrArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
     Ok(Arc::new(arm))
@@ -119,7 +88,7 @@ pub(super) fn ur_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result
 
 /// Without the `ur` feature a UR cell cannot be built: say how to get one.
 #[cfg(not(feature = "ur"))]
-pub(super) fn ur_arm(_arm: &ArmConfig, _robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+pub(super) fn ur_arm(_: &UrSettings, _: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
     Err(Error::input(
         path,
         "arm.kind",
@@ -130,7 +99,7 @@ pub(super) fn ur_arm(_arm: &ArmConfig, _robot: &RobotModel, path: &Path) -> Resu
 /// The arm of an `[arm] kind = "dynamixel" | "feetech"` table.
 pub(super) fn servo_arm(
     family: Family,
-    t: &ServoArmToml,
+    t: &ServoArmSettings,
     robot: &RobotModel,
     path: &Path,
 ) -> Result<Arc<dyn Arm>> {
@@ -153,33 +122,20 @@ pub(super) fn servo_arm(
             id: j.id,
             offset_rad: j.offset_rad,
             direction: j.direction,
-            ticks_per_rev: j.ticks_per_rev.unwrap_or(4096),
+            ticks_per_rev: j.ticks_per_rev,
             lower_rad: j.lower_rad,
             upper_rad: j.upper_rad,
         })
         .collect();
-    let default_baud = match family {
-        Family::Dynamixel => 57_600,
-        Family::Feetech => 1_000_000,
-    };
-    let mut cfg = ServoArmConfig::new(
-        family,
-        t.port.clone(),
-        t.baud.unwrap_or(default_baud),
-        joints,
-    );
-    if let Some(v) = t.speed_cap_rad_s {
-        cfg.speed_cap_rad_s = v;
-    }
-    if let Some(v) = t.accel_rad_s2 {
-        cfg.accel_rad_s2 = v;
-    }
-    cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", t.reply_timeout_s, 0.1)?;
+    let baud = t.baud_or_factory(family == Family::Feetech);
+    let mut cfg = ServoArmConfig::new(family, t.port.clone(), baud, joints);
+    cfg.speed_cap_rad_s = t.speed_cap_rad_s;
+    cfg.accel_rad_s2 = t.accel_rad_s2;
+    cfg.reply_timeout = seconds(path, "arm.reply_timeout_s", t.reply_timeout_s)?;
     cfg.motion_timeout_margin = seconds(
         path,
         "arm.motion_timeout_margin_s",
         t.motion_timeout_margin_s,
-        5.0,
     )?;
     let arm = ServoArm::new(cfg).map_err(|e| Error::input(path, "arm", e.to_string()))?;
     Ok(Arc::new(arm))
@@ -187,18 +143,12 @@ pub(super) fn servo_arm(
 
 /// The arm of an `[arm] kind = "piper"` table.
 #[cfg(feature = "socketcan")]
-pub(super) fn piper_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+pub(super) fn piper_arm(
+    t: &PiperSettings,
+    robot: &RobotModel,
+    path: &Path,
+) -> Result<Arc<dyn Arm>> {
     use easyhec_drivers::piper::{PiperArm, PiperConfig, SocketCan};
-    let ArmConfig::Piper {
-        interface,
-        speed_cap_rad_s,
-        full_speed_rad_s,
-        enable_timeout_s,
-        motion_timeout_margin_s,
-    } = arm
-    else {
-        unreachable!("called for kind = \"piper\" only")
-    };
     let names = robot.joint_names();
     if names.len() != 6 {
         return Err(Error::input(
@@ -214,27 +164,22 @@ pub(super) fn piper_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Res
         joint_names: names.iter().map(|s| s.to_string()).collect(),
         ..PiperConfig::default()
     };
-    if let Some(v) = speed_cap_rad_s {
-        cfg.speed_cap_rad_s = *v;
-    }
-    if let Some(v) = full_speed_rad_s {
-        cfg.full_speed_rad_s = *v;
-    }
-    cfg.enable_timeout = seconds(path, "arm.enable_timeout_s", *enable_timeout_s, 5.0)?;
+    cfg.speed_cap_rad_s = t.speed_cap_rad_s;
+    cfg.full_speed_rad_s = t.full_speed_rad_s;
+    cfg.enable_timeout = seconds(path, "arm.enable_timeout_s", t.enable_timeout_s)?;
     cfg.motion_timeout_margin = seconds(
         path,
         "arm.motion_timeout_margin_s",
-        *motion_timeout_margin_s,
-        10.0,
+        t.motion_timeout_margin_s,
     )?;
-    let arm = PiperArm::new(cfg, Arc::new(SocketCan::new(interface)))
+    let arm = PiperArm::new(cfg, Arc::new(SocketCan::new(&t.interface)))
         .map_err(|e| Error::input(path, "arm", e.to_string()))?;
     Ok(Arc::new(arm))
 }
 
 /// Without the `socketcan` feature a Piper config is an error that says how to get one.
 #[cfg(not(feature = "socketcan"))]
-pub(super) fn piper_arm(_: &ArmConfig, _: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
+pub(super) fn piper_arm(_: &PiperSettings, _: &RobotModel, path: &Path) -> Result<Arc<dyn Arm>> {
     Err(Error::input(
         path,
         "arm.kind",
@@ -272,37 +217,26 @@ pub(super) fn camera_open_error(e: easyhec_drivers::DriverError, path: &Path) ->
 /// The webcam of a `[camera] kind = "v4l2"` table (opened and streaming).
 #[cfg(feature = "v4l2")]
 pub(super) fn v4l2_camera(
-    camera: &CameraConfig,
+    t: &V4l2Settings,
     calibration: Option<CameraCalibration>,
     path: &Path,
 ) -> Result<Arc<dyn CameraDevice>> {
     use easyhec_drivers::v4l2::{V4l2Camera, V4l2Config};
-    let CameraConfig::V4l2 {
-        device,
-        width,
-        height,
-        pixel_format,
-        exposure_us,
-        frame_timeout_s,
-        ..
-    } = camera
-    else {
-        unreachable!("called for kind = \"v4l2\" only")
-    };
     let calibration = calibration_of(calibration, path)?;
-    let format = pixel_format
+    let format = t
+        .pixel_format
         .parse()
         .map_err(|e: String| Error::input(path, "camera.pixel_format", e))?;
     let mut cfg = V4l2Config::new(
-        device.clone(),
-        *width,
-        *height,
+        t.device.clone(),
+        t.width,
+        t.height,
         format,
         calibration.intrinsics,
         calibration.file,
     );
-    cfg.exposure_us = *exposure_us;
-    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+    cfg.exposure_us = t.exposure_us;
+    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", t.frame_timeout_s)?;
     let camera = V4l2Camera::open(cfg).map_err(|e| camera_open_error(e, path))?;
     Ok(Arc::new(camera))
 }
@@ -310,7 +244,7 @@ pub(super) fn v4l2_camera(
 /// Without the `v4l2` feature a webcam config is an error that says how to get one.
 #[cfg(not(feature = "v4l2"))]
 pub(super) fn v4l2_camera(
-    _: &CameraConfig,
+    _: &V4l2Settings,
     _: Option<CameraCalibration>,
     path: &Path,
 ) -> Result<Arc<dyn CameraDevice>> {
@@ -324,35 +258,25 @@ pub(super) fn v4l2_camera(
 /// The camera of a `[camera] kind = "aravis"` table (opened and streaming).
 #[cfg(feature = "aravis")]
 pub(super) fn aravis_camera(
-    camera: &CameraConfig,
+    t: &AravisSettings,
     calibration: Option<CameraCalibration>,
     path: &Path,
 ) -> Result<Arc<dyn CameraDevice>> {
     use easyhec_drivers::aravis::{AravisCamera, AravisConfig};
-    let CameraConfig::Aravis {
-        device_id,
-        pixel_format,
-        exposure_us,
-        gain_db,
-        frame_timeout_s,
-        ..
-    } = camera
-    else {
-        unreachable!("called for kind = \"aravis\" only")
-    };
     let calibration = calibration_of(calibration, path)?;
-    let format = pixel_format
+    let format = t
+        .pixel_format
         .parse()
         .map_err(|e: String| Error::input(path, "camera.pixel_format", e))?;
     let mut cfg = AravisConfig::new(
-        device_id.clone(),
+        t.device_id.clone(),
         format,
         calibration.intrinsics,
         calibration.file,
     );
-    cfg.exposure_us = *exposure_us;
-    cfg.gain_db = *gain_db;
-    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
+    cfg.exposure_us = t.exposure_us;
+    cfg.gain_db = t.gain_db;
+    cfg.frame_timeout = seconds(path, "camera.frame_timeout_s", t.frame_timeout_s)?;
     let camera = AravisCamera::open(cfg).map_err(|e| camera_open_error(e, path))?;
     Ok(Arc::new(camera))
 }
@@ -360,7 +284,7 @@ pub(super) fn aravis_camera(
 /// Without the `aravis` feature a GenICam camera config is an error that says how to get one.
 #[cfg(not(feature = "aravis"))]
 pub(super) fn aravis_camera(
-    _: &CameraConfig,
+    _: &AravisSettings,
     _: Option<CameraCalibration>,
     path: &Path,
 ) -> Result<Arc<dyn CameraDevice>> {

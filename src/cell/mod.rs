@@ -17,7 +17,10 @@ use easyhec_drivers::{Arm, Camera as CameraDevice};
 #[cfg(not(feature = "sim"))]
 use nalgebra::Isometry3;
 
-use crate::config::{read_config, ArmConfig, CameraCalibration, CameraConfig, CellConfig};
+use crate::config::{
+    read_config, ArmConfig, CameraCalibration, CameraConfig, CellConfig, SimArmSettings,
+    SimCameraSettings,
+};
 #[cfg(not(feature = "sim"))]
 use crate::error::Error;
 use crate::error::Result;
@@ -53,22 +56,12 @@ pub struct Cell {
     pub config_path: PathBuf,
     /// Robot model in the cell's base frame (the arm, safety, FK).
     pub robot: Arc<RobotModel>,
-    /// The robot as the camera sees it, for every render and solve: `robot` itself for a
-    /// fixed camera; for a camera on a link, rooted at that link (so the solved pose is
-    /// `camera_from_<link>`) and without the links that move with the camera.
-    pub seen: Arc<RobotModel>,
     /// The arm, behind the safety gate: every move must be a [`crate::safety::CheckedMove`].
     pub arm: SafeArm,
-    /// The camera (the first, in a rig).
-    pub camera: Arc<dyn CameraDevice>,
-    /// The other cameras of a rig (`[[camera]]` tables after the first); empty for one.
-    pub more_cameras: Vec<CameraUnit>,
-    /// The segmenter.
-    pub segmenter: Box<dyn Segmenter>,
+    /// Every camera, in the config's order: one for a `[camera]` table.
+    pub units: Vec<CameraUnit>,
     /// The safety checker.
     pub checker: Arc<SafetyChecker>,
-    /// Simulator handles (empty on real hardware).
-    pub sim: SimHandles,
 }
 
 /// The arm a config builds, with the simulated arm's own handle when simulated.
@@ -85,7 +78,7 @@ struct BuiltCamera {
     sim: Option<sim::SimCameraParts>,
 }
 
-/// One camera of a cell beyond the first: what the first keeps in [`Cell`]'s own fields.
+/// One camera of a cell, built.
 pub struct CameraUnit {
     /// The camera's single-camera config (its table as `[camera]`, its segmenter as
     /// `[segmenter]`, everything else shared).
@@ -94,7 +87,9 @@ pub struct CameraUnit {
     pub name: String,
     /// The device.
     pub device: Arc<dyn CameraDevice>,
-    /// The robot as this camera sees it.
+    /// The robot as this camera sees it, for every render and solve: the cell's robot for a
+    /// fixed camera; for a camera on a link, rooted at that link (so the solved pose is
+    /// `camera_from_<link>`) and without the links that move with the camera.
     pub seen: Arc<RobotModel>,
     /// This camera's segmenter.
     pub segmenter: Box<dyn Segmenter>,
@@ -102,8 +97,7 @@ pub struct CameraUnit {
     pub sim: SimHandles,
 }
 
-/// One camera of the cell, borrowed: the first from [`Cell`]'s own fields, the others from
-/// [`Cell::more_cameras`], so a rig and a single camera run through the same code.
+/// One camera of the cell, borrowed, with what its config table says.
 #[derive(Clone, Copy)]
 pub struct CameraRef<'a> {
     /// The camera's name in the config (`camera` for a single `[camera]` table).
@@ -135,17 +129,32 @@ impl Cell {
     pub fn build(config: CellConfig, path: &Path) -> Result<Cell> {
         // Every value that needs only the file, before anything is read or opened.
         config.validate(path)?;
-        let first = config.for_camera(0);
-        let rekey = |e| crate::config::cameras::rekey(e, &config.camera, 0);
-        // A bad calibration file fails here, before any hardware is opened.
-        let calibration = first.camera.calibration(path).map_err(rekey)?;
-        // So does a bad segmentation model.
-        let segmenter = crate::segment::build(&first.segmenter, path).map_err(rekey)?;
+        // Every calibration file and segmentation model next: a bad one fails before any
+        // hardware is opened.
+        let n = config.camera.cameras().len();
+        let mut prepared = Vec::with_capacity(n);
+        for i in 0..n {
+            let rekey = |e| crate::config::cameras::rekey(e, &config.camera, i);
+            let one = config.for_camera(i);
+            let calibration = one.camera.first().calibration(path).map_err(rekey)?;
+            let segmenter = crate::segment::build(&one.segmenter, path).map_err(rekey)?;
+            prepared.push((one, calibration, segmenter));
+        }
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
-        let seen = seen_robot(&config, 0, &robot, path).map_err(rekey)?;
         let arm = build_arm(&config, &robot, path)?;
-        let feed = ros2::joint_feed(&first, &robot, path).map_err(rekey)?;
-        let camera = build_camera(&first, calibration, &robot, &arm, feed, path).map_err(rekey)?;
+        let units = prepared
+            .into_iter()
+            .enumerate()
+            .map(|(i, (one, calibration, segmenter))| {
+                let parts = UnitParts {
+                    one,
+                    calibration,
+                    segmenter,
+                };
+                build_unit(&config, i, parts, &robot, &arm, path)
+                    .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))
+            })
+            .collect::<Result<Vec<_>>>()?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -159,28 +168,20 @@ impl Cell {
             path,
         )?);
         config.daemon.validate(path, robot.actuated.len())?;
-        let more_cameras = (1..config.camera.cameras().len())
-            .map(|i| {
-                build_unit(&config, i, &robot, &arm, path)
-                    .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        #[cfg(feature = "sim")]
-        let (segmenter, sim) = sim::attach(&first, path, segmenter, arm.sim, camera.sim)?;
-        #[cfg(not(feature = "sim"))]
-        let sim = SimHandles::default();
         Ok(Cell {
-            segmenter,
             config,
             config_path: path.to_path_buf(),
             robot,
-            seen,
             arm: SafeArm::new(arm.device, checker.clone()),
-            camera: camera.device,
-            more_cameras,
+            units,
             checker,
-            sim,
         })
+    }
+
+    /// The simulated arm's log, when the arm is simulated.
+    #[cfg(feature = "sim")]
+    pub fn sim_arm(&self) -> Option<&sim::SimArmLog> {
+        self.units.first().and_then(|u| u.sim.arm.as_ref())
     }
 
     /// The index in [`Cell::cameras`] of the camera named `name`.
@@ -192,50 +193,49 @@ impl Cell {
             .position(|c| c.name == name)
     }
 
-    /// Every camera, the first from this struct's own fields.
+    /// Every camera, with its table.
     pub fn cameras(&self) -> Vec<CameraRef<'_>> {
-        let named = &self.config.camera.cameras()[0];
-        let first = CameraRef {
-            name: &named.name,
-            config: &named.config,
-            segmenter_config: named.segmenter.as_ref().unwrap_or(&self.config.segmenter),
-            device: &self.camera,
-            seen: &self.seen,
-            segmenter: self.segmenter.as_ref(),
-            sim: &self.sim,
-            initial_guess: named.initial_guess.as_ref(),
-        };
-        let listed = &self.config.camera.cameras()[1..];
-        let more = self
-            .more_cameras
+        self.units
             .iter()
-            .zip(listed)
+            .zip(self.config.camera.cameras())
             .map(|(u, named)| CameraRef {
                 name: &u.name,
-                config: &u.config.camera,
+                config: u.config.camera.first(),
                 segmenter_config: &u.config.segmenter,
                 device: &u.device,
                 seen: &u.seen,
                 segmenter: u.segmenter.as_ref(),
                 sim: &u.sim,
                 initial_guess: named.initial_guess.as_ref(),
-            });
-        std::iter::once(first).chain(more).collect()
+            })
+            .collect()
     }
 }
 
-/// Camera `index` (not the first) of a rig: device, segmenter and simulator handles, built
-/// from its single-camera config on the cell's one arm.
+/// What is read for one camera before the arm opens: its single-camera config, its
+/// calibration file and its segmenter.
+struct UnitParts {
+    one: CellConfig,
+    calibration: Option<CameraCalibration>,
+    segmenter: Box<dyn Segmenter>,
+}
+
+/// Camera `index`: device, segmenter and simulator handles, built from its single-camera
+/// config on the cell's one arm.
 fn build_unit(
     config: &CellConfig,
     index: usize,
+    parts: UnitParts,
     robot: &Arc<RobotModel>,
     arm: &BuiltArm,
     path: &Path,
 ) -> Result<CameraUnit> {
-    let one = config.for_camera(index);
-    let calibration = one.camera.calibration(path)?;
-    let segmenter = crate::segment::build(&one.segmenter, path)?;
+    let UnitParts {
+        one,
+        calibration,
+        segmenter,
+    } = parts;
+    let seen = seen_robot(config, index, robot, path)?;
     let feed = ros2::joint_feed(&one, robot, path)?;
     let camera = build_camera(&one, calibration, robot, arm, feed, path)?;
     #[cfg(feature = "sim")]
@@ -246,13 +246,13 @@ fn build_unit(
         name: config.camera.cameras()[index].name.clone(),
         config: one,
         device: camera.device,
-        seen: seen_robot(config, index, robot, path)?,
+        seen,
         segmenter,
         sim,
     })
 }
 
-/// The robot as camera `index` sees it (see [`Cell::seen`]). A camera on a link needs a
+/// The robot as camera `index` sees it (see [`CameraUnit::seen`]). A camera on a link needs a
 /// starting pose: the automatic initialisation searches around a fixed camera only. In a
 /// list, that is the camera's own `initial_guess` (one pose cannot serve several cameras).
 fn seen_robot(
@@ -303,11 +303,10 @@ fn robot_source(config: &CellConfig, path: &Path) -> RobotSource {
 
 /// The arm of the `[arm]` table.
 fn build_arm(config: &CellConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
-    let arm = &config.arm;
-    let device = match arm {
-        ArmConfig::Sim { .. } => return sim_arm(arm, robot, path),
-        ArmConfig::Xarm { .. } => hardware::xarm_arm(arm, robot, path)?,
-        ArmConfig::Ur { .. } => hardware::ur_arm(arm, robot, path)?,
+    let device = match &config.arm {
+        ArmConfig::Sim(t) => return sim_arm(t, robot, path),
+        ArmConfig::Xarm(t) => hardware::xarm_arm(t, robot, path)?,
+        ArmConfig::Ur(t) => hardware::ur_arm(t, robot, path)?,
         ArmConfig::Dynamixel(t) => hardware::servo_arm(
             easyhec_drivers::dynamixel::Family::Dynamixel,
             t,
@@ -317,8 +316,8 @@ fn build_arm(config: &CellConfig, robot: &RobotModel, path: &Path) -> Result<Bui
         ArmConfig::Feetech(t) => {
             hardware::servo_arm(easyhec_drivers::dynamixel::Family::Feetech, t, robot, path)?
         }
-        ArmConfig::Piper { .. } => hardware::piper_arm(arm, robot, path)?,
-        ArmConfig::Ros2 { .. } => ros2::ros2_arm(arm, config.ros2.as_ref(), robot, path)?,
+        ArmConfig::Piper(t) => hardware::piper_arm(t, robot, path)?,
+        ArmConfig::Ros2(t) => ros2::ros2_arm(t, config.ros2.as_ref(), robot, path)?,
     };
     Ok(BuiltArm {
         device,
@@ -336,12 +335,12 @@ fn build_camera(
     feed: Option<ros2::JointFeed>,
     path: &Path,
 ) -> Result<BuiltCamera> {
-    let (camera, ros2_settings) = (&*config.camera, config.ros2.as_ref());
+    let (camera, ros2_settings) = (config.camera.first(), config.ros2.as_ref());
     let device = match camera {
-        CameraConfig::Sim { .. } => return sim_camera(camera, robot, arm, feed, path),
-        CameraConfig::V4l2 { .. } => hardware::v4l2_camera(camera, calibration, path)?,
-        CameraConfig::Aravis { .. } => hardware::aravis_camera(camera, calibration, path)?,
-        CameraConfig::Ros2 { .. } => ros2::ros2_camera(camera, ros2_settings, path)?,
+        CameraConfig::Sim(t) => return sim_camera(t, robot, arm, feed, path),
+        CameraConfig::V4l2(t) => hardware::v4l2_camera(t, calibration, path)?,
+        CameraConfig::Aravis(t) => hardware::aravis_camera(t, calibration, path)?,
+        CameraConfig::Ros2(t) => ros2::ros2_camera(t, ros2_settings, path)?,
     };
     Ok(BuiltCamera {
         device,
@@ -351,7 +350,7 @@ fn build_camera(
 }
 
 #[cfg(feature = "sim")]
-fn sim_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
+fn sim_arm(arm: &SimArmSettings, robot: &RobotModel, path: &Path) -> Result<BuiltArm> {
     let sim = sim::arm(arm, robot, path)?;
     Ok(BuiltArm {
         device: Arc::new(sim.clone()),
@@ -361,7 +360,7 @@ fn sim_arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<BuiltArm>
 
 #[cfg(feature = "sim")]
 fn sim_camera(
-    camera: &CameraConfig,
+    camera: &SimCameraSettings,
     robot: &Arc<RobotModel>,
     arm: &BuiltArm,
     feed: Option<ros2::JointFeed>,
@@ -376,13 +375,13 @@ fn sim_camera(
 
 /// Without the `sim` feature a simulated cell cannot be built: say how to get one.
 #[cfg(not(feature = "sim"))]
-fn sim_arm(_: &ArmConfig, _: &RobotModel, path: &Path) -> Result<BuiltArm> {
+fn sim_arm(_: &SimArmSettings, _: &RobotModel, path: &Path) -> Result<BuiltArm> {
     Err(Error::input(path, "arm.kind", NO_SIM))
 }
 
 #[cfg(not(feature = "sim"))]
 fn sim_camera(
-    _: &CameraConfig,
+    _: &SimCameraSettings,
     _: &Arc<RobotModel>,
     _: &BuiltArm,
     _: Option<ros2::JointFeed>,

@@ -8,38 +8,20 @@ use std::sync::Arc;
 use easyhec_drivers::Arm;
 
 use crate::config::ros2::Ros2Settings;
-use crate::config::{seconds, ArmConfig};
+use crate::config::{seconds, ArmConfig, Ros2ArmSettings, Ros2CameraSettings};
 use crate::error::{Error, Result};
 use crate::robot::RobotModel;
-
-/// Default `/joint_states` topic.
-pub const JOINT_STATES_TOPIC: &str = "/joint_states";
-
-/// Default command topic: ros2_control's joint_trajectory_controller under its usual name.
-pub const COMMAND_TOPIC: &str = "/joint_trajectory_controller/joint_trajectory";
 
 /// The arm of an `[arm] kind = "ros2"` table.
 #[cfg(feature = "ros2")]
 pub(super) fn ros2_arm(
-    arm: &ArmConfig,
+    t: &Ros2ArmSettings,
     ros2: Option<&Ros2Settings>,
     robot: &RobotModel,
     path: &Path,
 ) -> Result<Arc<dyn Arm>> {
     use easyhec_drivers::ros2::arm::{Ros2Arm, Ros2ArmOptions};
-    let ArmConfig::Ros2 {
-        joint_states_topic,
-        command_topic,
-        joint_names,
-        stale_after_s,
-        arrival_tolerance_rad,
-        connect_timeout_s,
-        motion_timeout_margin_s,
-    } = arm
-    else {
-        unreachable!("called for kind = \"ros2\" only")
-    };
-    let names = controller_joint_names(joint_names.as_deref(), robot, path)?;
+    let names = controller_joint_names(t.joint_names.as_deref(), robot, path)?;
     let continuous = robot
         .actuated
         .iter()
@@ -65,22 +47,17 @@ pub(super) fn ros2_arm(
             namespace: Ros2Settings::namespace_of(ros2),
             node_name: "easyhec_arm".into(),
         },
-        joint_states_topic: joint_states_topic
-            .clone()
-            .unwrap_or_else(|| JOINT_STATES_TOPIC.into()),
-        command_topic: command_topic
-            .clone()
-            .unwrap_or_else(|| COMMAND_TOPIC.into()),
+        joint_states_topic: t.joint_states_topic.clone(),
+        command_topic: t.command_topic.clone(),
         joints,
         continuous,
-        stale_after: seconds(path, "arm.stale_after_s", *stale_after_s, 0.5)?,
-        arrival_tolerance_rad: arrival_tolerance_rad.unwrap_or(0.002),
-        connect_timeout: seconds(path, "arm.connect_timeout_s", *connect_timeout_s, 10.0)?,
+        stale_after: seconds(path, "arm.stale_after_s", t.stale_after_s)?,
+        arrival_tolerance_rad: t.arrival_tolerance_rad,
+        connect_timeout: seconds(path, "arm.connect_timeout_s", t.connect_timeout_s)?,
         arrival_margin: seconds(
             path,
             "arm.motion_timeout_margin_s",
-            *motion_timeout_margin_s,
-            10.0,
+            t.motion_timeout_margin_s,
         )?,
     };
     let arm = Ros2Arm::new(options).map_err(|e| Error::input(path, "arm", e.to_string()))?;
@@ -90,7 +67,7 @@ pub(super) fn ros2_arm(
 /// Without the `ros2` feature a ROS 2 arm cannot be built: say how to get one.
 #[cfg(not(feature = "ros2"))]
 pub(super) fn ros2_arm(
-    _: &ArmConfig,
+    _: &Ros2ArmSettings,
     _: Option<&Ros2Settings>,
     _: &RobotModel,
     path: &Path,
@@ -147,29 +124,27 @@ pub(super) fn joint_feed(
     robot: &RobotModel,
     path: &Path,
 ) -> Result<Option<JointFeed>> {
-    use crate::config::{CameraConfig, JointsFrom};
-    let CameraConfig::Sim {
+    use crate::config::{CameraConfig, JointsFrom, SimCameraSettings};
+    let CameraConfig::Sim(SimCameraSettings {
         joints_from: Some(JointsFrom::Ros2 { topic, timeout_s }),
         ..
-    } = &*config.camera
+    }) = config.camera.first()
     else {
         return Ok(None);
     };
-    if let Some(t) = topic {
-        crate::config::ros2::check_topic(t)
-            .map_err(|m| Error::input(path, "camera.joints_from.topic", format!("is {m}")))?;
-    }
+    crate::config::ros2::check_topic(topic)
+        .map_err(|m| Error::input(path, "camera.joints_from.topic", format!("is {m}")))?;
     let given = match &config.arm {
-        ArmConfig::Ros2 { joint_names, .. } => joint_names.as_deref(),
+        ArmConfig::Ros2(t) => t.joint_names.as_deref(),
         _ => None,
     };
     let ros2 = config.ros2.as_ref();
     Ok(Some(JointFeed {
         domain_id: Ros2Settings::domain(ros2)?,
         namespace: Ros2Settings::namespace_of(ros2),
-        topic: topic.clone().unwrap_or_else(|| JOINT_STATES_TOPIC.into()),
+        topic: topic.clone(),
         names: controller_joint_names(given, robot, path)?,
-        timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 10.0)?,
+        timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s)?,
     }))
 }
 
@@ -231,42 +206,24 @@ pub(super) mod feed {
     }
 }
 
-/// Default image topic: a RealSense or most UVC drivers' colour stream.
-pub const IMAGE_TOPIC: &str = "/camera/color/image_raw";
-
-/// Default CameraInfo topic, beside [`IMAGE_TOPIC`].
-pub const CAMERA_INFO_TOPIC: &str = "/camera/color/camera_info";
-
 /// The camera of a `[camera] kind = "ros2"` table: opened, with its CameraInfo read.
 #[cfg(feature = "ros2")]
 pub(super) fn ros2_camera(
-    camera: &crate::config::CameraConfig,
+    t: &Ros2CameraSettings,
     ros2: Option<&Ros2Settings>,
     path: &Path,
 ) -> Result<Arc<dyn easyhec_drivers::Camera>> {
     use easyhec_drivers::ros2::camera::{Ros2Camera, Ros2CameraOptions};
-    let crate::config::CameraConfig::Ros2 {
-        image_topic,
-        camera_info_topic,
-        connect_timeout_s,
-        frame_timeout_s,
-        ..
-    } = camera
-    else {
-        unreachable!("called for kind = \"ros2\" only")
-    };
     let options = Ros2CameraOptions {
         place: easyhec_drivers::ros2::GraphPlace {
             domain_id: Ros2Settings::domain(ros2)?,
             namespace: Ros2Settings::namespace_of(ros2),
             node_name: "easyhec_camera".into(),
         },
-        image_topic: image_topic.clone().unwrap_or_else(|| IMAGE_TOPIC.into()),
-        camera_info_topic: camera_info_topic
-            .clone()
-            .unwrap_or_else(|| CAMERA_INFO_TOPIC.into()),
-        connect_timeout: seconds(path, "camera.connect_timeout_s", *connect_timeout_s, 10.0)?,
-        frame_timeout: seconds(path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?,
+        image_topic: t.image_topic.clone(),
+        camera_info_topic: t.camera_info_topic.clone(),
+        connect_timeout: seconds(path, "camera.connect_timeout_s", t.connect_timeout_s)?,
+        frame_timeout: seconds(path, "camera.frame_timeout_s", t.frame_timeout_s)?,
     };
     let camera =
         Ros2Camera::open(options).map_err(|e| Error::input(path, "camera", e.to_string()))?;
@@ -276,7 +233,7 @@ pub(super) fn ros2_camera(
 /// Without the `ros2` feature a ROS 2 camera cannot be opened: say how to get one.
 #[cfg(not(feature = "ros2"))]
 pub(super) fn ros2_camera(
-    _: &crate::config::CameraConfig,
+    _: &Ros2CameraSettings,
     _: Option<&Ros2Settings>,
     path: &Path,
 ) -> Result<Arc<dyn easyhec_drivers::Camera>> {

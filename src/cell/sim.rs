@@ -3,6 +3,7 @@
 //! with the simulator's own handles (true pose, scene, command log, ground-truth masks) kept
 //! beside the cell for tests and for `ground_truth.json`, never on the hardware types.
 
+use crate::config::{SimArmSettings, SimCameraSettings};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -69,17 +70,14 @@ pub(super) struct SimCameraParts {
 }
 
 /// The simulated arm of an `[arm] kind = "sim"` table, with the URDF's limits.
-pub(super) fn arm(arm: &ArmConfig, robot: &RobotModel, path: &Path) -> Result<SimArm> {
-    let ArmConfig::Sim {
+pub(super) fn arm(arm: &SimArmSettings, robot: &RobotModel, path: &Path) -> Result<SimArm> {
+    let SimArmSettings {
         start,
         encoder_noise_rad,
         speedup,
         faults,
         seed,
-    } = arm
-    else {
-        unreachable!("called for kind = \"sim\" only")
-    };
+    } = arm;
     let n = robot.actuated.len();
     if start.len() != n {
         return Err(Error::input(
@@ -161,21 +159,19 @@ fn fault(f: &FaultConfig) -> Fault {
 /// The simulated camera of a `[camera] kind = "sim"` table: it films the simulated arm, or a
 /// controller's report stream when `joints_from` says so.
 pub(super) fn camera(
-    camera: &CameraConfig,
+    camera: &SimCameraSettings,
     robot: &Arc<RobotModel>,
     sim_arm: Option<&SimArm>,
     feed: Option<&super::ros2::JointFeed>,
     path: &Path,
 ) -> Result<SimCameraParts> {
-    let CameraConfig::Sim {
+    let SimCameraSettings {
         truth,
         scene,
         joints_from,
+        mount,
         ..
-    } = camera
-    else {
-        unreachable!("called for kind = \"sim\" only")
-    };
+    } = camera;
     let source = joint_source(
         joints_from.as_ref(),
         sim_arm,
@@ -186,11 +182,9 @@ pub(super) fn camera(
     let pose = truth
         .checked_camera_from_base()
         .map_err(|problem| Error::input(path, "camera.truth", problem))?;
-    let model = camera
-        .camera()
-        .ok_or_else(|| Error::input(path, "camera", "a simulated camera without its intrinsics"))?;
+    let model = camera.intrinsics();
     scene.validate(path, "camera.scene")?;
-    let scene = Arc::new(match camera.mount().link() {
+    let scene = Arc::new(match mount.link() {
         None => SimScene::new(robot.clone(), model, pose, scene.clone()),
         Some(link) => {
             if scene.effects().distractors.is_some() {
@@ -232,11 +226,11 @@ fn joint_source(
         (Some(JointsFrom::XarmReport { addr, timeout_s }), _) => Arc::new(XArmReportJoints {
             addr: addr.clone(),
             axes,
-            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s)?,
         }),
         (Some(JointsFrom::UrRtde { addr, timeout_s }), _) => Arc::new(UrRtdeJoints {
             addr: addr.clone(),
-            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s, 2.0)?,
+            timeout: seconds(path, "camera.joints_from.timeout_s", *timeout_s)?,
         }),
         (None, Some(sim_arm)) => Arc::new(sim_arm.clone()),
         (None, None) => {
@@ -327,8 +321,8 @@ pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> G
             ..crate::config::NoiseModel::none()
         },
         seed: config.calibration.seed,
-        scene: match &*config.camera {
-            CameraConfig::Sim { scene, .. } => Some(scene.clone()),
+        scene: match config.camera.first() {
+            CameraConfig::Sim(SimCameraSettings { scene, .. }) => Some(scene.clone()),
             _ => None,
         },
     }
@@ -338,9 +332,9 @@ pub fn ground_truth(config: &CellConfig, camera_from_base: &Isometry3<f64>) -> G
 /// count as exact.
 fn encoder_noise_rad(config: &CellConfig) -> f64 {
     match &config.arm {
-        ArmConfig::Sim {
+        ArmConfig::Sim(SimArmSettings {
             encoder_noise_rad, ..
-        } => *encoder_noise_rad,
+        }) => *encoder_noise_rad,
         _ => 0.0,
     }
 }

@@ -276,14 +276,14 @@ fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) -> anyhow:
 /// the simulator's true pose.
 #[cfg(feature = "sim")]
 fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyhow::Result<()> {
-    let Some(truth) = cell.sim.camera_from_base else {
+    let Some(truth) = cell.units[0].sim.camera_from_base else {
         return Ok(());
     };
     let gt = easyhec::cell::sim::ground_truth(&cell.config, &truth);
     easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &gt)?;
     outln!(
         "error against the simulated truth ({}): rotation {:.4} deg, translation {:.3} mm",
-        cell.config.camera.mount().transform_name(),
+        cell.config.camera.first().mount().transform_name(),
         rotation_error_deg(estimate, &truth),
         translation_error_mm(estimate, &truth)
     );

@@ -52,7 +52,7 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
     let config = easyhec::config::read_config(&a.config)?;
     config.camera.require_one(&a.config, "easyhec sim-camera")?;
     let cell = easyhec::cell::Cell::build(config, &a.config)?;
-    if cell.sim.camera.is_none() {
+    if cell.units[0].sim.camera.is_none() {
         return Err(Error::input(
             &a.config,
             "camera.kind",
@@ -79,6 +79,7 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
         a.rate_hz,
         place.domain_id
     );
+    let camera = &cell.units[0].device;
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
@@ -92,8 +93,8 @@ pub fn run(a: SimCameraArgs) -> anyhow::Result<()> {
                 _ = tick.tick() => {
                     // Stamped before the joints are read: the exposure happened no earlier.
                     let exposed = std::time::SystemTime::now();
-                    let frame = cell.camera.grab().await?;
-                    publisher.send(&frame, cell.camera.intrinsics(), exposed)?;
+                    let frame = camera.grab().await?;
+                    publisher.send(&frame, camera.intrinsics(), exposed)?;
                 }
             }
         }

@@ -10,6 +10,7 @@ use easyhec_drivers::Intrinsics;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::arm::{ten, two, JOINT_STATES_TOPIC};
 use super::mount::Mount;
 use super::scene::SceneSettings;
 use super::seconds;
@@ -69,112 +70,157 @@ impl LookAt {
     }
 }
 
-/// `[camera]`.
+/// `[camera]`: one settings struct per `kind`, each holding the only copy of its defaults;
+/// every kind has a [`Mount`].
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
-// The simulated camera's scene dressing makes `Sim` large; a config is parsed once per cell,
-// and boxing the field would change how every caller reaches `scene`.
+// The simulated camera's scene dressing makes `Sim` large; a config is parsed once per cell.
 #[allow(clippy::large_enum_variant)]
 pub enum CameraConfig {
     /// The simulated camera.
-    Sim {
-        /// Image width.
-        width: u32,
-        /// Image height.
-        height: u32,
-        /// Focal length x, pixels.
-        fx: f64,
-        /// Focal length y, pixels.
-        fy: f64,
-        /// Principal point x.
-        cx: f64,
-        /// Principal point y.
-        cy: f64,
-        /// `plumb_bob` k1 k2 p1 p2 k3.
-        #[serde(default)]
-        distortion: Option<[f64; 5]>,
-        /// The true pose, which only the simulator sees: `camera_from_base`, or for a
-        /// camera on a link `camera_from_<link>` (eye and target in that link's frame).
-        truth: LookAt,
-        /// Scene dressing.
-        #[serde(default)]
-        scene: SceneSettings,
-        /// Where the true joints come from when the arm is not simulated (default: the
-        /// simulated arm).
-        #[serde(default)]
-        joints_from: Option<JointsFrom>,
-        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
-        #[serde(default)]
-        mount: Mount,
-    },
+    Sim(SimCameraSettings),
     /// A UVC webcam through V4L2. Needs the `v4l2` cargo feature; the variant exists without
     /// it so such a config gets a one-line "rebuild" error.
-    V4l2 {
-        /// A device path (`/dev/video0`, `/dev/v4l/by-id/…`) or the camera's name as its
-        /// driver reports it (a unique part of it is enough).
-        device: String,
-        /// Stream width, pixels: must equal the calibration file's `image_width`.
-        width: u32,
-        /// Stream height, pixels: must equal the calibration file's `image_height`.
-        height: u32,
-        /// `"YUYV"` or `"MJPG"`.
-        pixel_format: String,
-        /// Fixed exposure, microseconds (default: the camera's own, usually automatic).
-        #[serde(default)]
-        exposure_us: Option<u32>,
-        /// The calibration file: ROS `camera_info` or OpenCV YAML.
-        intrinsics: PathBuf,
-        /// Limit for one frame, seconds (default 2).
-        #[serde(default)]
-        frame_timeout_s: Option<f64>,
-        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
-        #[serde(default)]
-        mount: Mount,
-    },
+    V4l2(V4l2Settings),
     /// A GigE Vision or USB3 Vision camera through Aravis. Needs the `aravis` cargo feature;
     /// the variant exists without it so such a config gets a one-line "rebuild" error.
-    Aravis {
-        /// Aravis device id (`<vendor>-<model>-<serial>`, `<vendor>-<serial>`, user id, MAC or
-        /// IP; default: the first camera found). `"Fake_1"` is Aravis's built-in test camera.
-        #[serde(default)]
-        device_id: Option<String>,
-        /// `"Mono8"`, `"BayerRG8"`, `"BayerGR8"`, `"BayerBG8"`, `"BayerGB8"` or `"RGB8"`.
-        pixel_format: String,
-        /// Fixed exposure, microseconds (default: the camera's setting).
-        #[serde(default)]
-        exposure_us: Option<f64>,
-        /// Fixed gain, dB (default: the camera's setting).
-        #[serde(default)]
-        gain_db: Option<f64>,
-        /// The calibration file: ROS `camera_info` or OpenCV YAML; its size must be the
-        /// camera's region, which is checked when the camera opens.
-        intrinsics: PathBuf,
-        /// Limit for one frame, seconds (default 2).
-        #[serde(default)]
-        frame_timeout_s: Option<f64>,
-        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
-        #[serde(default)]
-        mount: Mount,
-    },
+    Aravis(AravisSettings),
     /// A ROS 2 camera driver's topics (the `ros2` feature): `sensor_msgs/Image` frames and
     /// the intrinsics of its `sensor_msgs/CameraInfo`, in the `[ros2]` table's domain.
-    Ros2 {
-        /// `sensor_msgs/Image` topic (default `/camera/color/image_raw`).
-        #[serde(default)]
-        image_topic: Option<String>,
-        /// `sensor_msgs/CameraInfo` topic (default `/camera/color/camera_info`).
-        #[serde(default)]
-        camera_info_topic: Option<String>,
-        /// Longest wait for the first CameraInfo, seconds (default 10).
-        #[serde(default)]
-        connect_timeout_s: Option<f64>,
-        /// Limit for one fresh frame, seconds (default 2).
-        #[serde(default)]
-        frame_timeout_s: Option<f64>,
-        /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
-        #[serde(default)]
-        mount: Mount,
-    },
+    Ros2(Ros2CameraSettings),
+}
+
+/// `[camera] kind = "sim"`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimCameraSettings {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Focal length x, pixels.
+    pub fx: f64,
+    /// Focal length y, pixels.
+    pub fy: f64,
+    /// Principal point x.
+    pub cx: f64,
+    /// Principal point y.
+    pub cy: f64,
+    /// `plumb_bob` k1 k2 p1 p2 k3.
+    #[serde(default)]
+    pub distortion: Option<[f64; 5]>,
+    /// The true pose, which only the simulator sees: `camera_from_base`, or for a
+    /// camera on a link `camera_from_<link>` (eye and target in that link's frame).
+    pub truth: LookAt,
+    /// Scene dressing.
+    #[serde(default)]
+    pub scene: SceneSettings,
+    /// Where the true joints come from when the arm is not simulated (default: the
+    /// simulated arm).
+    #[serde(default)]
+    pub joints_from: Option<JointsFrom>,
+    /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+    #[serde(default)]
+    pub mount: Mount,
+}
+
+impl SimCameraSettings {
+    /// The camera model the table spells out.
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            distortion: self.distortion,
+        }
+    }
+}
+
+/// `[camera] kind = "v4l2"`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct V4l2Settings {
+    /// A device path (`/dev/video0`, `/dev/v4l/by-id/…`) or the camera's name as its
+    /// driver reports it (a unique part of it is enough).
+    pub device: String,
+    /// Stream width, pixels: must equal the calibration file's `image_width`.
+    pub width: u32,
+    /// Stream height, pixels: must equal the calibration file's `image_height`.
+    pub height: u32,
+    /// `"YUYV"` or `"MJPG"`.
+    pub pixel_format: String,
+    /// Fixed exposure, microseconds (default: the camera's own, usually automatic).
+    #[serde(default)]
+    pub exposure_us: Option<u32>,
+    /// The calibration file: ROS `camera_info` or OpenCV YAML.
+    pub intrinsics: PathBuf,
+    /// Limit for one frame, seconds.
+    #[serde(default = "two")]
+    pub frame_timeout_s: f64,
+    /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+    #[serde(default)]
+    pub mount: Mount,
+}
+
+/// `[camera] kind = "aravis"`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct AravisSettings {
+    /// Aravis device id (`<vendor>-<model>-<serial>`, `<vendor>-<serial>`, user id, MAC or
+    /// IP; default: the first camera found). `"Fake_1"` is Aravis's built-in test camera.
+    #[serde(default)]
+    pub device_id: Option<String>,
+    /// `"Mono8"`, `"BayerRG8"`, `"BayerGR8"`, `"BayerBG8"`, `"BayerGB8"` or `"RGB8"`.
+    pub pixel_format: String,
+    /// Fixed exposure, microseconds (default: the camera's setting).
+    #[serde(default)]
+    pub exposure_us: Option<f64>,
+    /// Fixed gain, dB (default: the camera's setting).
+    #[serde(default)]
+    pub gain_db: Option<f64>,
+    /// The calibration file: ROS `camera_info` or OpenCV YAML; its size must be the
+    /// camera's region, which is checked when the camera opens.
+    pub intrinsics: PathBuf,
+    /// Limit for one frame, seconds.
+    #[serde(default = "two")]
+    pub frame_timeout_s: f64,
+    /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+    #[serde(default)]
+    pub mount: Mount,
+}
+
+/// `[camera] kind = "ros2"`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2CameraSettings {
+    /// `sensor_msgs/Image` topic.
+    #[serde(default = "Ros2CameraSettings::default_image_topic")]
+    pub image_topic: String,
+    /// `sensor_msgs/CameraInfo` topic.
+    #[serde(default = "Ros2CameraSettings::default_camera_info_topic")]
+    pub camera_info_topic: String,
+    /// Longest wait for the first CameraInfo, seconds.
+    #[serde(default = "ten")]
+    pub connect_timeout_s: f64,
+    /// Limit for one fresh frame, seconds.
+    #[serde(default = "two")]
+    pub frame_timeout_s: f64,
+    /// Where the camera is fixed (default `"fixed"`; `{ link = "…" }` for eye-in-hand).
+    #[serde(default)]
+    pub mount: Mount,
+}
+
+impl Ros2CameraSettings {
+    /// A RealSense's and most UVC drivers' colour stream.
+    fn default_image_topic() -> String {
+        "/camera/color/image_raw".into()
+    }
+    fn default_camera_info_topic() -> String {
+        "/camera/color/camera_info".into()
+    }
 }
 
 /// A hardware camera's calibration, read and checked when the cell is built, before the arm
@@ -196,67 +242,52 @@ pub enum JointsFrom {
     XarmReport {
         /// `host:port` of the report port.
         addr: String,
-        /// Limit for receiving one report, seconds (default 2).
-        #[serde(default)]
-        timeout_s: Option<f64>,
+        /// Limit for receiving one report, seconds.
+        #[serde(default = "two")]
+        timeout_s: f64,
     },
     /// A UR controller's RTDE port (`actual_q`), mock or real.
     UrRtde {
         /// `host:port` of the RTDE port (30004).
         addr: String,
-        /// Limit for connecting and receiving one data package, seconds (default 2).
-        #[serde(default)]
-        timeout_s: Option<f64>,
+        /// Limit for connecting and receiving one data package, seconds.
+        #[serde(default = "two")]
+        timeout_s: f64,
     },
     /// A ROS 2 `sensor_msgs/JointState` topic (the `ros2` feature), in the `[ros2]` table's
     /// domain and namespace, with the `[arm]`'s joint names.
     Ros2 {
-        /// The topic (default `/joint_states`).
-        #[serde(default)]
-        topic: Option<String>,
-        /// Limit for the first complete message, seconds (default 10).
-        #[serde(default)]
-        timeout_s: Option<f64>,
+        /// The topic.
+        #[serde(default = "joint_states_topic")]
+        topic: String,
+        /// Limit for the first complete message, seconds.
+        #[serde(default = "ten")]
+        timeout_s: f64,
     },
+}
+
+fn joint_states_topic() -> String {
+    JOINT_STATES_TOPIC.into()
 }
 
 impl CameraConfig {
     /// Where the camera is fixed.
     pub fn mount(&self) -> &Mount {
         match self {
-            CameraConfig::Sim { mount, .. }
-            | CameraConfig::V4l2 { mount, .. }
-            | CameraConfig::Aravis { mount, .. }
-            | CameraConfig::Ros2 { mount, .. } => mount,
+            CameraConfig::Sim(c) => &c.mount,
+            CameraConfig::V4l2(c) => &c.mount,
+            CameraConfig::Aravis(c) => &c.mount,
+            CameraConfig::Ros2(c) => &c.mount,
         }
     }
 
     /// The camera model written in the config itself: a simulated camera's. Hardware cameras
     /// (`None` here) take theirs from their calibration file ([`CameraConfig::calibration`]).
     pub fn camera(&self) -> Option<Intrinsics> {
-        Some(match self {
-            CameraConfig::Sim {
-                width,
-                height,
-                fx,
-                fy,
-                cx,
-                cy,
-                distortion,
-                ..
-            } => Intrinsics {
-                width: *width,
-                height: *height,
-                fx: *fx,
-                fy: *fy,
-                cx: *cx,
-                cy: *cy,
-                distortion: *distortion,
-            },
-            CameraConfig::V4l2 { .. } | CameraConfig::Aravis { .. } | CameraConfig::Ros2 { .. } => {
-                return None
-            }
-        })
+        match self {
+            CameraConfig::Sim(c) => Some(c.intrinsics()),
+            CameraConfig::V4l2(_) | CameraConfig::Aravis(_) | CameraConfig::Ros2(_) => None,
+        }
     }
 
     /// Reads a hardware camera's calibration file (relative to the config at `config_path`)
@@ -264,85 +295,91 @@ impl CameraConfig {
     /// parse, and a V4L2 stream size equals the calibrated size. `None` for the simulated
     /// camera. Errors name the calibration file (or the config) and the field.
     pub fn calibration(&self, config_path: &Path) -> Result<Option<CameraCalibration>> {
-        let dir = config_path.parent().unwrap_or(Path::new("."));
-        let load = |file: &Path| -> Result<CameraCalibration> {
-            let file = dir.join(file);
-            let intrinsics =
-                load_intrinsics(&file).map_err(|e| intrinsics_error(e, config_path))?;
-            Ok(CameraCalibration { intrinsics, file })
-        };
         match self {
-            CameraConfig::Sim { .. } => Ok(None),
-            CameraConfig::Ros2 {
-                image_topic,
-                camera_info_topic,
-                ..
-            } => {
-                for (key, topic) in [
-                    ("camera.image_topic", image_topic),
-                    ("camera.camera_info_topic", camera_info_topic),
-                ] {
-                    if let Some(t) = topic {
-                        crate::config::ros2::check_topic(t)
-                            .map_err(|m| Error::input(config_path, key, format!("is {m}")))?;
-                    }
-                }
-                Ok(None)
-            }
-            CameraConfig::V4l2 {
-                width,
-                height,
-                pixel_format,
-                exposure_us,
-                intrinsics,
-                frame_timeout_s,
-                ..
-            } => {
-                pixel_format
-                    .parse::<V4l2PixelFormat>()
-                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
-                if *exposure_us == Some(0) {
-                    return Err(Error::input(
-                        config_path,
-                        "camera.exposure_us",
-                        "0: give a positive exposure in microseconds, or leave it out for the camera's own",
-                    ));
-                }
-                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
-                let calibration = load(intrinsics)?;
-                check_frame_size(&calibration.intrinsics, &calibration.file, *width, *height)
-                    .map_err(|e| intrinsics_error(e, config_path))?;
-                Ok(Some(calibration))
-            }
-            CameraConfig::Aravis {
-                pixel_format,
-                exposure_us,
-                gain_db,
-                intrinsics,
-                frame_timeout_s,
-                ..
-            } => {
-                pixel_format
-                    .parse::<AravisPixelFormat>()
-                    .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
-                if let Some(us) = exposure_us.filter(|v| !(v.is_finite() && *v > 0.0)) {
-                    return Err(Error::input(
-                        config_path,
-                        "camera.exposure_us",
-                        format!("{us}: give a positive exposure in microseconds"),
-                    ));
-                }
-                if let Some(db) = gain_db.filter(|v| !v.is_finite()) {
-                    return Err(Error::input(
-                        config_path,
-                        "camera.gain_db",
-                        format!("{db}: give a finite gain in dB"),
-                    ));
-                }
-                seconds(config_path, "camera.frame_timeout_s", *frame_timeout_s, 2.0)?;
-                Ok(Some(load(intrinsics)?))
-            }
+            CameraConfig::Sim(_) => Ok(None),
+            CameraConfig::Ros2(c) => c.check(config_path).map(|()| None),
+            CameraConfig::V4l2(c) => c.calibration(config_path).map(Some),
+            CameraConfig::Aravis(c) => c.calibration(config_path).map(Some),
         }
+    }
+}
+
+/// Reads a hardware camera's calibration file, relative to the config at `config_path`.
+fn load_calibration(file: &Path, config_path: &Path) -> Result<CameraCalibration> {
+    let dir = config_path.parent().unwrap_or(Path::new("."));
+    let file = dir.join(file);
+    let intrinsics = load_intrinsics(&file).map_err(|e| intrinsics_error(e, config_path))?;
+    Ok(CameraCalibration { intrinsics, file })
+}
+
+impl Ros2CameraSettings {
+    /// The topic names are legal ROS 2 names and the timeouts are in range.
+    pub fn check(&self, config_path: &Path) -> Result<()> {
+        for (key, topic) in [
+            ("camera.image_topic", &self.image_topic),
+            ("camera.camera_info_topic", &self.camera_info_topic),
+        ] {
+            crate::config::ros2::check_topic(topic)
+                .map_err(|m| Error::input(config_path, key, format!("is {m}")))?;
+        }
+        seconds(
+            config_path,
+            "camera.connect_timeout_s",
+            self.connect_timeout_s,
+        )?;
+        seconds(config_path, "camera.frame_timeout_s", self.frame_timeout_s)?;
+        Ok(())
+    }
+}
+
+impl V4l2Settings {
+    /// The settings parse and the stream size equals the calibration file's.
+    fn calibration(&self, config_path: &Path) -> Result<CameraCalibration> {
+        self.pixel_format
+            .parse::<V4l2PixelFormat>()
+            .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+        if self.exposure_us == Some(0) {
+            return Err(Error::input(
+                config_path,
+                "camera.exposure_us",
+                "0: give a positive exposure in microseconds, or leave it out for the camera's own",
+            ));
+        }
+        seconds(config_path, "camera.frame_timeout_s", self.frame_timeout_s)?;
+        let calibration = load_calibration(&self.intrinsics, config_path)?;
+        check_frame_size(
+            &calibration.intrinsics,
+            &calibration.file,
+            self.width,
+            self.height,
+        )
+        .map_err(|e| intrinsics_error(e, config_path))?;
+        Ok(calibration)
+    }
+}
+
+impl AravisSettings {
+    /// The settings parse; the region is checked against the file when the camera opens.
+    fn calibration(&self, config_path: &Path) -> Result<CameraCalibration> {
+        self.pixel_format
+            .parse::<AravisPixelFormat>()
+            .map_err(|e| Error::input(config_path, "camera.pixel_format", e))?;
+        if let Some(us) = self.exposure_us.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            return Err(Error::input(
+                config_path,
+                "camera.exposure_us",
+                format!("{us}: give a positive exposure in microseconds"),
+            ));
+        }
+        if let Some(db) = self.gain_db.filter(|v| !v.is_finite()) {
+            return Err(Error::input(
+                config_path,
+                "camera.gain_db",
+                format!("{db}: give a finite gain in dB"),
+            ));
+        }
+        seconds(config_path, "camera.frame_timeout_s", self.frame_timeout_s)?;
+        load_calibration(&self.intrinsics, config_path)
     }
 }
 

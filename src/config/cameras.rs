@@ -2,13 +2,11 @@
 //! `name` and, when it differs from the shared `[segmenter]`, its own `segmenter`.
 //!
 //! One table keeps the file format every existing cell uses, with its error lines. Several
-//! tables make a rig: one arm motion serves them all (docs/cameras.md). Code that drives
-//! one camera reaches the first through `Deref`; everything that handles a rig asks for
-//! [`CameraSet::cameras`] and refuses a rig where it cannot serve one
-//! ([`CameraSet::require_one`]).
+//! tables make a rig: one arm motion serves them all (docs/cameras.md). Code iterates
+//! [`CameraSet::cameras`]; code that cannot serve several refuses them
+//! ([`CameraSet::require_one`]) before it reaches for [`CameraSet::first`].
 
 use std::fmt;
-use std::ops::{Deref, DerefMut};
 use std::path::Path;
 
 use serde::de::{self, MapAccess, SeqAccess, Visitor};
@@ -66,6 +64,17 @@ impl CameraSet {
     /// Every camera, in file order.
     pub fn cameras(&self) -> &[NamedCamera] {
         &self.cameras
+    }
+
+    /// The first camera's table: the only one of a `[camera]` table. Code that serves
+    /// several cameras iterates [`CameraSet::cameras`] instead.
+    pub fn first(&self) -> &CameraConfig {
+        &self.cameras[0].config
+    }
+
+    /// As [`CameraSet::first`], to edit.
+    pub fn first_mut(&mut self) -> &mut CameraConfig {
+        &mut self.cameras[0].config
     }
 
     /// Whether the file lists several cameras (a rig) rather than one `[camera]` table.
@@ -172,18 +181,10 @@ impl CameraSet {
 /// tables with the same source would calibrate one stream twice.
 fn source_of(config: &CameraConfig) -> Option<(&'static str, String)> {
     match config {
-        CameraConfig::V4l2 { device, .. } => Some(("device", device.clone())),
-        CameraConfig::Aravis {
-            device_id: Some(id),
-            ..
-        } => Some(("device_id", id.clone())),
-        CameraConfig::Ros2 { image_topic, .. } => Some((
-            "image_topic",
-            image_topic
-                .clone()
-                .unwrap_or_else(|| "/camera/color/image_raw".into()),
-        )),
-        _ => None,
+        CameraConfig::V4l2(t) => Some(("device", t.device.clone())),
+        CameraConfig::Aravis(t) => t.device_id.clone().map(|id| ("device_id", id)),
+        CameraConfig::Ros2(t) => Some(("image_topic", t.image_topic.clone())),
+        CameraConfig::Sim(_) => None,
     }
 }
 
@@ -246,20 +247,6 @@ pub fn rekey(err: Error, set: &CameraSet, index: usize) -> Error {
             }
         }
         other => other,
-    }
-}
-
-/// The first camera: what single-camera code drives.
-impl Deref for CameraSet {
-    type Target = CameraConfig;
-    fn deref(&self) -> &CameraConfig {
-        &self.cameras[0].config
-    }
-}
-
-impl DerefMut for CameraSet {
-    fn deref_mut(&mut self) -> &mut CameraConfig {
-        &mut self.cameras[0].config
     }
 }
 
@@ -383,7 +370,7 @@ mod tests {
         let names: Vec<&str> = h.camera.cameras().iter().map(|c| c.name.as_str()).collect();
         assert_eq!(names, ["left", "right"]);
         assert!(h.camera.is_rig());
-        assert_eq!(h.camera.camera().unwrap().fx, 60.0);
+        assert_eq!(h.camera.first().camera().unwrap().fx, 60.0);
         let again: Holder = toml::from_str(&toml::to_string(&h).unwrap()).unwrap();
         assert_eq!(again.camera.cameras()[1].name, "right");
         assert_eq!(again.camera.cameras()[1].config.camera().unwrap().fx, 61.0);

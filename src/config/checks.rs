@@ -9,7 +9,7 @@ use std::path::Path;
 use super::{
     ArmConfig, CalibrationSettings, CameraConfig, CellConfig, NoiseModel, SegmenterConfig,
 };
-use super::{AttachedConfig, ObstacleConfig, SafetyConfig};
+use super::{AttachedConfig, ObstacleConfig, Ros2ArmSettings, SafetyConfig};
 use crate::error::{Error, Result};
 
 /// Upper bounds of every count a cell config sets. Each keeps one plan or solve within a few
@@ -166,54 +166,36 @@ fn check_robot_joints(c: &Check, joints: Option<&[String]>) -> Result<()> {
 }
 
 fn check_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
-    if let ArmConfig::Sim {
-        start,
-        encoder_noise_rad,
-        speedup,
-        ..
-    } = arm
-    {
-        c.finite("arm.start", start)?;
-        c.within(
-            "arm.encoder_noise_rad",
-            *encoder_noise_rad,
-            0.0,
-            bounds::JOINT_NOISE_RAD,
-            false,
-        )?;
-        if let Some(s) = speedup {
-            c.within("arm.speedup", *s, 0.0, bounds::SPEEDUP, true)?;
+    match arm {
+        ArmConfig::Sim(t) => {
+            c.finite("arm.start", &t.start)?;
+            c.within(
+                "arm.encoder_noise_rad",
+                t.encoder_noise_rad,
+                0.0,
+                bounds::JOINT_NOISE_RAD,
+                false,
+            )?;
+            if let Some(s) = t.speedup {
+                c.within("arm.speedup", s, 0.0, bounds::SPEEDUP, true)?;
+            }
+            Ok(())
         }
+        ArmConfig::Ros2(t) => check_ros2_arm(c, t),
+        _ => Ok(()),
     }
-    if let ArmConfig::Ros2 { .. } = arm {
-        check_ros2_arm(c, arm)?;
-    }
-    Ok(())
 }
 
 /// `[arm] kind = "ros2"`: topic names, joint names once each, tolerances and times in range.
-fn check_ros2_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
-    let ArmConfig::Ros2 {
-        joint_states_topic,
-        command_topic,
-        joint_names,
-        stale_after_s,
-        arrival_tolerance_rad,
-        ..
-    } = arm
-    else {
-        return Ok(());
-    };
+fn check_ros2_arm(c: &Check, t: &Ros2ArmSettings) -> Result<()> {
     for (key, topic) in [
-        ("arm.joint_states_topic", joint_states_topic),
-        ("arm.command_topic", command_topic),
+        ("arm.joint_states_topic", &t.joint_states_topic),
+        ("arm.command_topic", &t.command_topic),
     ] {
-        if let Some(t) = topic {
-            crate::config::ros2::check_topic(t)
-                .map_err(|m| Error::input(c.path, key, format!("is {m}")))?;
-        }
+        crate::config::ros2::check_topic(topic)
+            .map_err(|m| Error::input(c.path, key, format!("is {m}")))?;
     }
-    if let Some(names) = joint_names {
+    if let Some(names) = &t.joint_names {
         let mut seen = std::collections::BTreeSet::new();
         for (i, n) in names.iter().enumerate() {
             let ok = !n.is_empty() && n.len() <= 256 && !n.chars().any(char::is_control);
@@ -228,14 +210,16 @@ fn check_ros2_arm(c: &Check, arm: &ArmConfig) -> Result<()> {
             }
         }
     }
-    if let Some(s) = stale_after_s {
-        c.within("arm.stale_after_s", *s, 0.05, 60.0, false)?;
-    }
-    if let Some(t) = arrival_tolerance_rad {
-        // No looser than the safe arm's start check (0.01 rad): a view must not be captured
-        // while the arm still creeps toward the target.
-        c.within("arm.arrival_tolerance_rad", *t, 1e-5, 0.01, false)?;
-    }
+    c.within("arm.stale_after_s", t.stale_after_s, 0.05, 60.0, false)?;
+    // No looser than the safe arm's start check (0.01 rad): a view must not be captured
+    // while the arm still creeps toward the target.
+    c.within(
+        "arm.arrival_tolerance_rad",
+        t.arrival_tolerance_rad,
+        1e-5,
+        0.01,
+        false,
+    )?;
     Ok(())
 }
 

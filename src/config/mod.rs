@@ -29,12 +29,18 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
-pub use arm::{ArmConfig, FaultConfig, ServoArmToml, ServoJointToml};
+pub use arm::{
+    ArmConfig, FaultConfig, PiperSettings, Ros2ArmSettings, ServoArmSettings, ServoJointToml,
+    SimArmSettings, UrSettings, XarmSettings,
+};
 pub use calibration::{
     CalibrationSettings, InitialGuess, RendererChoice, ScoreSetting, SelectionSetting,
     SourceSetting,
 };
-pub use camera::{CameraCalibration, CameraConfig, JointsFrom, LookAt};
+pub use camera::{
+    AravisSettings, CameraCalibration, CameraConfig, JointsFrom, LookAt, Ros2CameraSettings,
+    SimCameraSettings, V4l2Settings,
+};
 pub use cameras::{CameraSet, NamedCamera};
 pub use daemon::DaemonSettings;
 pub use mount::Mount;
@@ -54,8 +60,7 @@ pub struct CellConfig {
     pub robot: RobotConfig,
     /// The arm backend.
     pub arm: ArmConfig,
-    /// The cameras: one `[camera]` table, or `[[camera]]` tables with names (a rig). Code
-    /// that drives one camera reaches the first through `Deref`.
+    /// The cameras: one `[camera]` table, or `[[camera]]` tables with names (a rig).
     pub camera: CameraSet,
     /// How frames become masks.
     pub segmenter: SegmenterConfig,
@@ -93,14 +98,8 @@ impl CellConfig {
 /// shorter, and a bound keeps a typo from overflowing a deadline.
 pub const MAX_SECONDS: f64 = 86_400.0;
 
-/// A duration from an optional config value in seconds (positive, at most [`MAX_SECONDS`]).
-pub(crate) fn seconds(
-    path: &Path,
-    key: &str,
-    value: Option<f64>,
-    default_s: f64,
-) -> Result<Duration> {
-    let v = value.unwrap_or(default_s);
+/// A duration from a config value in seconds (positive, at most [`MAX_SECONDS`]).
+pub(crate) fn seconds(path: &Path, key: &str, v: f64) -> Result<Duration> {
     if v.is_finite() && v > 0.0 && v <= MAX_SECONDS {
         Ok(Duration::from_secs_f64(v))
     } else {

@@ -14,6 +14,7 @@ use crate::calibrate::{calibrate, Progress, RunOptions};
 use crate::error::Error;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 
+use super::records::Phase;
 use super::store::{CalibrationRecord, State, TruthError};
 use super::{lock, now, plan, reconcile, store, Busy, Daemon, Lease, Refusal, FINISHED_STATES};
 
@@ -311,7 +312,7 @@ impl Daemon {
         self.update(job, EventKind::State, None, |r| {
             r.state = State::Running;
             r.started_at = Some(now());
-            r.phase = Some("capturing".into());
+            r.phase = Some(Phase::Capturing);
         });
         let sink_daemon = Arc::downgrade(self);
         let sink_job = Arc::downgrade(job);
@@ -438,7 +439,7 @@ impl Daemon {
                 self.metrics.views.fetch_add(1, Ordering::Relaxed);
                 self.update(job, EventKind::View, Some(*index), |r| {
                     r.views = index + 1;
-                    r.phase = Some("solving".into());
+                    r.phase = Some(Phase::Solving);
                 });
             }
             Progress::Round {
@@ -455,7 +456,7 @@ impl Daemon {
                 r.mean_iou = Some(*mean_iou);
                 r.camera_from_base = Some(*camera_from_base);
                 r.uncertainty = uncertainty.as_deref().cloned();
-                r.phase = Some("planning".into());
+                r.phase = Some(Phase::Planning);
             }),
             Progress::Planned { best_variance, .. } => {
                 self.update(job, EventKind::Planned, None, |r| {
@@ -463,14 +464,14 @@ impl Daemon {
                 })
             }
             Progress::Moving { .. } => self.update(job, EventKind::Moving, None, |r| {
-                r.phase = Some("moving".into());
+                r.phase = Some(Phase::Moving);
             }),
         }
     }
 
     /// Error against the simulated camera's true pose now (simulated cells only).
     pub(super) fn truth_error(&self, est: &Isometry3<f64>) -> Option<TruthError> {
-        let truth = self.cell.sim.camera_from_base_now()?;
+        let truth = self.cell.units[0].sim.camera_from_base_now()?;
         Some(truth_error_of(est, &truth))
     }
 

@@ -35,6 +35,20 @@ pub enum State {
     Interrupted,
 }
 
+/// What a running calibration's loop is doing now.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq, utoipa::ToSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Phase {
+    /// Grabbing and segmenting a view.
+    Capturing,
+    /// Solving the pose from the views so far.
+    Solving,
+    /// Choosing the next pose.
+    Planning,
+    /// Moving the arm to it.
+    Moving,
+}
+
 impl State {
     /// Whether the calibration has ended.
     pub fn is_final(self) -> bool {
@@ -86,9 +100,9 @@ pub struct CalibrationRecord {
     pub finished_at: Option<String>,
     /// The run directory, relative to the data folder.
     pub run_dir: String,
-    /// What the loop is doing now (`capturing`, `solving`, `planning`, `moving`).
+    /// What the loop is doing now.
     #[serde(default)]
-    pub phase: Option<String>,
+    pub phase: Option<Phase>,
     /// Last solved round (0-based).
     #[serde(default)]
     pub round: Option<usize>,

@@ -2,6 +2,7 @@
 //! free loopback port, and a plain HTTP client (ureq) that returns status and JSON.
 #![allow(dead_code)]
 
+use easyhec::config::{SimArmSettings, SimCameraSettings};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -39,7 +40,7 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut cfg = read_config(&root.join("config/sim-xarm6.toml")).expect("shipped config");
     cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
-    if let CameraConfig::Sim {
+    if let CameraConfig::Sim(SimCameraSettings {
         width,
         height,
         fx,
@@ -47,7 +48,7 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
         cx,
         cy,
         ..
-    } = &mut *cfg.camera
+    }) = cfg.camera.first_mut()
     {
         *width /= 2;
         *height /= 2;
@@ -71,7 +72,7 @@ pub fn write_config(dir: &Path, tweak: impl FnOnce(&mut CellConfig)) -> PathBuf 
 /// 640x480 camera and default exploration, with up to 8 views, for the tests that hold the
 /// calibration to an accuracy bound (1 mm, and 0.08° for one draw: `SINGLE_DRAW_MAX_DEG`).
 pub fn full_resolution(cfg: &mut CellConfig) {
-    if let CameraConfig::Sim {
+    if let CameraConfig::Sim(SimCameraSettings {
         width,
         height,
         fx,
@@ -79,7 +80,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
         cx,
         cy,
         ..
-    } = &mut *cfg.camera
+    }) = cfg.camera.first_mut()
     {
         *width *= 2;
         *height *= 2;
@@ -100,10 +101,10 @@ pub fn full_resolution(cfg: &mut CellConfig) {
     // 0.053° / 0.08 mm. The tests bound one draw by `SINGLE_DRAW_MAX_DEG` (tests/daemon.rs),
     // not by the median; the draw is named here, not hidden.
     cfg.calibration.seed = 3;
-    if let ArmConfig::Sim { seed, .. } = &mut cfg.arm {
+    if let ArmConfig::Sim(SimArmSettings { seed, .. }) = &mut cfg.arm {
         *seed = 3;
     }
-    if let CameraConfig::Sim { scene, .. } = &mut *cfg.camera {
+    if let CameraConfig::Sim(SimCameraSettings { scene, .. }) = cfg.camera.first_mut() {
         scene.seed = 3;
     }
     cfg.calibration.joint_samples = defaults.calibration.joint_samples;
@@ -113,7 +114,7 @@ pub fn full_resolution(cfg: &mut CellConfig) {
 /// Simulated moves in real time (the sim arm's default is instant), so a run lasts long
 /// enough to be cancelled or killed mid-way.
 pub fn real_time_arm(cfg: &mut CellConfig) {
-    if let ArmConfig::Sim { speedup, .. } = &mut cfg.arm {
+    if let ArmConfig::Sim(SimArmSettings { speedup, .. }) = &mut cfg.arm {
         *speedup = Some(1.0);
     }
 }

@@ -235,7 +235,7 @@ pub fn write_easyhec_source(run: &std::path::Path, src: &std::path::Path, with_c
 /// where the arm truly was; each executed path is also re-checked 20x finer than the
 /// checker's own sampling. Returns the number of commands.
 pub fn assert_every_command_safe(cell: &easyhec::cell::Cell) -> usize {
-    let sim = cell.sim.arm.as_ref().expect("simulated arm");
+    let sim = cell.sim_arm().expect("simulated arm");
     let commands = sim.commands();
     let speed_cap = cell.checker.speed_cap_rad_s();
     for (i, c) in commands.iter().enumerate() {

@@ -2,6 +2,7 @@
 //! Cyclone DDS peer (tf_peer.py) received.
 #![allow(dead_code)]
 
+use easyhec::config::{SimArmSettings, SimCameraSettings};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -111,18 +112,16 @@ pub fn ros2_sim_cell(domain: u16) -> (easyhec::config::CellConfig, Vec<f64>) {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut cfg = read_config(&root.join("config/sim-xarm6.toml")).unwrap();
     cfg.robot.urdf = root.join("robots/xarm6/robot.urdf");
-    let ArmConfig::Sim { start, .. } = &cfg.arm else {
+    let ArmConfig::Sim(SimArmSettings { start, .. }) = &cfg.arm else {
         panic!("the shipped cell's arm is simulated")
     };
     let start = start.clone();
     cfg.arm = toml::from_str("kind = \"ros2\"\nstale_after_s = 2.0").unwrap();
-    let CameraConfig::Sim { joints_from, .. } = &mut *cfg.camera else {
+    let CameraConfig::Sim(SimCameraSettings { joints_from, .. }) = cfg.camera.first_mut() else {
         panic!("the shipped cell's camera is simulated")
     };
-    *joints_from = Some(JointsFrom::Ros2 {
-        topic: None,
-        timeout_s: None,
-    });
+    let from_ros2: JointsFrom = toml::from_str("kind = \"ros2\"").unwrap();
+    *joints_from = Some(from_ros2);
     let mut ros2: easyhec::config::ros2::Ros2Settings =
         toml::from_str("publish_tf = false").unwrap();
     ros2.domain_id = Some(domain);

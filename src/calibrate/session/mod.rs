@@ -22,7 +22,9 @@ use nalgebra::Isometry3;
 use super::motion_cost::{self, MotionCost};
 use super::planner::{choose_reachable, rank_poses, PlanCamera, PlanRequest, Ranked};
 use super::recorder::{RecordedCamera, Recorder};
-use super::{CameraOutcome, CameraRound, Outcome, PlannedPose, Progress, RoundRecord, RunOptions};
+use super::{
+    CameraOutcome, CameraRound, Outcome, PlannedPose, Progress, RoundRecord, RunOptions, StopReason,
+};
 use crate::backend::{open_renderer, Backend};
 use crate::camera::{Intrinsics, LensWarp};
 use crate::cell::{CameraRef, Cell};
@@ -52,7 +54,7 @@ enum MoveOutcome {
     /// The move failed; re-plan from wherever the arm stopped.
     Retry,
     /// End the loop with this reason.
-    Stop(String),
+    Stop(StopReason),
 }
 
 /// One camera's side of the loop: its views, masks and estimate. A single camera is a rig of
@@ -68,7 +70,7 @@ struct Track<'a> {
     /// Change of the estimate in the last round, degrees / millimetres.
     change: Option<[f64; 2]>,
     /// Why this camera stopped asking for views (a rig's camera that converged).
-    done: Option<String>,
+    done: Option<StopReason>,
 }
 
 impl Track<'_> {
@@ -101,9 +103,6 @@ pub(super) struct Session<'a> {
     previous_best: Option<f64>,
     failures: usize,
     planned: Vec<PlannedPose>,
-    cancelled: bool,
-    /// Stopped because the arm faulted or its moves kept failing.
-    faulted: bool,
     /// Each view's joint correction from every camera together, once it ran.
     joint_corrections: Option<JointCorrections>,
 }
@@ -182,8 +181,6 @@ impl<'a> Session<'a> {
             previous_best: None,
             failures: 0,
             planned: Vec::new(),
-            cancelled: false,
-            faulted: false,
             joint_corrections: None,
         })
     }
@@ -193,7 +190,9 @@ impl<'a> Session<'a> {
         self.tracks[0].report()
     }
 
-    fn is_rig(&self) -> bool {
+    /// Whether the loop serves several cameras: they then converge one by one, and planning
+    /// asks that every camera sees the robot.
+    fn several(&self) -> bool {
         self.tracks.len() > 1
     }
 
@@ -252,7 +251,7 @@ impl<'a> Session<'a> {
     /// Each camera's figures for `rounds.json`, in a rig (empty for one camera, whose
     /// figures are the round's own).
     fn camera_rounds(&self) -> Vec<CameraRound> {
-        if !self.is_rig() {
+        if !self.several() {
             return Vec::new();
         }
         self.tracks
@@ -266,7 +265,7 @@ impl<'a> Session<'a> {
                     loss: r.loss,
                     pose_change: t.change,
                     camera_centre_95_mm: r.uncertainty.camera_centre_95_mm,
-                    done: t.done.clone(),
+                    done: t.done.as_ref().map(ToString::to_string),
                 }
             })
             .collect()
@@ -274,18 +273,16 @@ impl<'a> Session<'a> {
 
     /// One round: plan, check the stop rules, move, capture and solve. `Some(reason)` ends
     /// the loop.
-    pub(super) async fn round(&mut self) -> Result<Option<String>> {
+    pub(super) async fn round(&mut self) -> Result<Option<StopReason>> {
         let round = self.rounds.len() - 1;
         if self.opts.cancelled() {
-            self.cancelled = true;
-            return Ok(Some(format!("cancelled after {} views", self.views())));
+            return Ok(Some(StopReason::Cancelled {
+                views: self.views(),
+            }));
         }
         let s = &self.settings;
         if self.views() >= s.max_views && !self.opts.dry_run {
-            return Ok(Some(format!(
-                "reached the maximum of {} views",
-                s.max_views
-            )));
+            return Ok(Some(StopReason::MaxViews { max: s.max_views }));
         }
         if let Some(reason) = self.precise_enough() {
             return Ok(Some(reason));
@@ -307,18 +304,14 @@ impl<'a> Session<'a> {
         let chosen = choose_reachable(self.cell, &ranked, &from, speed, |_| false, &mut events);
         self.last_round().events.extend(events);
         let Some((pose, mv)) = chosen else {
-            let seen_by = if self.is_rig() {
-                "every camera"
-            } else {
-                "the camera"
-            };
+            let views = self.views();
             return Ok(Some(if ranked.is_empty() {
-                format!(
-                    "no safe pose shows enough of the robot to {seen_by} after {} views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
-                    self.views()
-                )
+                StopReason::NoPoseShowsRobot {
+                    views,
+                    several: self.several(),
+                }
             } else {
-                format!("no safe, reachable pose left after {} views", self.views())
+                StopReason::NoReachablePose { views }
             }));
         };
         match self.move_to(&pose, &mv).await? {
@@ -362,7 +355,7 @@ impl<'a> Session<'a> {
             round,
             best_variance: best,
         });
-        let seen_by = if self.is_rig() {
+        let seen_by = if self.several() {
             "every camera"
         } else {
             "the robot"
@@ -396,7 +389,7 @@ impl<'a> Session<'a> {
 
     /// A dry run plans the whole sequence from the first view's estimate, chaining paths,
     /// and moves nothing.
-    fn plan_dry_run(&mut self, ranked: &[Ranked], from: &[f64]) -> String {
+    fn plan_dry_run(&mut self, ranked: &[Ranked], from: &[f64]) -> StopReason {
         let mut at = from.to_vec();
         let mut events = Vec::new();
         for _ in 1..self.settings.max_views {
@@ -421,10 +414,9 @@ impl<'a> Session<'a> {
             }
         }
         self.last_round().events.extend(events);
-        format!(
-            "dry run: planned {} poses, nothing moved",
-            self.planned.len()
-        )
+        StopReason::DryRun {
+            planned: self.planned.len(),
+        }
     }
 
     /// Captures the view at the new pose, solves every camera from its previous estimate
@@ -522,7 +514,7 @@ impl<'a> Session<'a> {
             let frame = t.unit.device.grab().await?;
             let camera = &t.camera;
             if frame.width != camera.width || frame.height != camera.height {
-                let which = if self.is_rig() {
+                let which = if self.several() {
                     format!("camera '{}'", t.unit.name)
                 } else {
                     "camera".into()
@@ -706,9 +698,10 @@ impl<'a> Session<'a> {
     /// Re-segments once more when that helps, then writes the result (not on a dry run):
     /// `easyhec-result/1` for a `[camera]` table, `easyhec-result/2` for `[[camera]]`
     /// tables.
-    pub(super) fn finish(mut self, stop_reason: String) -> Result<Outcome> {
+    pub(super) fn finish(mut self, stop: StopReason) -> Result<Outcome> {
         self.pb.finish_and_clear();
-        if !self.opts.dry_run && !self.cancelled {
+        let stop_reason = stop.to_string();
+        if !self.opts.dry_run && !stop.is_cancel() {
             self.resegment_final()?;
             self.correct_shared_joints();
             self.measure_view_disagreement();
@@ -717,9 +710,9 @@ impl<'a> Session<'a> {
             self.last_round().cameras = cameras;
         }
         self.rec.write_rounds(&self.rounds)?;
-        if !self.opts.dry_run && !self.cancelled {
+        if !self.opts.dry_run && !stop.is_cancel() {
             for t in &self.tracks {
-                let name = self.is_rig().then_some(t.unit.name);
+                let name = self.several().then_some(t.unit.name);
                 judge_loop_fit(t.report(), name, self.rec.dir())?;
             }
         }
@@ -739,7 +732,10 @@ impl<'a> Session<'a> {
             .iter_mut()
             .map(|t| {
                 let report = t.report.take().expect("round 0 solved");
-                let reason = t.done.clone().unwrap_or_else(|| stop_reason.clone());
+                let reason = t
+                    .done
+                    .as_ref()
+                    .map_or_else(|| stop_reason.clone(), ToString::to_string);
                 let result =
                     camera_result(&report, t.unit.seen, reason, &timings_s, &self.solve_opts);
                 CameraOutcome {
@@ -776,8 +772,8 @@ impl<'a> Session<'a> {
             rounds: self.rounds,
             planned: self.planned,
             run_dir: self.rec.dir().to_path_buf(),
-            cancelled: self.cancelled,
-            faulted: self.faulted,
+            cancelled: stop.is_cancel(),
+            faulted: stop.is_fault(),
         })
     }
 }

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use easyhec_drivers::ArmStatus;
 
-use crate::calibrate::{PlannedPose, Progress};
+use crate::calibrate::{PlannedPose, Progress, StopReason};
 use crate::error::{Error, Result};
 use crate::safety::CheckedMove;
 
@@ -24,14 +24,11 @@ impl Session<'_> {
         let n = self.views();
         if let Some(confirm) = &self.opts.confirm {
             if !self.pb.suspend(|| confirm(pose)) {
-                return Ok(MoveOutcome::Stop(format!(
-                    "operator declined a move after {n} views"
-                )));
+                return Ok(MoveOutcome::Stop(StopReason::OperatorDeclined { views: n }));
             }
         }
         if self.opts.cancelled() {
-            self.cancelled = true;
-            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+            return Ok(MoveOutcome::Stop(StopReason::Cancelled { views: n }));
         }
         self.last_round().next_joints = Some(pose.joints.clone());
         self.pb.set_message(format!("moving to view {}", n + 1));
@@ -49,8 +46,7 @@ impl Session<'_> {
                     .events
                     .push("move stopped: calibration cancelled".into());
             }
-            self.cancelled = true;
-            return Ok(MoveOutcome::Stop(format!("cancelled after {n} views")));
+            return Ok(MoveOutcome::Stop(StopReason::Cancelled { views: n }));
         }
         match moved {
             Ok(()) => Ok(MoveOutcome::Arrived),
@@ -81,18 +77,16 @@ impl Session<'_> {
         let status = self.cell.arm.status().await?;
         let faulted = matches!(status, ArmStatus::Fault(_) | ArmStatus::Stopped);
         if self.failures > self.settings.max_motion_failures {
-            self.faulted = true;
-            return Ok(MoveOutcome::Stop(format!(
-                "gave up after {} failed moves ({note})",
-                self.failures
-            )));
+            return Ok(MoveOutcome::Stop(StopReason::GaveUp {
+                failures: self.failures,
+                note,
+            }));
         }
         if faulted {
             if !self.settings.clear_faults {
-                self.faulted = true;
-                return Ok(MoveOutcome::Stop(format!(
-                    "arm fault, not cleared (calibration.clear_faults = false): {e}"
-                )));
+                return Ok(MoveOutcome::Stop(StopReason::FaultNotCleared {
+                    error: e.to_string(),
+                }));
             }
             self.cell.arm.clear_fault().await?;
         }

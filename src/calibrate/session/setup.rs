@@ -132,7 +132,7 @@ pub(super) fn initial_guess(
     settings: &CalibrationSettings,
 ) -> Result<Option<Isometry3<f64>>> {
     let given = opts.initial_guess.is_some() || settings.initial_guess.is_some();
-    if given && !cell.more_cameras.is_empty() {
+    if given && cell.units.len() > 1 {
         return Err(Error::input(
             &cell.config_path,
             "calibration.initial_guess",

@@ -9,6 +9,7 @@ use crate::pipeline::segment_solve::POOR_FIT_IOU;
 use crate::solve::with_view_disagreement;
 
 use super::Session;
+use crate::calibrate::StopReason;
 
 impl Session<'_> {
     /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
@@ -18,7 +19,7 @@ impl Session<'_> {
     ///
     /// The statistical bound is checked first; only when it passes does each camera's view
     /// jackknife run (it costs about a solve), and the widened bound must pass too.
-    pub(super) fn precise_enough(&mut self) -> Option<String> {
+    pub(super) fn precise_enough(&mut self) -> Option<StopReason> {
         let target = self.settings.stop_centre_95_mm?;
         if !self.bounds_within(target) {
             return None;
@@ -32,15 +33,12 @@ impl Session<'_> {
             .iter()
             .map(|t| t.report().uncertainty.camera_centre_95_mm)
             .fold(0.0, f64::max);
-        let which = if self.is_rig() {
-            " for every camera"
-        } else {
-            ""
-        };
-        Some(format!(
-            "camera centre within {worst:.2} mm (95%){which} after {} views, target {target} mm",
-            self.views()
-        ))
+        Some(StopReason::Precise {
+            worst_mm: worst,
+            several: self.several(),
+            views: self.views(),
+            target_mm: target,
+        })
     }
 
     /// Enough views, every one fitting, and every camera's 95% centre bound within `target`.
@@ -75,8 +73,8 @@ impl Session<'_> {
     /// The variance rule of a single camera: the best disagreement settled, enough views,
     /// and the estimate barely moved in the last round. (A rig's cameras each converge on
     /// their own: [`Session::mark_converged`].)
-    pub(super) fn converged(&self, best: Option<f64>) -> Option<String> {
-        if self.is_rig() {
+    pub(super) fn converged(&self, best: Option<f64>) -> Option<StopReason> {
+        if self.several() {
             return None;
         }
         let s = &self.settings;
@@ -87,32 +85,40 @@ impl Session<'_> {
             return None;
         };
         let settled = (prev - best).abs() <= s.variance_rel_tol * prev.max(1e-12);
-        (settled && self.views() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm)
-            .then(|| format!("variance converged after {} views", self.views()))
+        (settled && self.views() >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm).then(
+            || StopReason::VarianceConverged {
+                views: self.views(),
+            },
+        )
     }
 
     /// A rig's cameras that have converged: enough views, and the estimate moved less than
     /// the pose tolerances in the last round. Such a camera stops asking for views; it keeps
     /// every view the others ask for.
     pub(super) fn mark_converged(&mut self) {
-        if !self.is_rig() {
+        if !self.several() {
             return;
         }
         let (s, n) = (&self.settings, self.taken.len());
         for t in self.tracks.iter_mut().filter(|t| t.done.is_none()) {
             if let Some([deg, mm]) = t.change {
                 if n >= s.min_views && deg < s.pose_tol_deg && mm < s.pose_tol_mm {
-                    t.done = Some(format!(
-                        "converged after {n} views (moved {deg:.4} deg / {mm:.3} mm in the last round)"
-                    ));
+                    t.done = Some(StopReason::CameraConverged {
+                        views: n,
+                        moved_deg: deg,
+                        moved_mm: mm,
+                    });
                 }
             }
         }
     }
 
     /// The rig's stop: every camera converged.
-    pub(super) fn rig_converged(&self) -> Option<String> {
-        (self.is_rig() && self.tracks.iter().all(|t| t.done.is_some()))
-            .then(|| format!("every camera converged after {} views", self.views()))
+    pub(super) fn rig_converged(&self) -> Option<StopReason> {
+        (self.several() && self.tracks.iter().all(|t| t.done.is_some())).then(|| {
+            StopReason::EveryCameraConverged {
+                views: self.views(),
+            }
+        })
     }
 }
