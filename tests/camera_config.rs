@@ -6,10 +6,10 @@
 
 mod common;
 
-use easyhec::config::{AravisSettings, V4l2Settings};
 use std::path::{Path, PathBuf};
 
 use easyhec::cell::Cell;
+use easyhec::config::{AravisSettings, V4l2Settings};
 
 use easyhec::config::{read_config, CameraCalibration, CameraConfig};
 use easyhec_drivers::intrinsics::load_intrinsics;

@@ -4,12 +4,12 @@
 
 mod common;
 
-use easyhec::config::SimArmSettings;
 use std::path::{Path, PathBuf};
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::ObstacleConfig;
+use easyhec::config::SimArmSettings;
 use easyhec::config::{read_config, ArmConfig, CellConfig, FaultConfig};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec::run::load_run;

@@ -62,13 +62,26 @@ fn variant_name(line: &str) -> Option<&str> {
     Some(&t[..end])
 }
 
+/// A `#[derive(…)]` attribute's text, over as many lines as rustfmt spread it.
+fn derive_list(lines: &[&str]) -> String {
+    let mut text = String::new();
+    for line in lines {
+        text.push_str(line);
+        if line.trim_end().ends_with(")]") {
+            break;
+        }
+    }
+    text
+}
+
 /// Every key and enum value declared by the `Deserialize` items of one source file.
 fn keys_in(source: &str) -> Vec<Key> {
     let lines: Vec<&str> = source.lines().collect();
     let mut keys = Vec::new();
     let mut i = 0;
     while i < lines.len() {
-        if !(lines[i].starts_with("#[derive(") && lines[i].contains("Deserialize")) {
+        if !(lines[i].starts_with("#[derive(") && derive_list(&lines[i..]).contains("Deserialize"))
+        {
             i += 1;
             continue;
         }
@@ -184,10 +197,129 @@ fn every_config_key_is_in_the_reference() {
     );
 }
 
+/// The body lines of the item whose header line starts with `header`, up to its closing `}`
+/// at column 0.
+fn item_body<'a>(source: &'a str, header: &str) -> Option<Vec<&'a str>> {
+    let mut lines = source.lines().skip_while(|l| !l.starts_with(header));
+    lines.next()?;
+    Some(lines.take_while(|l| *l != "}").collect())
+}
+
+/// The keys of each `kind` of a tagged table enum (`ArmConfig`, …): the fields of its
+/// settings struct, or of its struct-like variant, by the kind's spelled name.
+fn keys_by_kind(source: &str, enum_name: &str) -> Vec<(String, Vec<String>)> {
+    let body = item_body(source, &format!("pub enum {enum_name} ")).unwrap();
+    let mut kinds = Vec::new();
+    for (i, line) in body.iter().enumerate() {
+        let Some(variant) = variant_name(line) else {
+            continue;
+        };
+        let kind = spelling("\"kebab-case\"", variant).unwrap();
+        let rest = &line.trim()[variant.len()..];
+        let fields: Vec<String> = if let Some(inner) = rest.strip_prefix('(') {
+            let settings = inner.trim_end_matches([')', ',']);
+            item_body(source, &format!("pub struct {settings} "))
+                .unwrap_or_else(|| panic!("no struct {settings}"))
+                .iter()
+                .filter_map(|l| field_name(l).map(str::to_string))
+                .collect()
+        } else if rest.trim() == "{" {
+            body[i + 1..]
+                .iter()
+                .take_while(|l| **l != "    },")
+                .filter_map(|l| field_name(l).map(str::to_string))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        kinds.push((kind, fields));
+    }
+    kinds
+}
+
+/// The text of docs/config.md that documents `kind` of `[table]`: the table's preamble (keys
+/// every kind takes) and the `### kind = "…"` section naming it.
+fn kind_section(docs: &str, table: &str, kind: &str) -> Option<String> {
+    let start = docs.find(&format!("## `[{table}]`"))?;
+    let end = docs[start + 3..]
+        .find("\n## ")
+        .map_or(docs.len(), |e| start + 3 + e);
+    let part = &docs[start..end];
+    let preamble = &part[..part.find("\n### ").unwrap_or(part.len())];
+    let heading = part.match_indices("\n### ").map(|(i, _)| i).find(|&i| {
+        part[i..]
+            .lines()
+            .nth(1)
+            .is_some_and(|h| h.contains(&format!("kind = \"{kind}\"")))
+    })?;
+    let section_end = part[heading + 5..]
+        .find("\n### ")
+        .map_or(part.len(), |e| heading + 5 + e);
+    Some(format!("{preamble}{}", &part[heading..section_end]))
+}
+
+/// Names alone could be found in another kind's rows (`connect_timeout_s` is four kinds'),
+/// so each kind's keys must be in that kind's own section.
+#[test]
+fn every_kind_documents_its_own_keys() {
+    let docs = std::fs::read_to_string(common::repo_root().join("docs/config.md")).unwrap();
+    let source: String = config_sources().into_iter().map(|(_, t)| t).collect();
+    let mut checked = 0;
+    let mut missing = Vec::new();
+    for (table, enum_name) in [
+        ("arm", "ArmConfig"),
+        ("camera", "CameraConfig"),
+        ("segmenter", "SegmenterConfig"),
+    ] {
+        for (kind, fields) in keys_by_kind(&source, enum_name) {
+            let Some(section) = kind_section(&docs, table, &kind) else {
+                missing.push(format!("[{table}] kind = \"{kind}\": no section"));
+                continue;
+            };
+            for f in fields {
+                checked += 1;
+                if !section.contains(&format!("`{f}`")) {
+                    missing.push(format!("[{table}] kind = \"{kind}\": `{f}`"));
+                }
+            }
+        }
+    }
+    assert!(checked > 80, "only {checked} kind keys read");
+    assert!(
+        missing.is_empty(),
+        "missing from their kind's section of docs/config.md:\n{}",
+        missing.join("\n")
+    );
+}
+
+#[test]
+fn each_kind_is_checked_against_its_own_section_only() {
+    let source = "pub enum ArmConfig {\n    Sim(SimSettings),\n    OtherKind {\n        own_key: u8,\n    },\n}\n\npub struct SimSettings {\n    pub start: f64,\n}\n";
+    let kinds = keys_by_kind(source, "ArmConfig");
+    assert_eq!(
+        kinds,
+        [
+            ("sim".to_string(), vec!["start".to_string()]),
+            ("other-kind".to_string(), vec!["own_key".to_string()]),
+        ]
+    );
+    let docs = "## `[arm]`\n\nEvery kind takes `mount`.\n\n### `kind = \"sim\"`: a\n\n| `start` |\n\n### `kind = \"other-kind\"`: b\n\n| `start` |\n\n## `[camera]`\n\n| `own_key` |\n";
+    let other = kind_section(docs, "arm", "other-kind").unwrap();
+    assert!(other.contains("`mount`") && other.contains("`start`"));
+    assert!(!other.contains("`own_key`"), "{other}");
+    assert!(kind_section(docs, "arm", "sim")
+        .unwrap()
+        .contains("`start`"));
+    assert!(kind_section(docs, "arm", "absent").is_none());
+}
+
 #[test]
 fn the_key_reader_finds_fields_and_spelled_values() {
     let source = r#"
-#[derive(Clone, Deserialize)]
+#[derive(
+    Clone,
+    Deserialize,
+)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum Thing {
     /// doc: not_a_key: here

@@ -7,7 +7,6 @@
 
 mod common;
 
-use easyhec::config::SimCameraSettings;
 use std::io::BufRead;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -18,6 +17,7 @@ use common::daemon::{
     read_events, real_time_arm, record, refused_activation, result_json, start, wait_final,
     wait_for, write_config, write_index, write_result, POSE, TOKEN,
 };
+use easyhec::config::SimCameraSettings;
 use easyhec::geometry::{from_rows, rotation_error_deg, translation_error_mm};
 use easyhec::nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};

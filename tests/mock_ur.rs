@@ -10,13 +10,13 @@
 
 mod common;
 
-use easyhec::config::{SimCameraSettings, UrSettings};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig, JointsFrom};
+use easyhec::config::{SimCameraSettings, UrSettings};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 use easyhec_mocks::ur::{MockUr, MockUrConfig, MockUrFault, UrMoveRecord};
 

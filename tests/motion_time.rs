@@ -4,11 +4,11 @@
 
 mod common;
 
-use easyhec::config::SimArmSettings;
 use std::path::PathBuf;
 
 use easyhec::calibrate::{calibrate, Outcome, RunOptions};
 use easyhec::cell::Cell;
+use easyhec::config::SimArmSettings;
 use easyhec::config::{read_config, ArmConfig, CellConfig};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
 

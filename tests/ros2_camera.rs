@@ -13,9 +13,9 @@ mod common;
 #[path = "ros2/peers.rs"]
 mod peers;
 
-use easyhec::config::SimCameraSettings;
 use std::path::Path;
 
+use easyhec::config::SimCameraSettings;
 use easyhec::config::{CameraConfig, CellConfig};
 use easyhec::robot::RobotModel;
 use easyhec::run::ResultFile;

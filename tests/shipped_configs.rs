@@ -5,10 +5,10 @@
 
 mod common;
 
-use easyhec::config::SimCameraSettings;
 use std::collections::BTreeMap;
 
 use easyhec::config::read_config;
+use easyhec::config::SimCameraSettings;
 
 /// Each config file's parse: its JSON form, or the one-line error it gives.
 fn parsed() -> BTreeMap<String, serde_json::Value> {

@@ -2,10 +2,10 @@
 //! UR tables get one line naming the key; without the `ur` feature building such a cell says
 //! how to get the driver.
 
-use easyhec::config::UrSettings;
 use std::path::PathBuf;
 
 use easyhec::cell::Cell;
+use easyhec::config::UrSettings;
 
 use easyhec::config::{read_config, ArmConfig};
 

@@ -23,10 +23,10 @@ pub mod segmentation;
 pub mod speed;
 pub mod view_sets;
 
-use crate::config::{SimArmSettings, SimCameraSettings};
 use rayon::prelude::*;
 
 use crate::camera::LensWarp;
+use crate::config::{SimArmSettings, SimCameraSettings};
 use crate::error::Result;
 use crate::render::PosedRobot;
 use crate::robot::RobotModel;

@@ -7,13 +7,13 @@
 //! fresh controller at the same start. The loop stops by its own rules. Reported: total wall
 //! time (motion included), motion time, views and the error against the simulated truth.
 
-use crate::config::{SimArmSettings, SimCameraSettings, XarmSettings};
 use std::path::PathBuf;
 
 use super::{median, seeded_sim_cell, Report};
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::{read_config, ArmConfig, CameraConfig, CellConfig, JointsFrom};
+use crate::config::{SimArmSettings, SimCameraSettings, XarmSettings};
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, translation_error_mm};
 

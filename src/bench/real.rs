@@ -316,7 +316,7 @@ pub fn images_only(
             })
         }
     };
-    let est = outcome.report.camera_from_base;
+    let est = outcome.first().report.camera_from_base;
     let reference = read_pose_file(&dir.join("reference.json"))?;
     let apart = |other: &Isometry3<f64>| {
         [

@@ -2,7 +2,6 @@
 //! alone, on seeded simulated cells: each camera's median error with the same number of
 //! views, and the wall time of the run against a single-camera calibration.
 
-use crate::config::{SimArmSettings, SimCameraSettings};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -14,6 +13,7 @@ use crate::calibrate::VisibilityRule;
 use crate::calibrate::{calibrate, RunOptions};
 use crate::cell::Cell;
 use crate::config::{read_config, CameraConfig, CellConfig, InitialGuess};
+use crate::config::{SimArmSettings, SimCameraSettings};
 use crate::error::{Error, Result};
 use crate::geometry::{camera_centre_error_mm, rotation_error_deg, to_rows, translation_error_mm};
 

@@ -2,7 +2,6 @@
 //! the RGB-only closed-loop calibration error on seeded cells, and its figures on the Panda
 //! photographs (masks withheld) against the provided masks. Nothing here asserts.
 
-use crate::config::SimCameraSettings;
 use std::path::{Path, PathBuf};
 
 use super::{median, seeded_sim_cell, Report};
@@ -10,6 +9,7 @@ use crate::calibrate::{calibrate, RunOptions};
 use crate::camera::LensWarp;
 use crate::cell::Cell;
 use crate::config::SegmenterConfig;
+use crate::config::SimCameraSettings;
 use crate::config::{read_config, RendererChoice, ScenePreset};
 use crate::config::{CellConfig, SelectionSetting};
 use crate::error::{Error, Result};
@@ -207,6 +207,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
     let reference = solve_run(&request("recorded.json", None), quiet)?;
     let builtin = SegmenterConfig::by_name("builtin").map_err(Error::Solve)?;
     let images = solve_run(&request("images.json", Some(builtin)), quiet)?;
+    let (reference, images) = (reference.first(), images.first());
     let recorded = load_run(run_dir)?;
     let views: Vec<usize> = images
         .result

@@ -2,7 +2,6 @@
 //! explored pair and random pairs, each solved many times with fresh noise, against the
 //! selection score's prediction.
 
-use crate::config::SimArmSettings;
 use std::path::PathBuf;
 
 use nalgebra::Isometry3;
@@ -14,6 +13,7 @@ use super::{median, seeded_sim_cell, uniform_joints, Report};
 use crate::calibrate::{choose_reachable, in_image_fraction, rank_poses, PlanCamera};
 use crate::camera::Intrinsics;
 use crate::cell::Cell;
+use crate::config::SimArmSettings;
 use crate::config::{read_config, ArmConfig, NoiseModel, SelectionSetting};
 use crate::error::{Error, Result};
 use crate::explore::{estimate_covariance, view_terms, ViewTerms};

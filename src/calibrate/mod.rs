@@ -226,6 +226,8 @@ pub struct Outcome {
     pub planned: Vec<PlannedPose>,
     /// Run directory.
     pub run_dir: PathBuf,
+    /// How the run recorded its cameras, and so which result format was written.
+    pub layout: crate::run::rig::RunLayout,
     /// Ended by [`RunOptions::cancel`] (the result covers the views taken until then).
     pub cancelled: bool,
     /// Ended because the arm faulted (and `clear_faults` is off) or its moves kept failing:

@@ -13,7 +13,9 @@ use crate::error::{Error, Result};
 use crate::geometry::to_rows;
 use crate::io::{write_atomic, write_json_atomic};
 use crate::mask::Mask;
-use crate::run::rig::{FrameFiles, RigCameraEntry, RigRunFile, RigViewEntry, RIG_RUN_FORMAT};
+use crate::run::rig::{
+    FrameFiles, RigCameraEntry, RigRunFile, RigViewEntry, RunLayout, RIG_RUN_FORMAT,
+};
 use crate::run::{
     mask_file_name, CameraEntry, PoseEntry, RobotEntry, RunFile, ViewEntry, RUN_FORMAT,
 };
@@ -43,7 +45,7 @@ impl Recorder {
         dir: &Path,
         robot: RobotEntry,
         cameras: Vec<RecordedCamera>,
-        listed: bool,
+        layout: RunLayout,
     ) -> Result<Recorder> {
         if dir.join("run.json").exists() {
             return Err(Error::input(
@@ -67,7 +69,7 @@ impl Recorder {
             initial_guess: pose(&first.guess),
             views: Vec::new(),
         };
-        let rig = listed.then(|| RigRunFile {
+        let rig = (layout == RunLayout::NamedCameras).then(|| RigRunFile {
             format: RIG_RUN_FORMAT.into(),
             robot,
             cameras: cameras

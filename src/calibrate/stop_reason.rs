@@ -162,13 +162,12 @@ mod tests {
 
     #[test]
     fn each_reason_reads_as_the_sentence_the_files_keep() {
+        use StopReason::*;
         let cases = [
+            (Cancelled { views: 3 }, "cancelled after 3 views"),
+            (MaxViews { max: 8 }, "reached the maximum of 8 views"),
             (
-                StopReason::Cancelled { views: 3 },
-                "cancelled after 3 views",
-            ),
-            (
-                StopReason::Precise {
+                Precise {
                     worst_mm: 1.234,
                     several: true,
                     views: 4,
@@ -177,7 +176,20 @@ mod tests {
                 "camera centre within 1.23 mm (95%) for every camera after 4 views, target 2 mm",
             ),
             (
-                StopReason::CameraConverged {
+                Precise {
+                    worst_mm: 0.5,
+                    several: false,
+                    views: 3,
+                    target_mm: 1.5,
+                },
+                "camera centre within 0.50 mm (95%) after 3 views, target 1.5 mm",
+            ),
+            (
+                VarianceConverged { views: 6 },
+                "variance converged after 6 views",
+            ),
+            (
+                CameraConverged {
                     views: 5,
                     moved_deg: 0.01,
                     moved_mm: 0.2,
@@ -185,8 +197,47 @@ mod tests {
                 "converged after 5 views (moved 0.0100 deg / 0.200 mm in the last round)",
             ),
             (
-                StopReason::DryRun { planned: 7 },
+                EveryCameraConverged { views: 7 },
+                "every camera converged after 7 views",
+            ),
+            (
+                NoPoseShowsRobot {
+                    views: 2,
+                    several: false,
+                },
+                "no safe pose shows enough of the robot to the camera after 2 views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
+            ),
+            (
+                NoPoseShowsRobot {
+                    views: 2,
+                    several: true,
+                },
+                "no safe pose shows enough of the robot to every camera after 2 views (see the planning events in rounds.json; for a camera on a link, calibration.min_robot_image_fraction)",
+            ),
+            (
+                NoReachablePose { views: 4 },
+                "no safe, reachable pose left after 4 views",
+            ),
+            (
+                DryRun { planned: 7 },
                 "dry run: planned 7 poses, nothing moved",
+            ),
+            (
+                OperatorDeclined { views: 1 },
+                "operator declined a move after 1 views",
+            ),
+            (
+                GaveUp {
+                    failures: 4,
+                    note: "move failed: stalled".into(),
+                },
+                "gave up after 4 failed moves (move failed: stalled)",
+            ),
+            (
+                FaultNotCleared {
+                    error: "joint 3 overcurrent".into(),
+                },
+                "arm fault, not cleared (calibration.clear_faults = false): joint 3 overcurrent",
             ),
         ];
         for (reason, text) in cases {

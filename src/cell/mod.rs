@@ -25,6 +25,7 @@ use crate::config::{
 use crate::error::Error;
 use crate::error::Result;
 use crate::robot::{RobotModel, RobotSource};
+use crate::run::rig::RunLayout;
 use crate::safety::{SafeArm, SafetyChecker};
 use crate::segment::Segmenter;
 
@@ -141,20 +142,19 @@ impl Cell {
             prepared.push((one, calibration, segmenter));
         }
         let robot = Arc::new(RobotModel::load(&robot_source(&config, path))?);
+        // Each camera's mount against the model, before the arm opens too.
+        let mut parts = Vec::with_capacity(n);
+        for (i, (one, calibration, segmenter)) in prepared.into_iter().enumerate() {
+            let seen = seen_robot(&config, i, &robot, path)
+                .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))?;
+            parts.push(UnitParts {
+                one,
+                calibration,
+                segmenter,
+                seen,
+            });
+        }
         let arm = build_arm(&config, &robot, path)?;
-        let units = prepared
-            .into_iter()
-            .enumerate()
-            .map(|(i, (one, calibration, segmenter))| {
-                let parts = UnitParts {
-                    one,
-                    calibration,
-                    segmenter,
-                };
-                build_unit(&config, i, parts, &robot, &arm, path)
-                    .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))
-            })
-            .collect::<Result<Vec<_>>>()?;
         let controller: Vec<(f64, f64, f64)> = arm
             .device
             .joints()
@@ -168,6 +168,14 @@ impl Cell {
             path,
         )?);
         config.daemon.validate(path, robot.actuated.len())?;
+        let units = parts
+            .into_iter()
+            .enumerate()
+            .map(|(i, unit)| {
+                build_unit(&config, i, unit, &robot, &arm, path)
+                    .map_err(|e| crate::config::cameras::rekey(e, &config.camera, i))
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Cell {
             config,
             config_path: path.to_path_buf(),
@@ -176,6 +184,12 @@ impl Cell {
             units,
             checker,
         })
+    }
+
+    /// How this cell's runs and results record its cameras: named for `[[camera]]` tables,
+    /// so the daemon's API and files follow the same layout.
+    pub fn layout(&self) -> RunLayout {
+        RunLayout::of_cameras(&self.config.camera)
     }
 
     /// The simulated arm's log, when the arm is simulated.
@@ -212,12 +226,13 @@ impl Cell {
     }
 }
 
-/// What is read for one camera before the arm opens: its single-camera config, its
-/// calibration file and its segmenter.
+/// What is read and checked for one camera before the arm opens: its single-camera config,
+/// its calibration file, its segmenter and the robot as it sees it.
 struct UnitParts {
     one: CellConfig,
     calibration: Option<CameraCalibration>,
     segmenter: Box<dyn Segmenter>,
+    seen: Arc<RobotModel>,
 }
 
 /// Camera `index`: device, segmenter and simulator handles, built from its single-camera
@@ -234,8 +249,8 @@ fn build_unit(
         one,
         calibration,
         segmenter,
+        seen,
     } = parts;
-    let seen = seen_robot(config, index, robot, path)?;
     let feed = ros2::joint_feed(&one, robot, path)?;
     let camera = build_camera(&one, calibration, robot, arm, feed, path)?;
     #[cfg(feature = "sim")]
@@ -266,9 +281,10 @@ fn seen_robot(
         return Ok(robot.clone());
     };
     let seen = robot.seen_from_link(link, path, "camera.mount.link")?;
-    let shared_guess = config.calibration.initial_guess.is_some() && !config.camera.is_listed();
+    let one_table = RunLayout::of_cameras(&config.camera) == RunLayout::OneCamera;
+    let shared_guess = config.calibration.initial_guess.is_some() && one_table;
     if named.initial_guess.is_none() && !shared_guess {
-        let key = if config.camera.is_listed() {
+        let key = if !one_table {
             "camera.initial_guess"
         } else {
             "calibration.initial_guess"

@@ -3,7 +3,6 @@
 //! with the simulator's own handles (true pose, scene, command log, ground-truth masks) kept
 //! beside the cell for tests and for `ground_truth.json`, never on the hardware types.
 
-use crate::config::{SimArmSettings, SimCameraSettings};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -16,9 +15,11 @@ use nalgebra::Isometry3;
 use crate::config::{
     seconds, ArmConfig, CameraConfig, CellConfig, FaultConfig, JointsFrom, SegmenterConfig,
 };
+use crate::config::{SimArmSettings, SimCameraSettings};
 use crate::error::{Error, Result};
+use crate::io::write_json_atomic;
 use crate::robot::RobotModel;
-use crate::run::rig::{CameraTruth, RigGroundTruth, RIG_TRUTH_FORMAT};
+use crate::run::rig::{CameraTruth, RigGroundTruth, RunLayout, RIG_TRUTH_FORMAT};
 use crate::run::GroundTruth;
 use crate::scene::SimScene;
 use crate::segment::Segmenter;
@@ -282,6 +283,23 @@ pub(super) fn attach(
         camera: camera.map(|c| c.camera),
     };
     Ok((segmenter, handles))
+}
+
+/// Writes the simulator's truth beside a run recorded on `cell`, in the run's layout:
+/// `easyhec-truth/1` for one camera, `/2` by camera name. Nothing when a camera is not
+/// simulated.
+pub fn write_ground_truth(cell: &crate::cell::Cell, run_dir: &Path) -> Result<()> {
+    let path = run_dir.join("ground_truth.json");
+    match cell.layout() {
+        RunLayout::OneCamera => match cell.units[0].sim.camera_from_base {
+            Some(truth) => write_json_atomic(&path, &ground_truth(&cell.config, &truth)),
+            None => Ok(()),
+        },
+        RunLayout::NamedCameras => match rig_ground_truth(cell) {
+            Some(truth) => write_json_atomic(&path, &truth),
+            None => Ok(()),
+        },
+    }
 }
 
 /// The simulator's truth for a rig run recorded on `cell` (`ground_truth.json`,

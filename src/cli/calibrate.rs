@@ -12,8 +12,8 @@ use easyhec::calibrate::{calibrate, ConfirmMove, PlannedPose, RunOptions};
 use easyhec::cell::Cell;
 use easyhec::config::{read_config, RendererChoice};
 use easyhec::geometry::{rotation_error_deg, translation_error_mm};
+use easyhec::run::rig::RunLayout;
 use easyhec::time::rfc3339;
-use nalgebra::Isometry3;
 
 use super::fmt_joints;
 
@@ -119,7 +119,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let t = |k: &str| r.timings_s.get(k).copied().unwrap_or(0.0);
-    let rig = cell.config.camera.is_listed();
+    let rig = outcome.layout == RunLayout::NamedCameras;
     // A rig's fit and bounds are per camera (`report_cameras`); the run's line has its views,
     // times and why it stopped.
     let fit = if rig {
@@ -151,12 +151,8 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
             tracing::info!("camera centre within {bound:.2} mm of the estimate (95%)");
         }
     }
-    if cell.config.camera.is_listed() {
-        report_cameras(&cell, &outcome)?;
-        write_rig_truth(&cell, &outcome.run_dir)?;
-    } else {
-        report_truth(&cell, &outcome.run_dir, &r.camera_from_base())?;
-    }
+    write_truth(&cell, &outcome.run_dir)?;
+    report_cameras(&cell, &outcome)?;
     if outcome.faulted {
         return Err(Exit {
             code: exit::FAULT,
@@ -248,64 +244,52 @@ fn signal_name(signal: i32) -> &'static str {
     }
 }
 
-/// Each camera of a rig: why it stopped, its fit and bound, and on a simulated cell its
-/// error against the truth (`<name>: error against the simulated truth: …`).
+/// Each camera's lines: for named cameras, why it stopped and its fit and bound (a run of
+/// one camera printed those above); on a simulated cell, its error against the truth.
 fn report_cameras(cell: &Cell, outcome: &easyhec::calibrate::Outcome) -> anyhow::Result<()> {
+    let named = outcome.layout == RunLayout::NamedCameras;
     for (unit, cam) in cell.cameras().iter().zip(&outcome.cameras) {
-        let bound = cam.report.uncertainty.camera_centre_95_mm;
-        tracing::info!(
-            "{}: mean IoU {:.4}, camera centre within {bound:.2} mm (95%); {}",
-            cam.name,
-            cam.report.mean_iou(),
-            cam.result.stop_reason
-        );
-        if let Some(truth) = unit.sim.camera_from_base {
-            let estimate = cam.result.camera_from_base();
-            outln!(
-                "{}: error against the simulated truth: rotation {:.4} deg, translation {:.3} mm",
+        if named {
+            let bound = cam.report.uncertainty.camera_centre_95_mm;
+            tracing::info!(
+                "{}: mean IoU {:.4}, camera centre within {bound:.2} mm (95%); {}",
                 cam.name,
-                rotation_error_deg(&estimate, &truth),
-                translation_error_mm(&estimate, &truth)
+                cam.report.mean_iou(),
+                cam.result.stop_reason
+            );
+        }
+        let Some(truth) = unit.sim.camera_from_base else {
+            continue;
+        };
+        let estimate = cam.result.camera_from_base();
+        let (deg, mm) = (
+            rotation_error_deg(&estimate, &truth),
+            translation_error_mm(&estimate, &truth),
+        );
+        if named {
+            outln!(
+                "{}: error against the simulated truth: rotation {deg:.4} deg, translation {mm:.3} mm",
+                cam.name
+            );
+        } else {
+            outln!(
+                "error against the simulated truth ({}): rotation {deg:.4} deg, translation {mm:.3} mm",
+                unit.config.mount().transform_name()
             );
         }
     }
     Ok(())
 }
 
-/// On a simulated cell: writes `ground_truth.json` into the run and prints the error against
-/// the simulator's true pose.
+/// On a simulated cell: writes `ground_truth.json` into the run, so a later `easyhec solve`
+/// of it prints each camera's error.
 #[cfg(feature = "sim")]
-fn report_truth(cell: &Cell, run_dir: &Path, estimate: &Isometry3<f64>) -> anyhow::Result<()> {
-    let Some(truth) = cell.units[0].sim.camera_from_base else {
-        return Ok(());
-    };
-    let gt = easyhec::cell::sim::ground_truth(&cell.config, &truth);
-    easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &gt)?;
-    outln!(
-        "error against the simulated truth ({}): rotation {:.4} deg, translation {:.3} mm",
-        cell.config.camera.first().mount().transform_name(),
-        rotation_error_deg(estimate, &truth),
-        translation_error_mm(estimate, &truth)
-    );
-    Ok(())
-}
-
-/// On a simulated rig: writes `ground_truth.json` (`easyhec-truth/2`) into the run, so a
-/// later `easyhec solve` of it prints each camera's error.
-#[cfg(feature = "sim")]
-fn write_rig_truth(cell: &Cell, run_dir: &Path) -> anyhow::Result<()> {
-    if let Some(truth) = easyhec::cell::sim::rig_ground_truth(cell) {
-        easyhec::io::write_json_atomic(&run_dir.join("ground_truth.json"), &truth)?;
-    }
+fn write_truth(cell: &Cell, run_dir: &Path) -> anyhow::Result<()> {
+    easyhec::cell::sim::write_ground_truth(cell, run_dir)?;
     Ok(())
 }
 
 #[cfg(not(feature = "sim"))]
-fn write_rig_truth(_: &Cell, _: &Path) -> anyhow::Result<()> {
-    Ok(())
-}
-
-#[cfg(not(feature = "sim"))]
-fn report_truth(_: &Cell, _: &Path, _: &Isometry3<f64>) -> anyhow::Result<()> {
+fn write_truth(_: &Cell, _: &Path) -> anyhow::Result<()> {
     Ok(())
 }

@@ -7,7 +7,8 @@ use anyhow::anyhow;
 use clap::{Args, ValueEnum};
 use easyhec::config::{RendererChoice, SegmenterConfig};
 use easyhec::explore::Selection;
-use easyhec::pipeline::offline::{is_rig_run, solve_rig_run, solve_run, OfflineSolve};
+use easyhec::pipeline::offline::{solve_run, OfflineOutcome, OfflineSolve};
+use easyhec::run::rig::RunLayout;
 use easyhec::solve::{DominantTerm, Optimizer};
 
 #[derive(Args)]
@@ -121,31 +122,37 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         joint_noise_rad: a.joint_noise_rad,
         model_floor: (a.model_floor_rotation_deg, a.model_floor_translation_mm),
     };
-    if is_rig_run(&request.run)? {
-        return solve_rig(&request);
-    }
     let activity = super::progress::Activity::start("solve");
     let outcome = solve_run(&request, &mut |line| activity.note(line))?;
     drop(activity);
-    if !outcome.poor_views.is_empty() {
+    match outcome.layout {
+        RunLayout::OneCamera => report_one(&outcome),
+        RunLayout::NamedCameras => report_named(&outcome),
+    }
+}
+
+/// The lines of a run of one camera: its fit, its bound and which term sets it.
+fn report_one(outcome: &OfflineOutcome) -> anyhow::Result<()> {
+    let camera = outcome.first();
+    if !camera.poor_views.is_empty() {
         tracing::warn!(
             "views {:?} fit poorly (IoU < 0.8): the reported uncertainty does not cover a wrong model; check each view's joints against its mask, ignore_links, and the URDF",
-            outcome.poor_views
+            camera.poor_views
         );
     }
-    let report = &outcome.report;
+    let report = &camera.report;
     outln!(
         "{} solved from {} views in {:.2} s: mean IoU {:.4}, 1-sigma rot {:.4?} deg, trans {:.3?} mm, camera centre within {:.2} mm (95%) -> {}",
-        outcome.transform,
-        outcome.views,
-        outcome.solve_s,
+        camera.transform,
+        camera.views,
+        camera.solve_s,
         report.mean_iou(),
         report.uncertainty.rotation_deg,
         report.uncertainty.translation_mm,
         report.uncertainty.camera_centre_95_mm,
         outcome.out.display()
     );
-    let dominant = outcome
+    let dominant = camera
         .result
         .uncertainty
         .as_ref()
@@ -158,7 +165,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
             "the uncertainty is set by how far the views disagree (each view's outline pulls the pose its own way: mesh, joint or mask errors), not by outline noise"
         );
     }
-    if let Some((path, rot, trans)) = &outcome.truth_error {
+    if let Some((path, rot, trans)) = &camera.truth_error {
         outln!(
             "error vs {}: rotation {rot:.4} deg, translation {trans:.3} mm",
             path.display()
@@ -167,11 +174,8 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Solves every camera of an `easyhec-run/2` run and prints one line per camera.
-fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
-    let activity = super::progress::Activity::start("solve");
-    let outcome = solve_rig_run(request, &mut |line| activity.note(line))?;
-    drop(activity);
+/// One line per camera of an `easyhec-run/2` run.
+fn report_named(outcome: &OfflineOutcome) -> anyhow::Result<()> {
     for cam in &outcome.cameras {
         if !cam.poor_views.is_empty() {
             tracing::warn!(
@@ -191,7 +195,7 @@ fn solve_rig(request: &OfflineSolve) -> anyhow::Result<()> {
             u.translation_mm,
             u.camera_centre_95_mm
         );
-        if let Some((rot, trans)) = cam.truth_error {
+        if let Some((_, rot, trans)) = cam.truth_error {
             outln!(
                 "{}: error against the simulated truth: rotation {rot:.4} deg, translation {trans:.3} mm",
                 cam.name

@@ -77,11 +77,6 @@ impl CameraSet {
         &mut self.cameras[0].config
     }
 
-    /// Whether the file lists several cameras (a rig) rather than one `[camera]` table.
-    pub fn is_rig(&self) -> bool {
-        self.listed && self.cameras.len() > 1
-    }
-
     /// Whether the file used `[[camera]]` tables (even one): runs and results then carry
     /// the names (`easyhec-run/2`, `easyhec-result/2`).
     pub fn is_listed(&self) -> bool {
@@ -369,7 +364,7 @@ mod tests {
         let h: Holder = toml::from_str(&text).unwrap();
         let names: Vec<&str> = h.camera.cameras().iter().map(|c| c.name.as_str()).collect();
         assert_eq!(names, ["left", "right"]);
-        assert!(h.camera.is_rig());
+        assert!(h.camera.is_listed() && h.camera.cameras().len() > 1);
         assert_eq!(h.camera.first().camera().unwrap().fx, 60.0);
         let again: Holder = toml::from_str(&toml::to_string(&h).unwrap()).unwrap();
         assert_eq!(again.camera.cameras()[1].name, "right");

@@ -21,6 +21,7 @@ use super::reconcile::check_result_pose;
 use super::store::{ActiveFile, CalibrationRecord, State, Store};
 use super::validate::{inside, resolved_inside};
 use super::{now, Daemon, Refusal};
+use crate::run::rig::RunLayout;
 use crate::run::rig::{RigResultFile, RigRunFile};
 use crate::run::{ResultFile, RunFile};
 
@@ -31,7 +32,7 @@ impl Daemon {
         let record = self
             .status(id)
             .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
-        let results = if self.cell.config.camera.is_listed() {
+        let results = if self.cell.layout() == RunLayout::NamedCameras {
             let names: Vec<&str> = self.cell.cameras().iter().map(|c| c.name).collect();
             activatable_cameras(&self.store, &record, &names)?
                 .into_iter()

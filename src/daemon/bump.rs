@@ -24,6 +24,7 @@ use crate::cell::{CameraRef, Cell};
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
 use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
+use crate::run::rig::RunLayout;
 use crate::run::RunFile;
 
 /// Agreement of an observed mask with a rendered one.
@@ -157,9 +158,9 @@ pub async fn check(
 /// Starts one recalibration of the stale cameras, each warm-started from its stale pose (a
 /// knocked camera moves by centimetres and degrees, well inside the solver's basin).
 fn recalibrate(daemon: &Arc<Daemon>, stale: &[&ActivePose]) -> Option<String> {
-    let listed = daemon.cell().config.camera.is_listed();
+    let named = daemon.cell().layout() == RunLayout::NamedCameras;
     let opts = StartOptions {
-        cameras: listed.then(|| stale.iter().filter_map(|(c, _, _)| c.clone()).collect()),
+        cameras: named.then(|| stale.iter().filter_map(|(c, _, _)| c.clone()).collect()),
         ..StartOptions::default()
     };
     let warm = WarmStart {

@@ -13,6 +13,7 @@ use tokio::sync::broadcast;
 use crate::calibrate::{calibrate, Progress, RunOptions};
 use crate::error::Error;
 use crate::geometry::{rotation_error_deg, translation_error_mm};
+use crate::run::rig::RunLayout;
 
 use super::records::Phase;
 use super::store::{CalibrationRecord, State, TruthError};
@@ -508,7 +509,7 @@ impl Daemon {
     /// Activates what a calibration that just succeeded solved: its one camera, or each
     /// camera of a list it calibrated (the others keep theirs).
     pub(super) fn activate_outcome(&self, id: &str, o: &crate::calibrate::Outcome) {
-        if !self.cell.config.camera.is_listed() {
+        if self.cell.layout() == RunLayout::OneCamera {
             self.activate_new(id, None, &o.result);
             return;
         }
@@ -555,7 +556,7 @@ impl Daemon {
         &self,
         o: &crate::calibrate::Outcome,
     ) -> Option<Vec<store::CameraRecord>> {
-        if !self.cell.config.camera.is_listed() {
+        if self.cell.layout() == RunLayout::OneCamera {
             return None;
         }
         let units = self.cell.cameras();
@@ -593,7 +594,7 @@ impl Daemon {
             .iter()
             .map(|c| c.name.to_string())
             .collect();
-        if !self.cell.config.camera.is_listed() {
+        if self.cell.layout() == RunLayout::OneCamera {
             return match asked {
                 None => Ok(None),
                 Some(_) => Err(Refusal::BadRequest(

@@ -49,6 +49,7 @@ use tokio::sync::watch;
 use crate::cell::Cell;
 use crate::error::{Error, Result};
 use crate::geometry::from_rows;
+use crate::run::rig::RunLayout;
 use crate::time::rfc3339;
 
 use crate::config::DaemonSettings;
@@ -196,7 +197,7 @@ fn check_tf_for_list(cell: &Cell) -> Result<()> {
     let Some(ros2) = cell.config.ros2.as_ref() else {
         return Ok(());
     };
-    if !cell.config.camera.is_listed() {
+    if cell.layout() == RunLayout::OneCamera {
         return Ok(());
     }
     if ros2.optical_from_child.is_some() {
@@ -226,8 +227,10 @@ impl Daemon {
     /// API calls that carry `token`.
     pub fn open(cell: Cell, data_dir: &Path, token: String) -> Result<Arc<Daemon>> {
         check_tf_for_list(&cell)?;
-        cell.config
-            .check_whole_run_segmenters(&cell.config_path, cell.config.camera.is_listed())?;
+        cell.config.check_whole_run_segmenters(
+            &cell.config_path,
+            cell.layout() == RunLayout::NamedCameras,
+        )?;
         if token.trim().is_empty() {
             return Err(Error::input(
                 &cell.config_path,
@@ -442,7 +445,7 @@ impl Daemon {
             },
         };
         let unit = &cameras[index];
-        let (table, key) = if self.cell.config.camera.is_listed() {
+        let (table, key) = if self.cell.layout() == RunLayout::NamedCameras {
             (
                 format!("camera '{}'", unit.name),
                 format!("camera[{index}].mount"),
@@ -472,9 +475,9 @@ impl Daemon {
 /// another camera layout is refused before anything is checked against it.
 fn check_active_cameras(cell: &Cell, store: &Store) -> Result<()> {
     let names: Vec<&str> = cell.cameras().iter().map(|c| c.name).collect();
-    let listed = cell.config.camera.is_listed();
+    let named = cell.layout() == RunLayout::NamedCameras;
     for a in store.active_all() {
-        let problem = match (&a.camera, listed) {
+        let problem = match (&a.camera, named) {
             (None, true) => Some(format!(
                 "holds one camera's calibration ({}), and this cell lists cameras {names:?}; allowed: an easyhec-daemon-active/2 file naming them",
                 a.id

@@ -27,6 +27,7 @@ use crate::mask::Mask;
 use crate::overlay::overlay_image;
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::run::rig::RigRunFile;
+use crate::run::rig::RunLayout;
 use crate::run::RunFile;
 use crate::run::ViewEntry;
 
@@ -143,7 +144,7 @@ pub fn target(cell: &Cell, query: Option<&str>) -> Result<Target, Refusal> {
         Some(q) => camera_query(q)?,
         None => None,
     };
-    match (cell.config.camera.is_listed(), asked) {
+    match (cell.layout() == RunLayout::NamedCameras, asked) {
         (false, None) => Ok(Target {
             index: 0,
             name: None,

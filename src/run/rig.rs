@@ -437,6 +437,78 @@ fn check_names<'n>(path: &Path, names: impl Iterator<Item = &'n str>) -> Result<
     Ok(())
 }
 
+/// How a run directory records its cameras: the one place that reads it from the format tag.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunLayout {
+    /// One camera, unnamed (`easyhec-run/1`).
+    OneCamera,
+    /// Named cameras (`easyhec-run/2`), even one.
+    NamedCameras,
+}
+
+impl RunLayout {
+    /// The layout a cell's cameras record: a `[camera]` table one camera, `[[camera]]`
+    /// tables named cameras (even one).
+    pub fn of_cameras(cameras: &crate::config::CameraSet) -> RunLayout {
+        if cameras.is_listed() {
+            RunLayout::NamedCameras
+        } else {
+            RunLayout::OneCamera
+        }
+    }
+
+    /// The layout of `run` (a folder or its `run.json`).
+    pub fn of(run: &Path) -> Result<RunLayout> {
+        let (json, _) = super::run_paths(run);
+        Ok(match format_of(&json)?.as_deref() {
+            Some(RIG_RUN_FORMAT) => RunLayout::NamedCameras,
+            _ => RunLayout::OneCamera,
+        })
+    }
+}
+
+/// What a result says of the run as a whole, beside each camera's own record.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// Why the run stopped.
+    pub stop_reason: String,
+    /// Wall-clock timings, seconds.
+    pub timings_s: BTreeMap<String, f64>,
+    /// Each view's joint correction from every camera together, when it ran.
+    pub joint_corrections: Option<JointCorrections>,
+}
+
+/// Writes `out` (atomically) in the result format of `layout`: a run of one camera gets its
+/// camera's `easyhec-result/1` record as it is; named cameras get one `easyhec-result/2` with
+/// each camera's entry and the run's `summary`.
+pub fn write_result(
+    layout: RunLayout,
+    out: &Path,
+    cameras: &[(&str, &ResultFile)],
+    summary: RunSummary,
+) -> Result<()> {
+    match (layout, cameras) {
+        (RunLayout::OneCamera, [(_, result)]) => crate::io::write_json_atomic(out, result),
+        (RunLayout::OneCamera, _) => Err(Error::Solve(format!(
+            "{} camera results for a run of one camera",
+            cameras.len()
+        ))),
+        (RunLayout::NamedCameras, _) => {
+            let rig = RigResultFile {
+                format: RIG_RESULT_FORMAT.into(),
+                cameras: cameras
+                    .iter()
+                    .map(|(name, r)| CameraResult::of(name, r))
+                    .collect(),
+                stop_reason: summary.stop_reason,
+                timings_s: summary.timings_s,
+                joint_corrections: summary.joint_corrections,
+            };
+            crate::io::write_json_atomic(out, &rig)
+        }
+    }
+}
+
 /// The format tag of a JSON file (`run.json` or `result.json`), so a reader can dispatch;
 /// `None` when there is no string tag (the version's own reader then says what to add).
 pub fn format_of(path: &Path) -> Result<Option<String>> {

@@ -2,13 +2,13 @@
 //! free loopback port, and a plain HTTP client (ureq) that returns status and JSON.
 #![allow(dead_code)]
 
-use easyhec::config::{SimArmSettings, SimCameraSettings};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use easyhec::cell::Cell;
+use easyhec::config::{SimArmSettings, SimCameraSettings};
 
 use easyhec::config::{read_config, ArmConfig, CameraConfig, CellConfig};
 use easyhec::daemon::{serve, Daemon};

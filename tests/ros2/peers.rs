@@ -2,11 +2,12 @@
 //! Cyclone DDS peer (tf_peer.py) received.
 #![allow(dead_code)]
 
-use easyhec::config::{SimArmSettings, SimCameraSettings};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+
+use easyhec::config::{SimArmSettings, SimCameraSettings};
 
 pub fn peer() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/ros2/tf_peer.py")

@@ -32,11 +32,11 @@ use crate::config::CalibrationSettings;
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
-use crate::io::write_json_atomic;
 use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
 use crate::render::PosedRobot;
-use crate::run::rig::{CameraResult, JointCorrections, RigResultFile, RIG_RESULT_FORMAT};
+use crate::run::rig::{write_result, JointCorrections, RunLayout, RunSummary};
 use crate::run::CameraEntry;
+use crate::run::ResultFile;
 use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
@@ -151,8 +151,8 @@ impl<'a> Session<'a> {
                 guess: t.guess,
             })
             .collect();
-        let listed = cell.config.camera.is_listed();
-        let rec = Recorder::create(out, robot_entry(cell), recorded, listed)?;
+        let layout = RunLayout::of_cameras(&cell.config.camera);
+        let rec = Recorder::create(out, robot_entry(cell), recorded, layout)?;
         let pb = progress_bar(opts, settings.max_views);
         let renderer = open_renderer(settings.renderer, !opts.progress)
             .map_err(|m| Error::input(&cell.config_path, "calibration.renderer", m))?;
@@ -747,23 +747,19 @@ impl<'a> Session<'a> {
             .collect();
         let mut result = cameras[0].result.clone();
         result.stop_reason = stop_reason.clone();
+        let layout = RunLayout::of_cameras(&self.cell.config.camera);
         if !self.opts.dry_run {
             let path = self.rec.dir().join("result.json");
-            if self.cell.config.camera.is_listed() {
-                let rig = RigResultFile {
-                    format: RIG_RESULT_FORMAT.into(),
-                    cameras: cameras
-                        .iter()
-                        .map(|c| CameraResult::of(&c.name, &c.result))
-                        .collect(),
-                    stop_reason,
-                    timings_s,
-                    joint_corrections: self.joint_corrections.take(),
-                };
-                write_json_atomic(&path, &rig)?;
-            } else {
-                write_json_atomic(&path, &result)?;
-            }
+            let results: Vec<(&str, &ResultFile)> = cameras
+                .iter()
+                .map(|c| (c.name.as_str(), &c.result))
+                .collect();
+            let summary = RunSummary {
+                stop_reason,
+                timings_s,
+                joint_corrections: self.joint_corrections.take(),
+            };
+            write_result(layout, &path, &results, summary)?;
         }
         Ok(Outcome {
             result,
@@ -772,6 +768,7 @@ impl<'a> Session<'a> {
             rounds: self.rounds,
             planned: self.planned,
             run_dir: self.rec.dir().to_path_buf(),
+            layout,
             cancelled: stop.is_cancel(),
             faulted: stop.is_fault(),
         })

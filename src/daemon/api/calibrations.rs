@@ -13,6 +13,7 @@ use crate::daemon::job::EventKind;
 use crate::daemon::openapi::{ActiveCalibration, Cancelling, ErrorBody, History, Started};
 use crate::daemon::store::{ActiveFile, CalibrationRecord, RigActiveFile, RIG_ACTIVE_FORMAT};
 use crate::daemon::{overlays, Daemon, Event, Refusal, StartOptions};
+use crate::run::rig::RunLayout;
 
 /// Starts a calibration (or, with `dry_run`, plans one without moving).
 #[utoipa::path(post, path = "/api/v1/calibrations", tag = "calibrations",
@@ -319,7 +320,7 @@ pub(super) async fn activate(
 ) -> Result<Response, Refusal> {
     let id = daemon_id(id)?;
     let mut a = d.activate(&id)?;
-    if d.cell().config.camera.is_listed() {
+    if d.cell().layout() == RunLayout::NamedCameras {
         return Ok(Json(RigActiveFile {
             format: RIG_ACTIVE_FORMAT.into(),
             cameras: a,
@@ -337,7 +338,7 @@ pub(super) async fn activate(
         (status = 404, description = "None is active yet", body = ErrorBody)),
     security((), ("bearer" = [])))]
 pub(super) async fn active(State(d): State<Shared>) -> Result<Response, Refusal> {
-    if d.cell().config.camera.is_listed() {
+    if d.cell().layout() == RunLayout::NamedCameras {
         return Err(Refusal::Conflict(
             "this cell lists cameras, each with its own active calibration: GET /api/v1/cameras"
                 .into(),

@@ -9,6 +9,7 @@ use super::calibrations::active_calibration;
 use super::Shared;
 use crate::daemon::openapi::{CameraState, Cameras, ErrorBody, Png};
 use crate::daemon::{overlays, Busy, Refusal};
+use crate::run::rig::RunLayout;
 
 /// Longest wait for a preview frame.
 pub(super) const PREVIEW_GRAB: std::time::Duration = std::time::Duration::from_secs(10);
@@ -84,18 +85,21 @@ pub(super) async fn camera_preview(
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody)),
     security((), ("bearer" = [])))]
 pub(super) async fn cameras(State(d): State<Shared>) -> Json<Cameras> {
-    let listed = d.cell().config.camera.is_listed();
+    let named = d.cell().layout() == RunLayout::NamedCameras;
     let cameras = d
         .cell()
         .cameras()
         .iter()
         .map(|c| {
-            let key = listed.then_some(c.name);
+            let key = named.then_some(c.name);
             CameraState {
                 camera: c.name.to_string(),
                 active: d.store().active_of(key).map(|a| active_calibration(&d, a)),
             }
         })
         .collect();
-    Json(Cameras { listed, cameras })
+    Json(Cameras {
+        listed: named,
+        cameras,
+    })
 }

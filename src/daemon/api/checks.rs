@@ -8,6 +8,7 @@ use super::Shared;
 use crate::daemon::openapi::{Checks, ErrorBody};
 use crate::daemon::store::CheckRecord;
 use crate::daemon::{bump, Refusal};
+use crate::run::rig::RunLayout;
 
 /// Runs a bump check now: moves to the check pose, captures, compares with the active
 /// calibration's silhouette.
@@ -26,7 +27,7 @@ pub(super) async fn run_check(State(d): State<Shared>) -> Result<Response, Refus
     let mut c = tokio::spawn(async move { bump::check(&task, "api").await })
         .await
         .map_err(|e| Refusal::Internal(format!("bump check task: {e}")))??;
-    if d.cell().config.camera.is_listed() {
+    if d.cell().layout() == RunLayout::NamedCameras {
         return Ok(Json(Checks { checks: c }).into_response());
     }
     Ok(Json(c.remove(0)).into_response())

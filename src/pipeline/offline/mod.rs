@@ -18,7 +18,7 @@ use crate::init::{initialise, InitOptions};
 use crate::overlay::write_overlay;
 use crate::pipeline::segment_solve::POOR_FIT_IOU;
 use crate::render::PosedRobot;
-use crate::run::rig::{JointCorrections, RigGroundTruth};
+use crate::run::rig::{write_result, JointCorrections, RigGroundTruth, RunLayout, RunSummary};
 use crate::run::{
     load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
@@ -69,131 +69,81 @@ pub struct OfflineSolve {
     pub model_floor: (f64, f64),
 }
 
-/// What an offline solve produced.
+/// What an offline solve produced: every camera's solve, in the run's order (one for an
+/// `easyhec-run/1` run).
 #[derive(Clone, Debug)]
 pub struct OfflineOutcome {
-    /// The result as written.
-    pub result: ResultFile,
-    /// What was solved: `camera_from_base`, or `camera_from_<link>` for a camera on a link.
-    pub transform: String,
-    /// Where it was written.
+    /// How the run recorded its cameras, and so which result format was written.
+    pub layout: RunLayout,
+    /// Where the result was written.
     pub out: PathBuf,
-    /// The final solve.
+    /// Every camera's solve.
+    pub cameras: Vec<CameraSolved>,
+}
+
+impl OfflineOutcome {
+    /// The solve of a run of one camera (the first of a list).
+    pub fn first(&self) -> &CameraSolved {
+        &self.cameras[0]
+    }
+}
+
+/// One camera's solve.
+#[derive(Clone, Debug)]
+pub struct CameraSolved {
+    /// The camera's name (`camera` for an `easyhec-run/1` run).
+    pub name: String,
+    /// The transform solved: `camera_from_base`, or `camera_from_<link>`.
+    pub transform: String,
+    /// Its `easyhec-result/1` record (an `easyhec-result/2` file holds one per camera).
+    pub result: ResultFile,
+    /// On a simulated run, the error against its `ground_truth.json`: (file, degrees, mm).
+    pub truth_error: Option<(PathBuf, f64, f64)>,
+    /// Its final solve.
     pub report: SolveReport,
-    /// Views the result rests on.
+    /// Views its result rests on.
     pub views: usize,
     /// Seconds of solving.
     pub solve_s: f64,
     /// Views that fit poorly (IoU < 0.8): the uncertainty does not cover a wrong model.
     pub poor_views: Vec<usize>,
-    /// The error against `ground_truth.json` beside a synthetic run: (file, degrees, mm).
-    pub truth_error: Option<(PathBuf, f64, f64)>,
 }
 
-/// Solves a recorded `easyhec-run/1` run; `note` receives the one-line remarks a user
-/// should see as they happen (segmentation rounds, automatic initialisation, views left out).
+/// Solves every camera of a recorded run (`easyhec-run/1` or `/2`): each as one camera's
+/// run is solved; with several, each view's joints corrected from all cameras together and
+/// every camera re-solved, as the calibration loop does. `note` receives the one-line remarks
+/// a user should see as they happen (segmentation rounds, automatic initialisation, views
+/// left out). Masks and overlays of a list go to a folder per camera (`DIR/<name>/`); the
+/// result is written only when every camera's solve passes.
 pub fn solve_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<OfflineOutcome> {
     let started = Instant::now();
-    let (run, k) = load_requested(req)?;
-    let mut reads = run.files_read();
+    let layout = RunLayout::of(&req.run)?;
+    let named = layout == RunLayout::NamedCameras;
+    let cameras = load_cameras(req, named)?;
+    let mut reads: Vec<PathBuf> = cameras.iter().flat_map(|c| c.run.files_read()).collect();
     reads.extend(req.initial_guess.clone());
     check_outputs(req, &reads)?;
     let renderer =
         open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
-    let fitted = fit_loaded(
-        req,
-        run,
-        k,
-        renderer.as_ref(),
-        req.masks_out.as_deref(),
-        note,
-    )?;
-    let solved = finish_fit(
-        req,
-        fitted,
-        renderer.as_ref(),
-        req.overlays.as_deref(),
-        started,
-    )?;
-    let out = req
-        .out
-        .clone()
-        .unwrap_or_else(|| solved.run_dir.join("result.json"));
-    crate::io::write_json_atomic(&out, &solved.result)?;
-    Ok(OfflineOutcome {
-        truth_error: truth_error(&solved.run_dir, &solved.report.camera_from_base),
-        transform: solved.transform,
-        views: solved.order.len(),
-        poor_views: poor_views(&solved.order, &solved.report),
-        result: solved.result,
-        out,
-        solve_s: solved.solve_s,
-        report: solved.report,
-    })
-}
-
-/// One camera's solve of an `easyhec-run/2` run.
-#[derive(Clone, Debug)]
-pub struct CameraSolved {
-    /// The camera's name.
-    pub name: String,
-    /// The transform solved: `camera_from_base`, or `camera_from_<link>`.
-    pub transform: String,
-    /// On a simulated rig's run, the error against its `ground_truth.json`: (degrees, mm).
-    pub truth_error: Option<(f64, f64)>,
-    /// Its final solve.
-    pub report: SolveReport,
-    /// Views its result rests on.
-    pub views: usize,
-    /// Views that fit poorly.
-    pub poor_views: Vec<usize>,
-}
-
-/// What an offline solve of an `easyhec-run/2` run produced.
-#[derive(Clone, Debug)]
-pub struct RigOfflineOutcome {
-    /// The result as written.
-    pub result: crate::run::rig::RigResultFile,
-    /// Where it was written.
-    pub out: PathBuf,
-    /// Every camera's solve, in the run's order.
-    pub cameras: Vec<CameraSolved>,
-}
-
-/// Whether `run` (a folder or its `run.json`) is an `easyhec-run/2` run of several cameras.
-pub fn is_rig_run(run: &Path) -> Result<bool> {
-    let (json, _) = crate::run::run_paths(run);
-    Ok(crate::run::rig::format_of(&json)?.as_deref() == Some(crate::run::rig::RIG_RUN_FORMAT))
-}
-
-/// Solves every camera of an `easyhec-run/2` run as [`solve_run`] solves one, corrects each
-/// view's joints from all cameras together and re-solves them as the calibration loop does,
-/// and writes one `easyhec-result/2`. Masks and overlays go to a folder per camera
-/// (`DIR/<name>/`); the result is written only when every camera's solve passes.
-pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<RigOfflineOutcome> {
-    use crate::run::rig::{CameraResult, RigResultFile, RIG_RESULT_FORMAT};
-    let started = Instant::now();
-    if req.initial_guess.is_some() {
-        return Err(Error::Usage(
-            "--initial-guess: a run of several cameras starts each camera from its own initial_guess in run.json; the flag is for a run of one camera".into(),
-        ));
-    }
-    let cameras = crate::run::load_cameras_with(&req.run, mask_source(req))?;
-    let reads: Vec<PathBuf> = cameras
-        .iter()
-        .flat_map(|(_, run)| run.files_read())
-        .collect();
-    check_outputs(req, &reads)?;
-    let views = cameras
-        .iter()
-        .map(|(_, run)| requested_views(req, run.views.len()))
-        .collect::<Result<Vec<_>>>()?;
-    let renderer =
-        open_renderer(req.renderer, false).map_err(|e| Error::Usage(format!("--renderer: {e}")))?;
+    let per_camera = |dir: &Option<PathBuf>, name: &str| {
+        dir.as_ref()
+            .map(|d| if named { d.join(name) } else { d.clone() })
+    };
     let mut fitted = Vec::with_capacity(cameras.len());
-    for ((name, run), k) in cameras.into_iter().zip(views) {
-        let masks_out = req.masks_out.as_ref().map(|d| d.join(&name));
-        let mut camera_note = |line: &str| note(&format!("{name}: {line}"));
+    for LoadedCamera {
+        name,
+        run,
+        views: k,
+    } in cameras
+    {
+        let masks_out = per_camera(&req.masks_out, &name);
+        let mut camera_note = |line: &str| {
+            if named {
+                note(&format!("{name}: {line}"))
+            } else {
+                note(line)
+            }
+        };
         let fit = fit_loaded(
             req,
             run,
@@ -202,58 +152,77 @@ pub fn solve_rig_run(req: &OfflineSolve, note: &mut dyn FnMut(&str)) -> Result<R
             masks_out.as_deref(),
             &mut camera_note,
         )
-        .map_err(|e| in_camera(&name, e))?;
+        .map_err(|e| if named { in_camera(&name, e) } else { e })?;
         fitted.push((name, fit));
     }
     let joint_corrections = correct_shared_joints(req, renderer.as_ref(), &mut fitted, note);
-    let truth = fitted
-        .first()
-        .and_then(|(_, f)| RigGroundTruth::read(&f.run.dir.join("ground_truth.json")));
-    let mut entries = Vec::with_capacity(fitted.len());
     let mut solved_cameras = Vec::with_capacity(fitted.len());
-    let mut run_dir = PathBuf::new();
     for (name, fit) in fitted {
-        let overlays = req.overlays.as_ref().map(|d| d.join(&name));
+        let overlays = per_camera(&req.overlays, &name);
         let solved = finish_fit(req, fit, renderer.as_ref(), overlays.as_deref(), started)?;
-        run_dir = solved.run_dir.clone();
-        entries.push(CameraResult::of(&name, &solved.result));
-        let truth = truth
-            .as_ref()
-            .and_then(|t| t.camera_from_mount(&name, &solved.transform));
-        let estimate = &solved.report.camera_from_base;
         solved_cameras.push(CameraSolved {
-            truth_error: truth.map(|t| {
-                (
-                    rotation_error_deg(estimate, &t),
-                    translation_error_mm(estimate, &t),
-                )
-            }),
-            transform: solved.transform.clone(),
+            truth_error: truth_error(layout, &solved.run_dir, &name, &solved),
+            transform: solved.transform,
             name,
             views: solved.order.len(),
             poor_views: poor_views(&solved.order, &solved.report),
+            solve_s: solved.solve_s,
             report: solved.report,
+            result: solved.result,
         });
     }
-    let mut timings_s = std::collections::BTreeMap::new();
-    timings_s.insert("total".to_string(), started.elapsed().as_secs_f64());
-    let result = RigResultFile {
-        format: RIG_RESULT_FORMAT.into(),
-        cameras: entries,
-        stop_reason: "solved every camera".into(),
-        timings_s,
-        joint_corrections,
-    };
+    let run_dir = crate::run::run_paths(&req.run).1;
     let out = req
         .out
         .clone()
         .unwrap_or_else(|| run_dir.join("result.json"));
-    crate::io::write_json_atomic(&out, &result)?;
-    Ok(RigOfflineOutcome {
-        result,
+    let results: Vec<(&str, &ResultFile)> = solved_cameras
+        .iter()
+        .map(|c| (c.name.as_str(), &c.result))
+        .collect();
+    let mut timings_s = std::collections::BTreeMap::new();
+    timings_s.insert("total".to_string(), started.elapsed().as_secs_f64());
+    let summary = RunSummary {
+        stop_reason: "solved every camera".into(),
+        timings_s,
+        joint_corrections,
+    };
+    write_result(layout, &out, &results, summary)?;
+    Ok(OfflineOutcome {
+        layout,
         out,
         cameras: solved_cameras,
     })
+}
+
+/// Every camera's loaded run and `--views` count, as the request reads them (recorded masks,
+/// or images for a segmenter; a run of one camera from `--initial-guess` when given), before
+/// any renderer is opened.
+fn load_cameras(req: &OfflineSolve, named: bool) -> Result<Vec<LoadedCamera>> {
+    if !named {
+        let (run, views) = load_requested(req)?;
+        let name = crate::config::cameras::SINGLE_CAMERA_NAME.to_string();
+        return Ok(vec![LoadedCamera { name, run, views }]);
+    }
+    if req.initial_guess.is_some() {
+        return Err(Error::Usage(
+            "--initial-guess: a run of several cameras starts each camera from its own initial_guess in run.json; the flag is for a run of one camera".into(),
+        ));
+    }
+    crate::run::load_cameras_with(&req.run, mask_source(req))?
+        .into_iter()
+        .map(|(name, run)| {
+            let views = requested_views(req, run.views.len())?;
+            Ok(LoadedCamera { name, run, views })
+        })
+        .collect()
+}
+
+/// One camera's loaded run and how many of its views the request uses.
+struct LoadedCamera {
+    name: String,
+    run: LoadedRun,
+    views: usize,
 }
 
 /// A solve error names the camera of a list it happened in.
@@ -700,12 +669,26 @@ fn write_overlays(
     Ok(())
 }
 
-/// Synthetic runs carry their truth beside run.json: the error against it.
-fn truth_error(dir: &Path, estimate: &Isometry3<f64>) -> Option<(PathBuf, f64, f64)> {
+/// Synthetic runs carry their truth beside run.json, in the run's layout (`easyhec-truth/1`
+/// for one camera, `/2` by camera name): the error of camera `name`'s solve against it.
+fn truth_error(
+    layout: RunLayout,
+    dir: &Path,
+    name: &str,
+    solved: &Solved,
+) -> Option<(PathBuf, f64, f64)> {
     let path = dir.join("ground_truth.json");
-    let text = crate::io::read_text_input(&path).ok()?;
-    let truth: GroundTruth = serde_json::from_str(&text).ok()?;
-    let truth = from_rows(&truth.camera_from_base).ok()?;
+    let estimate = &solved.report.camera_from_base;
+    let truth = match layout {
+        RunLayout::NamedCameras => {
+            RigGroundTruth::read(&path)?.camera_from_mount(name, &solved.transform)?
+        }
+        RunLayout::OneCamera => {
+            let text = crate::io::read_text_input(&path).ok()?;
+            let truth: GroundTruth = serde_json::from_str(&text).ok()?;
+            from_rows(&truth.camera_from_base).ok()?
+        }
+    };
     Some((
         path,
         rotation_error_deg(estimate, &truth),
