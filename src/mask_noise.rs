@@ -5,6 +5,8 @@
 //!   six random planar waves of wavelength 8–40 px;
 //! - **blur** (first, when `blur_px` > 0): the robot's coverage is Gaussian-blurred and
 //!   thresholded at one half, as a segmenter that rounds corners and thins thin parts;
+//! - **outline offset**: the whole outline moved outward (fat masks) or inward by
+//!   `outline_offset_px`, with the jitter;
 //! - **blobs**: with probability `blob_probability` per view, 1–2 ellipses (3–12 px radii)
 //!   centred near the boundary are painted as robot or cut out as background.
 //!
@@ -46,16 +48,20 @@ pub fn apply_mask_noise_to_coverage(
         mask
     };
     let mut out = mask.clone();
-    if noise.boundary_jitter_px > 0.0 {
+    let offset = noise.outline_offset_px;
+    if noise.boundary_jitter_px > 0.0 || offset != 0.0 {
         let sdf = SignedDistance::of(mask);
-        let field = if noise.boundary_correlation_px > 0.0 {
+        let field = if noise.boundary_jitter_px <= 0.0 {
+            vec![0.0; sdf.data.len()]
+        } else if noise.boundary_correlation_px > 0.0 {
             smoothed_field(rng, mask.width, mask.height, noise)
         } else {
             planar_wave_field(rng, mask.width, mask.height, noise)
         };
+        let reach = 4.0 * noise.boundary_jitter_px + offset.abs() + 1.0;
         for (i, (&d, &f)) in sdf.data.iter().zip(&field).enumerate() {
-            if f64::from(d).abs() <= 4.0 * noise.boundary_jitter_px + 1.0 {
-                out.data[i] = u8::from(f64::from(d) < f);
+            if f64::from(d).abs() <= reach {
+                out.data[i] = u8::from(f64::from(d) < f + offset);
             }
         }
     }

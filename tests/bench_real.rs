@@ -83,13 +83,14 @@ fn images_only_figures_compare_the_builtin_calibration_with_the_mask_pose() {
     use easyhec::bench::real::{images_only, real_figures, Start};
     use easyhec::config::RendererChoice;
     let dir = common::repo_root().join("../shared/datasets/xarm7_realsense_roboreg");
-    let figures = real_figures(&dir, RendererChoice::Cpu, Some(4), &mut |_| {}).unwrap();
+    let figures = real_figures(&dir, RendererChoice::Cpu, Some(4), false, &mut |_| {}).unwrap();
     let i = images_only(
         &dir,
         RendererChoice::Cpu,
         Some(4),
         Start::RoughGuess,
         &figures.mask_pose,
+        false,
     )
     .unwrap();
     let (from_masks, from_reference) = i.apart.clone().unwrap();

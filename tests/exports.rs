@@ -302,7 +302,7 @@ fn optical_from_child_moves_the_edge_to_the_camera_root_link() {
 fn the_api_description_lists_every_export_format() {
     let doc: serde_json::Value =
         serde_json::from_str(easyhec::daemon::openapi::document()).unwrap();
-    let route = &doc["paths"]["/api/v1/calibrations/{id}/export/{format}"]["get"];
+    let route = &doc["paths"][easyhec::daemon::openapi::EXPORT_PATH]["get"];
     let param = route["parameters"]
         .as_array()
         .unwrap()
@@ -317,4 +317,24 @@ fn the_api_description_lists_every_export_format() {
         .collect();
     let names = easyhec::interop::ExportFormat::ALL.map(easyhec::interop::ExportFormat::name);
     assert_eq!(listed, names);
+}
+
+/// The download route's 200 answer lists each format's content type, taken from
+/// `ExportFormat` (a new format needs no edit of the route's annotation).
+#[test]
+fn the_api_description_lists_every_export_content_type() {
+    let doc: serde_json::Value =
+        serde_json::from_str(easyhec::daemon::openapi::document()).unwrap();
+    let ok = &doc["paths"][easyhec::daemon::openapi::EXPORT_PATH]["get"]["responses"]["200"];
+    let listed: std::collections::BTreeSet<&str> = ok["content"]
+        .as_object()
+        .unwrap_or_else(|| panic!("{ok}"))
+        .keys()
+        .map(String::as_str)
+        .collect();
+    let kinds: std::collections::BTreeSet<&str> = easyhec::interop::ExportFormat::ALL
+        .iter()
+        .map(|f| f.content_type())
+        .collect();
+    assert_eq!(listed, kinds);
 }

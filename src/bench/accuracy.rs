@@ -33,12 +33,12 @@ pub struct Trial {
 }
 
 /// Runs the accuracy benchmark: for each seed, solves from the first k views for each k in
-/// `view_counts` with `optimizer`, starting from the scene's perturbed initial guess.
+/// `view_counts` with `opts`, starting from the scene's perturbed initial guess.
 pub fn accuracy(
     robot: &RobotModel,
     seeds: &[u64],
     view_counts: &[usize],
-    optimizer: Optimizer,
+    opts: &SolveOptions,
     synth: &SynthOptions,
     mut progress: impl FnMut(&Trial),
 ) -> Result<Vec<Trial>> {
@@ -47,12 +47,8 @@ pub fn accuracy(
     for &seed in seeds {
         let (scene, views, init) = seeded_scene(robot, seed, max_views, synth)?;
         for &k in view_counts {
-            let opts = SolveOptions {
-                optimizer,
-                ..SolveOptions::default()
-            };
             let t = Instant::now();
-            let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, &opts)?;
+            let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, opts)?;
             let u = rep.uncertainty;
             let trial = Trial {
                 seed,
@@ -112,6 +108,9 @@ pub struct AccuracyBench {
     /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
     #[arg(long, default_value = "standard", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
     pub noise: String,
+    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    #[arg(long)]
+    pub mask_offset: bool,
 }
 
 impl AccuracyBench {
@@ -124,6 +123,7 @@ impl AccuracyBench {
             views,
             optimizers,
             noise,
+            mask_offset,
         } = self.clone();
         let synth = SynthOptions {
             noise: NoiseModel::preset(&noise)
@@ -134,7 +134,12 @@ impl AccuracyBench {
         let seeds: Vec<u64> = (0..scenes).collect();
         for optimizer in optimizers {
             let name = super::value_name(&optimizer);
-            let trials = accuracy(&model, &seeds, &views, optimizer, &synth, |t| {
+            let base = SolveOptions {
+                optimizer,
+                estimate_mask_offset: mask_offset,
+                ..SolveOptions::default()
+            };
+            let trials = accuracy(&model, &seeds, &views, &base, &synth, |t| {
                 log(&format!(
                     "{name} seed {} views {}: {:.4} deg {:.3} mm (1-sigma {:.4} deg {:.3} mm) {:.2} s",
                     t.seed, t.views, t.rotation_deg, t.translation_mm, t.sigma_rotation_deg, t.sigma_translation_mm, t.seconds

@@ -51,6 +51,9 @@ pub struct CoverageBench {
     /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
     #[arg(long, default_value = "segmenter", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
     pub noise: String,
+    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    #[arg(long)]
+    pub mask_offset: bool,
 }
 
 impl CoverageBench {
@@ -73,7 +76,11 @@ impl CoverageBench {
         };
         let mut trials = Vec::new();
         for seed in 0..self.scenes {
-            for t in coverage_of_scene(&model, seed, &self.views, &synth)? {
+            let opts = SolveOptions {
+                estimate_mask_offset: self.mask_offset,
+                ..SolveOptions::default()
+            };
+            for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts)? {
                 log(&format!(
                     "seed {} views {}: {:.4} deg {:.3} mm; |error|/sigma rot {:.2} {:.2} {:.2} trans {:.2} {:.2} {:.2}; centre {:.3} mm of bound {:.3} mm",
                     t.seed, t.views, t.rotation_deg, t.translation_mm,
@@ -95,15 +102,15 @@ fn coverage_of_scene(
     seed: u64,
     view_counts: &[usize],
     synth: &SynthOptions,
+    opts: &SolveOptions,
 ) -> Result<Vec<CoverageTrial>> {
     let max_views = view_counts.iter().copied().max().unwrap_or(1);
     let (scene, views, init) = seeded_scene(robot, seed, max_views, synth)?;
     let truth = scene.camera_from_base;
     let mut trials = Vec::new();
     for &k in view_counts {
-        let opts = SolveOptions::default();
-        let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, &opts)?;
-        let rep = with_view_disagreement(&CpuRenderer, &scene.camera, &views[..k], rep, &opts);
+        let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, opts)?;
+        let rep = with_view_disagreement(&CpuRenderer, &scene.camera, &views[..k], rep, opts);
         let est = rep.camera_from_base;
         trials.push(CoverageTrial {
             seed,

@@ -47,6 +47,9 @@ pub struct RealBench {
     /// --ignore-masks`), from the rough guess and with no guess, against the mask pose.
     #[arg(long)]
     pub images: bool,
+    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    #[arg(long)]
+    pub mask_offset: bool,
 }
 
 /// An images-only calibration of the run against the pose its provided masks give.
@@ -84,17 +87,26 @@ pub struct RealFigures {
     pub fit_s: f64,
     /// The all-view pose from the provided masks.
     pub mask_pose: Isometry3<f64>,
+    /// The masks' outline offset, when estimated.
+    pub mask_offset: Option<crate::solve::MaskOffset>,
 }
 
 impl RealBench {
     /// Runs the benchmark; per-solve lines go to `log`.
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
-        let f = real_figures(&self.run, self.renderer, self.views, log)?;
+        let f = real_figures(&self.run, self.renderer, self.views, self.mask_offset, log)?;
         let mut report = report_of(&self.run, &f);
         if self.images {
             let views = Some(f.per_view_iou.len());
             for start in [Start::RoughGuess, Start::Automatic] {
-                let i = images_only(&self.run, self.renderer, views, start, &f.mask_pose)?;
+                let i = images_only(
+                    &self.run,
+                    self.renderer,
+                    views,
+                    start,
+                    &f.mask_pose,
+                    self.mask_offset,
+                )?;
                 report.line(images_line(&i));
             }
         }
@@ -107,8 +119,13 @@ pub fn real_figures(
     dir: &Path,
     renderer: RendererChoice,
     views: Option<usize>,
+    mask_offset: bool,
     log: &mut dyn FnMut(&str),
 ) -> Result<RealFigures> {
+    let opts = SolveOptions {
+        estimate_mask_offset: mask_offset,
+        ..SolveOptions::default()
+    };
     let reference = read_pose_file(&dir.join("reference.json"))?;
     let guess = read_pose_file(&dir.join("rough_guess.json"))?;
     let run = load_run(dir)?;
@@ -122,28 +139,16 @@ pub fn real_figures(
         .collect();
     let backend = open_renderer(renderer, true).map_err(Error::Usage)?;
     let t = Instant::now();
-    let full = solve(
-        backend.as_ref(),
-        &run.camera,
-        &all,
-        &guess,
-        &SolveOptions::default(),
-    )?;
+    let full = solve(backend.as_ref(), &run.camera, &all, &guess, &opts)?;
     let fit_s = t.elapsed().as_secs_f64();
-    let full = with_view_disagreement(
-        backend.as_ref(),
-        &run.camera,
-        &all,
-        full,
-        &SolveOptions::default(),
-    );
+    let full = with_view_disagreement(backend.as_ref(), &run.camera, &all, full, &opts);
     let solve_s = t.elapsed().as_secs_f64();
     log(&format!(
         "all {k} views: {solve_s:.1} s ({fit_s:.1} s fit, {:.1} s view jackknife), mean IoU {:.4}",
         solve_s - fit_s,
         full.mean_iou()
     ));
-    let jackknife = view_jackknife(backend.as_ref(), &run.camera, &all, &full, log)?;
+    let jackknife = view_jackknife(backend.as_ref(), &run.camera, &all, &full, &opts, log)?;
     let est = full.camera_from_base;
     Ok(RealFigures {
         per_view_iou: full.per_view_iou.clone(),
@@ -165,6 +170,7 @@ pub fn real_figures(
         solve_s,
         fit_s,
         mask_pose: est,
+        mask_offset: full.mask_offset,
     })
 }
 
@@ -177,11 +183,12 @@ fn view_jackknife(
     camera: &easyhec_drivers::Intrinsics,
     views: &[View],
     full: &SolveReport,
+    opts: &SolveOptions,
     log: &mut dyn FnMut(&str),
 ) -> Result<Uncertainty> {
     let opts = SolveOptions {
         refine_samples: 0,
-        ..SolveOptions::default()
+        ..opts.clone()
     };
     let centre = solve(backend, camera, views, &full.camera_from_base, &opts)?.camera_from_base;
     let n = views.len();
@@ -256,6 +263,12 @@ fn report_of(dir: &Path, f: &RealFigures) -> Report {
         f.jackknife.camera_centre_95_mm,
         f.from_reference[2]
     ));
+    if let Some(m) = f.mask_offset {
+        r.line(format!(
+            "mask outline offset {:+.3} px (1σ {:.3} px)",
+            m.px, m.sigma_px
+        ));
+    }
     r
 }
 
@@ -277,6 +290,7 @@ pub fn images_only(
     views: Option<usize>,
     start: Start,
     mask_pose: &Isometry3<f64>,
+    mask_offset: bool,
 ) -> Result<ImagesOnly> {
     let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
     let masks_dir = scratch.path().join("masks");
@@ -297,6 +311,7 @@ pub fn images_only(
         allow_poor_fit: true,
         joint_noise_rad: 5e-4,
         model_floor: (0.0, 0.0),
+        estimate_mask_offset: mask_offset,
     };
     let t = Instant::now();
     let solved = solve_run(&request, &mut |_| {});

@@ -202,6 +202,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         allow_poor_fit: true,
         joint_noise_rad: SolveOptions::default().joint_noise_rad,
         model_floor: (0.0, 0.0),
+        estimate_mask_offset: false,
     };
     let quiet = &mut |_: &str| {};
     let reference = solve_run(&request("recorded.json", None), quiet)?;

@@ -70,6 +70,10 @@ pub struct SolveArgs {
     /// axis). 0 to 100.
     #[arg(long, default_value_t = 0.0, value_parser = floor_mm)]
     pub model_floor_translation_mm: f64,
+    /// Estimate the masks' outline offset (a segmenter's fat or thin bias, pixels) with the
+    /// pose, and report it with its sigma in result.json (docs/uncertainty.md).
+    #[arg(long)]
+    pub estimate_mask_offset: bool,
 }
 
 /// `--select`: how a solve picks its views.
@@ -121,6 +125,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         allow_poor_fit: a.allow_poor_fit,
         joint_noise_rad: a.joint_noise_rad,
         model_floor: (a.model_floor_rotation_deg, a.model_floor_translation_mm),
+        estimate_mask_offset: a.estimate_mask_offset,
     };
     let activity = super::progress::Activity::start("solve");
     let outcome = solve_run(&request, &mut |line| activity.note(line))?;

@@ -82,6 +82,10 @@ pub struct CalibrationSettings {
     /// axis).
     #[serde(default)]
     pub model_floor_translation_mm: f64,
+    /// Estimate the masks' outline offset (a segmenter's fat or thin bias) with each pose,
+    /// and report it with its sigma: for a segmenter known to draw masks fat or thin.
+    #[serde(default)]
+    pub estimate_mask_offset: bool,
     /// Rank poses by information per second (the move plus each view's other work) instead
     /// of by information alone. Only arms whose moves take time are affected: the simulated
     /// arm arrives at once unless `[arm] speedup` slows it.

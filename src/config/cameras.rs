@@ -39,12 +39,22 @@ pub struct NamedCamera {
     pub initial_guess: Option<InitialGuess>,
 }
 
+/// How a config file wrote its `camera` key: a fact of the TOML, which the error keys
+/// (`camera.fx` or `camera[2].fx`) follow. Which run and result formats it records is
+/// `run::rig::RunLayout`'s business.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CameraTables {
+    /// A single `[camera]` table.
+    One,
+    /// `[[camera]]` tables, each named (even one).
+    List,
+}
+
 /// The `camera` key: one table or a list of named tables.
 #[derive(Clone, Debug)]
 pub struct CameraSet {
     cameras: Vec<NamedCamera>,
-    /// Written as `[[camera]]` (names kept) rather than a single `[camera]`.
-    listed: bool,
+    tables: CameraTables,
 }
 
 impl CameraSet {
@@ -57,7 +67,7 @@ impl CameraSet {
                 segmenter: None,
                 initial_guess: None,
             }],
-            listed: false,
+            tables: CameraTables::One,
         }
     }
 
@@ -77,16 +87,15 @@ impl CameraSet {
         &mut self.cameras[0].config
     }
 
-    /// Whether the file used `[[camera]]` tables (even one): runs and results then carry
-    /// the names (`easyhec-run/2`, `easyhec-result/2`).
-    pub fn is_listed(&self) -> bool {
-        self.listed
+    /// How the file wrote the `camera` key.
+    pub fn tables(&self) -> CameraTables {
+        self.tables
     }
 
     /// Refuses `[[camera]]` tables where `what` serves a single `[camera]` table, naming the
     /// key: even one listed camera records `easyhec-run/2`, which such code does not read.
     pub fn require_one(&self, path: &Path, what: &str) -> Result<()> {
-        if self.listed {
+        if self.tables == CameraTables::List {
             return Err(Error::input(
                 path,
                 "camera",
@@ -143,9 +152,11 @@ impl CameraSet {
                     ));
                 }
             }
-            if let (true, Some(link), None) =
-                (self.listed, cam.config.mount().link(), &cam.initial_guess)
-            {
+            if let (true, Some(link), None) = (
+                self.tables == CameraTables::List,
+                cam.config.mount().link(),
+                &cam.initial_guess,
+            ) {
                 return Err(Error::input(
                     path,
                     format!("camera[{i}].initial_guess"),
@@ -159,7 +170,7 @@ impl CameraSet {
     /// The key prefix errors about camera `index` use: `camera` for a single table,
     /// `camera[i]` for a list.
     pub fn key(&self, index: usize) -> String {
-        if self.listed {
+        if self.tables == CameraTables::List {
             format!("camera[{index}]")
         } else {
             "camera".into()
@@ -228,7 +239,7 @@ pub fn rekey(err: Error, set: &CameraSet, index: usize) -> Error {
             file,
             field,
             message,
-        } if set.is_listed() => {
+        } if set.tables() == CameraTables::List => {
             let field = match field.strip_prefix("camera") {
                 Some(rest) if rest.is_empty() || rest.starts_with('.') => {
                     format!("{}{rest}", set.key(index))
@@ -248,7 +259,7 @@ pub fn rekey(err: Error, set: &CameraSet, index: usize) -> Error {
 impl Serialize for CameraSet {
     fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
         use serde::ser::Error as _;
-        if !self.listed {
+        if self.tables == CameraTables::One {
             return self.cameras[0].config.serialize(s);
         }
         let mut tables = Vec::with_capacity(self.cameras.len());
@@ -340,7 +351,7 @@ impl<'de> Visitor<'de> for CameraSetVisitor {
         }
         Ok(CameraSet {
             cameras,
-            listed: true,
+            tables: CameraTables::List,
         })
     }
 }
@@ -364,7 +375,7 @@ mod tests {
         let h: Holder = toml::from_str(&text).unwrap();
         let names: Vec<&str> = h.camera.cameras().iter().map(|c| c.name.as_str()).collect();
         assert_eq!(names, ["left", "right"]);
-        assert!(h.camera.is_listed() && h.camera.cameras().len() > 1);
+        assert!(h.camera.tables() == CameraTables::List && h.camera.cameras().len() > 1);
         assert_eq!(h.camera.first().camera().unwrap().fx, 60.0);
         let again: Holder = toml::from_str(&toml::to_string(&h).unwrap()).unwrap();
         assert_eq!(again.camera.cameras()[1].name, "right");

@@ -44,6 +44,8 @@ pub mod bounds {
     pub const BOUNDARY_CORRELATION_PX: f64 = 32.0;
     /// Blur of a synthetic segmenter's coverage, pixels (its kernel spans six of them).
     pub const MASK_BLUR_PX: f64 = 8.0;
+    /// Systematic outline offset of a synthetic segmenter, pixels either way.
+    pub const MASK_OUTLINE_OFFSET_PX: f64 = 8.0;
     /// Safety clearance, metres.
     pub const MARGIN_M: f64 = 0.5;
     /// Obstacle and workspace sizes, metres.
@@ -270,6 +272,13 @@ fn check_noise(c: &Check, field: &str, n: &NoiseModel) -> Result<()> {
         n.blur_px,
         0.0,
         bounds::MASK_BLUR_PX,
+        false,
+    )?;
+    c.within(
+        &format!("{field}.outline_offset_px"),
+        n.outline_offset_px,
+        -bounds::MASK_OUTLINE_OFFSET_PX,
+        bounds::MASK_OUTLINE_OFFSET_PX,
         false,
     )?;
     c.within(

@@ -41,7 +41,7 @@ pub use camera::{
     AravisSettings, CameraCalibration, CameraConfig, JointsFrom, LookAt, Ros2CameraSettings,
     SimCameraSettings, V4l2Settings,
 };
-pub use cameras::{CameraSet, NamedCamera};
+pub use cameras::{CameraSet, CameraTables, NamedCamera};
 pub use daemon::DaemonSettings;
 pub use mount::Mount;
 pub use robot::RobotConfig;

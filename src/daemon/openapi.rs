@@ -11,6 +11,7 @@ use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi, ToSchema};
 
 use super::store::{CalibrationRecord, CheckRecord, State};
+use crate::interop::ExportFormat;
 use crate::run::ResultFile;
 
 /// The document's root; paths and schemas are added by the router.
@@ -53,11 +54,40 @@ impl Modify for BearerToken {
 pub fn document() -> &'static str {
     static JSON: OnceLock<String> = OnceLock::new();
     JSON.get_or_init(|| {
-        super::api::routes()
-            .into_openapi()
+        let mut openapi = super::api::routes().into_openapi();
+        list_export_content_types(&mut openapi);
+        openapi
             .to_json()
             .unwrap_or_else(|e| format!("{{\"error\": \"openapi: {e}\"}}"))
     })
+}
+
+/// The download route's path in the document.
+pub const EXPORT_PATH: &str = "/api/v1/calibrations/{id}/export/{format}";
+
+/// Gives the download route's 200 answer one content type per export format, read from
+/// [`ExportFormat`]: the route's annotation cannot call code, and a list written there by
+/// hand would drift from the formats.
+fn list_export_content_types(openapi: &mut utoipa::openapi::OpenApi) {
+    use utoipa::openapi::{schema::Type, ContentBuilder, ObjectBuilder, RefOr};
+    let Some(get) = openapi
+        .paths
+        .paths
+        .get_mut(EXPORT_PATH)
+        .and_then(|p| p.get.as_mut())
+    else {
+        return;
+    };
+    let Some(RefOr::T(ok)) = get.responses.responses.get_mut("200") else {
+        return;
+    };
+    for format in ExportFormat::ALL {
+        let text = ObjectBuilder::new().schema_type(Type::String).build();
+        ok.content.insert(
+            format.content_type().to_string(),
+            RefOr::T(ContentBuilder::new().schema(Some(text)).build()),
+        );
+    }
 }
 
 /// Every error body.

@@ -18,11 +18,13 @@ use crate::robot::{RobotModel, RobotSource};
 
 mod checks;
 pub mod rig;
+mod uncertainty;
 
 pub use checks::{
     available_memory_bytes, MAX_RUN_JOINTS, MAX_RUN_VIEWS, SOLVE_BYTES_PER_VIEW_PIXEL,
 };
 pub(crate) use checks::{check_mask_coverage, check_run_file, check_solve_memory, inside_run};
+pub use uncertainty::{MaskOffsetEntry, UncertaintyEntry, UncertaintyTerms};
 
 /// Run-directory format tag.
 pub const RUN_FORMAT: &str = "easyhec-run/1";
@@ -641,117 +643,6 @@ pub struct PerView {
     pub view: usize,
     /// Mask IoU at the estimate.
     pub iou: f64,
-}
-
-/// `uncertainty`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
-pub struct UncertaintyEntry {
-    /// Rotation about camera x, y, z, degrees (1 sigma).
-    pub rotation_deg: [f64; 3],
-    /// Translation along camera x, y, z, millimetres (1 sigma).
-    pub translation_mm: [f64; 3],
-    /// Radius of the ball around the estimated camera centre that holds the true one with
-    /// 95% probability, millimetres.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub camera_centre_95_mm: Option<f64>,
-    /// Covariance of the left increment `(rho, phi)` of `camera_from_base` (`rho` metres,
-    /// `phi` radians, both in the camera frame), row-major 6x6: what the figures above
-    /// summarise, for tools that propagate it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub covariance: Option<Box<[[f64; 6]; 6]>>,
-    /// What the figures are made of (absent in results written before the terms were split).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub terms: Option<Box<UncertaintyTerms>>,
-}
-
-/// `uncertainty.terms`: the parts of the reported covariance, each as the 95% camera-centre
-/// bound it would give on its own.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
-pub struct UncertaintyTerms {
-    /// The term that sets the figures: `statistical` (the outline residuals' own scatter),
-    /// `inter-view` (the views' disagreement, from a view jackknife) or `model floor`.
-    pub dominant: String,
-    /// The statistical term's bound, millimetres.
-    pub statistical_centre_95_mm: f64,
-    /// The inter-view term's bound, millimetres; absent when it was not measured (fewer
-    /// than three views).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub inter_view_centre_95_mm: Option<f64>,
-}
-
-impl UncertaintyEntry {
-    /// The entry for `u`, or `None` for a degenerate fit (no meaningful curvature): the
-    /// field is then left out rather than written as nulls.
-    pub fn of(u: &crate::solve::Uncertainty) -> Option<UncertaintyEntry> {
-        let covariance: [[f64; 6]; 6] =
-            std::array::from_fn(|r| std::array::from_fn(|c| u.covariance[(r, c)]));
-        u.rotation_deg
-            .iter()
-            .chain(&u.translation_mm)
-            .chain(std::iter::once(&u.camera_centre_95_mm))
-            .chain(covariance.iter().flatten())
-            .all(|v| v.is_finite())
-            .then_some(UncertaintyEntry {
-                rotation_deg: u.rotation_deg,
-                translation_mm: u.translation_mm,
-                camera_centre_95_mm: Some(u.camera_centre_95_mm),
-                covariance: Some(Box::new(covariance)),
-                terms: None,
-            })
-    }
-
-    /// [`UncertaintyEntry::of`] the report's uncertainty, with the terms it is made of.
-    pub fn of_report(
-        report: &crate::solve::SolveReport,
-        opts: &crate::solve::SolveOptions,
-    ) -> Option<UncertaintyEntry> {
-        let (statistical, inter_view) = report.term_bounds_mm();
-        let mut entry = UncertaintyEntry::of(&report.uncertainty)?;
-        let finite = statistical.is_finite() && inter_view.is_none_or(f64::is_finite);
-        entry.terms = finite.then(|| {
-            Box::new(UncertaintyTerms {
-                dominant: report.dominant_term(opts).name().into(),
-                statistical_centre_95_mm: statistical,
-                inter_view_centre_95_mm: inter_view,
-            })
-        });
-        Some(entry)
-    }
-
-    /// The first value that no solve could have written, as `(field path, problem)`: every
-    /// figure finite and not negative, the covariance symmetric with a non-negative diagonal.
-    pub fn problem(&self) -> Option<(String, String)> {
-        let figures = self
-            .rotation_deg
-            .iter()
-            .map(|v| ("rotation_deg", *v))
-            .chain(self.translation_mm.iter().map(|v| ("translation_mm", *v)))
-            .chain(self.camera_centre_95_mm.map(|v| ("camera_centre_95_mm", v)));
-        for (field, v) in figures {
-            if !(v.is_finite() && v >= 0.0) {
-                return Some((
-                    format!("uncertainty.{field}"),
-                    format!("is {v}; allowed: a finite number >= 0"),
-                ));
-            }
-        }
-        let c = self.covariance.as_ref()?;
-        for r in 0..6 {
-            for k in 0..6 {
-                let v = c[r][k];
-                let bad = !v.is_finite()
-                    || (r == k && v < 0.0)
-                    || (v - c[k][r]).abs() > 1e-9 * (c[r][r].abs() + c[k][k].abs()).max(1e-30);
-                if bad {
-                    return Some((
-                        format!("uncertainty.covariance[{r}][{k}]"),
-                        format!("is {v}; allowed: finite, symmetric, diagonal >= 0"),
-                    ));
-                }
-            }
-        }
-        None
-    }
 }
 
 impl ResultFile {

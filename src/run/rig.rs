@@ -450,10 +450,9 @@ impl RunLayout {
     /// The layout a cell's cameras record: a `[camera]` table one camera, `[[camera]]`
     /// tables named cameras (even one).
     pub fn of_cameras(cameras: &crate::config::CameraSet) -> RunLayout {
-        if cameras.is_listed() {
-            RunLayout::NamedCameras
-        } else {
-            RunLayout::OneCamera
+        match cameras.tables() {
+            crate::config::CameraTables::List => RunLayout::NamedCameras,
+            crate::config::CameraTables::One => RunLayout::OneCamera,
         }
     }
 

@@ -15,6 +15,8 @@ use crate::render::{BoundarySample, PosedRobot, Silhouette, SilhouetteRenderer, 
 /// One pyramid level: the downsampled camera and observations, and the Cauchy scale there.
 pub(super) struct Level {
     pub(super) camera: Intrinsics,
+    /// Downsampling factor from the full-resolution image.
+    pub(super) factor: u32,
     /// Cauchy scale at this level, pixels.
     pub(super) robust_scale_px: f64,
     /// Shared, so a level over a subset of the views costs no copy (the view jackknife).
@@ -77,6 +79,7 @@ impl Level {
     ) -> Level {
         Level {
             camera: camera.downsampled(factor),
+            factor,
             robust_scale_px,
             views: views
                 .par_iter()
@@ -89,6 +92,7 @@ impl Level {
     pub(super) fn keeping(&self, kept: &[usize]) -> Level {
         Level {
             camera: self.camera.clone(),
+            factor: self.factor,
             robust_scale_px: self.robust_scale_px,
             views: kept.iter().map(|&i| self.views[i].clone()).collect(),
         }
@@ -134,6 +138,10 @@ pub(super) struct Normal {
     cost: f64,
     pub(super) h: Matrix6<f64>,
     pub(super) g: Twist,
+    /// Cross term of the pose and the mask offset, the offset's curvature and gradient.
+    pub(super) h_pose_offset: Twist,
+    pub(super) h_offset: f64,
+    pub(super) g_offset: f64,
     pub(super) weighted_sq: f64,
     pub(super) length: f64,
 }
@@ -144,6 +152,9 @@ impl Normal {
             cost: 0.0,
             h: Matrix6::zeros(),
             g: Twist::zeros(),
+            h_pose_offset: Twist::zeros(),
+            h_offset: 0.0,
+            g_offset: 0.0,
             weighted_sq: 0.0,
             length: 0.0,
         }
@@ -151,12 +162,15 @@ impl Normal {
 
     /// Adds one Cauchy-weighted residual `r` with Jacobian `j` standing for `ds` px of outline.
     #[inline]
-    fn add(&mut self, r: f64, j: &Twist, ds: f64, c: f64) {
+    fn add(&mut self, r: f64, j: &Twist, j_offset: f64, ds: f64, c: f64) {
         let u = (r / c) * (r / c);
         let (w, cost) = (1.0 / (1.0 + u), 0.5 * c * c * (1.0 + u).ln());
         self.cost += ds * cost;
         self.h += j * j.transpose() * (w * ds);
         self.g += j * (w * r * ds);
+        self.h_pose_offset += j * (w * j_offset * ds);
+        self.h_offset += w * j_offset * j_offset * ds;
+        self.g_offset += w * r * j_offset * ds;
         self.weighted_sq += w * r * r * ds;
         self.length += ds;
     }
@@ -168,10 +182,22 @@ impl Normal {
         self.cost += ds * 0.5 * c * c * (1.0 + u).ln();
     }
 
+    /// The pose's normal matrix, with the mask offset eliminated (its Schur complement) when
+    /// `with_offset`: the curvature left to the pose once the offset is fitted too.
+    pub(super) fn pose_normal(&self, with_offset: bool) -> Matrix6<f64> {
+        if !with_offset || self.h_offset <= 0.0 {
+            return self.h;
+        }
+        self.h - self.h_pose_offset * self.h_pose_offset.transpose() / self.h_offset
+    }
+
     fn merge(mut self, o: Normal) -> Normal {
         self.cost += o.cost;
         self.h += o.h;
         self.g += o.g;
+        self.h_pose_offset += o.h_pose_offset;
+        self.h_offset += o.h_offset;
+        self.g_offset += o.g_offset;
         self.weighted_sq += o.weighted_sq;
         self.length += o.length;
         self
@@ -255,9 +281,10 @@ pub(super) fn accumulate(
     robots: &[&PosedRobot],
     level: &Level,
     pose: &Isometry3<f64>,
+    offset_px: f64,
     opts: &SolveOptions,
 ) -> Normal {
-    accumulate_keeping(renderer, robots, level, pose, opts).0
+    accumulate_keeping(renderer, robots, level, pose, offset_px, opts).0
 }
 
 /// [`accumulate`], also handing back the silhouettes it rendered (their masks score the
@@ -267,6 +294,7 @@ pub(super) fn accumulate_keeping(
     robots: &[&PosedRobot],
     level: &Level,
     pose: &Isometry3<f64>,
+    offset_px: f64,
     opts: &SolveOptions,
 ) -> (Normal, Vec<Silhouette>) {
     // One call for all views: a GPU backend draws them in one submission.
@@ -275,17 +303,22 @@ pub(super) fn accumulate_keeping(
     let normal = silhouettes
         .par_iter()
         .zip(&level.views)
-        .map(|(sil, obs)| view_normal(sil, obs, level))
+        .map(|(sil, obs)| view_normal(sil, obs, level, offset_px))
         .reduce(Normal::zero, Normal::merge);
     (normal, silhouettes)
 }
 
-/// One view's Cauchy-weighted normal equations.
-fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level) -> Normal {
+/// One view's Cauchy-weighted normal equations, with the observed outline lying
+/// `offset_px` (full-resolution pixels) outward of the rendered one.
+fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level, offset_px: f64) -> Normal {
     let c = level.robust_scale_px;
+    let per_level_px = 1.0 / f64::from(level.factor);
     let mut n = Normal::zero();
     view_residuals(sil, obs, &level.camera, |res| match res.r {
-        Some(r) => n.add(r, &res.j, res.ds, c),
+        Some(r) => {
+            let j_offset = res.offset_sign * per_level_px;
+            n.add(r + j_offset * offset_px, &res.j, j_offset, res.ds, c)
+        }
         None => n.add_outlier(res.cap, res.ds, c),
     });
     n
@@ -299,6 +332,10 @@ pub(super) struct Residual {
     pub(super) cap: f64,
     /// Derivative of `r` with respect to the left increment of `camera_from_base`.
     pub(super) j: Twist,
+    /// Derivative of `r` with respect to an outward offset of the observed outline, in
+    /// pixels of the level: +1 for a rendered crossing (it lies that much further inside the
+    /// observed outline), -1 for an observed one.
+    pub(super) offset_sign: f64,
     /// Outline length it stands for, pixels.
     pub(super) ds: f64,
     /// Image position, pixels.
@@ -327,6 +364,7 @@ pub(super) fn view_residuals(
             r: scanline_residual(&obs.mask, s, SCAN_REACH_PX),
             cap: SCAN_REACH_PX as f64,
             j: jn,
+            offset_sign: 1.0,
             ds: s.length_px,
             pixel: s.pixel,
             sample: i,
@@ -346,6 +384,7 @@ pub(super) fn view_residuals(
             r,
             cap: GRID_CELL_PX * GRID_REACH as f64,
             j: jacobians.get(i).map_or(Twist::zeros(), |j| -j),
+            offset_sign: -1.0,
             ds,
             pixel: y,
             sample: i,

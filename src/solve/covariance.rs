@@ -18,7 +18,7 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix6, SMatrix, SVector};
 use rayon::prelude::*;
 
 use super::boundary::{view_residuals, Level};
@@ -26,51 +26,89 @@ use super::SolveOptions;
 use crate::geometry::Twist;
 use crate::render::{PosedRobot, Silhouette};
 
-/// One view's part of the sandwich.
+/// A pose increment and the mask offset: the parameters the sandwich is built over.
+type Vec7 = SVector<f64, 7>;
+type Mat7 = SMatrix<f64, 7, 7>;
+
+/// One view's part of the sandwich, over the pose increment and the mask offset.
 struct ViewPart {
     /// Robust normal matrix, from the slope of the Cauchy influence.
-    h: Matrix6<f64>,
+    h: Mat7,
     /// The same from the IRLS weight: the stand-in when the slope's is not positive definite.
-    h_weight: Matrix6<f64>,
+    h_weight: Mat7,
     /// Scatter of the tile-summed residual pulls.
-    tiles_meat: Matrix6<f64>,
+    tiles_meat: Mat7,
     /// Tiles the outline crossed.
     tiles: usize,
     /// Scatter of the pull the view's joint errors put on the normal equations.
-    joints_meat: Matrix6<f64>,
+    joints_meat: Mat7,
 }
 
-/// The covariance of the left increment of `camera_from_base` at `pose`, from the fine level's
-/// residuals of `silhouettes` (rendered at `pose`); `None` when the outlines leave a direction
-/// unpinned.
+/// The statistical covariance of a fit.
+pub(super) struct Statistical {
+    /// Of the left increment of `camera_from_base`, with the mask offset estimated too when
+    /// it was.
+    pub(super) pose: Matrix6<f64>,
+    /// Of the same with the offset taken as known: what the pose's covariance would be
+    /// without the offset to estimate (equal to `pose` when it was not estimated).
+    pub(super) pose_offset_known: Matrix6<f64>,
+    /// Variance of the mask offset, px^2 (when estimated).
+    pub(super) offset_px2: Option<f64>,
+}
+
+/// The covariance of the left increment of `camera_from_base` at `pose` (and of the mask
+/// offset `offset_px` when `opts` estimates it), from the fine level's residuals of
+/// `silhouettes` (rendered at `pose`); `None` when the outlines leave a direction unpinned.
 pub(super) fn pose_covariance(
     level: &Level,
     silhouettes: &[Silhouette],
     robots: &[&PosedRobot],
     pose: &Isometry3<f64>,
+    offset_px: f64,
     opts: &SolveOptions,
-) -> Option<Matrix6<f64>> {
+) -> Option<Statistical> {
     let parts: Vec<ViewPart> = silhouettes
         .par_iter()
         .zip(&level.views)
         .zip(robots)
-        .map(|((sil, obs), robot)| view_part(level, sil, obs, robot, pose, opts))
+        .map(|((sil, obs), robot)| view_part(level, sil, obs, robot, pose, offset_px, opts))
         .collect();
-    let h: Matrix6<f64> = parts.iter().map(|p| p.h).sum();
+    let h: Mat7 = parts.iter().map(|p| p.h).sum();
+    let h_weight: Mat7 = parts.iter().map(|p| p.h_weight).sum();
     let tiles: usize = parts.iter().map(|p| p.tiles).sum();
-    // Residuals at the estimate have the six fitted directions taken out of them: scale
-    // their scatter back up by tiles / (tiles - 6).
-    let dof = tiles.saturating_sub(6).max(1) as f64;
-    let meat: Matrix6<f64> = parts
+    let fitted = if opts.estimate_mask_offset { 7 } else { 6 };
+    // Residuals at the estimate have the fitted directions taken out of them: scale their
+    // scatter back up by tiles / (tiles - fitted).
+    let dof = tiles.saturating_sub(fitted).max(1) as f64;
+    let meat: Mat7 = parts
         .iter()
         .map(|p| p.tiles_meat * (tiles as f64 / dof) + p.joints_meat)
         .sum();
+    let pose_block = |m: &Mat7| -> Matrix6<f64> { m.fixed_view::<6, 6>(0, 0).into_owned() };
     // Past the Cauchy scale the influence's slope is negative, so a fit with many residuals
     // there (a poor one, flagged as such) can leave `h` indefinite; the IRLS weight's matrix
     // then stands in: tighter, but a finite answer where the slope has none.
-    let h_weight: Matrix6<f64> = parts.iter().map(|p| p.h_weight).sum();
-    let h_inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
-    Some(h_inv * meat * h_inv)
+    let known = {
+        let inv = pose_block(&h)
+            .cholesky()
+            .or_else(|| pose_block(&h_weight).cholesky())?
+            .inverse();
+        inv * pose_block(&meat) * inv
+    };
+    if !opts.estimate_mask_offset {
+        return Some(Statistical {
+            pose: known,
+            pose_offset_known: known,
+            offset_px2: None,
+        });
+    }
+    let inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
+    let both = inv * meat * inv;
+    Some(Statistical {
+        pose: pose_block(&both),
+        pose_offset_known: known,
+        offset_px2: Some(both[(6, 6)]),
+    })
 }
 
 /// The model-error floor's covariance of the left increment `(rho, phi)`: `translation_mm`
@@ -92,9 +130,9 @@ pub fn model_floor(rotation_deg: f64, translation_mm: f64) -> Matrix6<f64> {
 #[derive(Clone)]
 struct Tile {
     /// Summed residual pull.
-    pull: Twist,
+    pull: Vec7,
     /// Per joint: the pull a unit error of that joint would add here.
-    joint_pulls: Vec<Twist>,
+    joint_pulls: Vec<Vec7>,
 }
 
 /// One view's robust normal matrix and its meat: tile-summed residual pulls, plus the pull of
@@ -105,34 +143,43 @@ fn view_part(
     obs: &super::boundary::ObservedLevel,
     robot: &PosedRobot,
     pose: &Isometry3<f64>,
+    offset_px: f64,
     opts: &SolveOptions,
 ) -> ViewPart {
     let c = level.robust_scale_px;
     let tile = opts.covariance_tile_px.max(1.0);
+    let per_level_px = 1.0 / f64::from(level.factor);
     let motions = robot.joint_motions.as_slice();
     let twists: Vec<Twist> = motions.iter().map(|m| m.twist_in_camera(pose)).collect();
     let empty = Tile {
-        pull: Twist::zeros(),
-        joint_pulls: vec![Twist::zeros(); motions.len()],
+        pull: Vec7::zeros(),
+        joint_pulls: vec![Vec7::zeros(); motions.len()],
     };
-    let mut h = Matrix6::zeros();
-    let mut h_weight = Matrix6::zeros();
+    let mut h = Mat7::zeros();
+    let mut h_weight = Mat7::zeros();
     let mut tiles: BTreeMap<(i64, i64), Tile> = BTreeMap::new();
     view_residuals(sil, obs, &level.camera, |res| {
         let Some(r) = res.r else { return };
+        let j_offset = res.offset_sign * per_level_px;
+        let r = r + j_offset * offset_px;
+        let mut j = Vec7::zeros();
+        j.fixed_rows_mut::<6>(0).copy_from(&res.j);
+        if opts.estimate_mask_offset {
+            j[6] = j_offset;
+        }
         let u = (r / c) * (r / c);
         let w = 1.0 / (1.0 + u);
         // The bread is the derivative of the Cauchy influence `r w(r)`, not the IRLS weight:
         // near the scale the weight overstates how firmly a residual holds the pose.
-        let held = res.j * ((1.0 - u) * w * w * res.ds);
-        h += held * res.j.transpose();
-        h_weight += res.j * res.j.transpose() * (w * res.ds);
+        let held = j * ((1.0 - u) * w * w * res.ds);
+        h += held * j.transpose();
+        h_weight += j * j.transpose() * (w * res.ds);
         let key = (
             (res.pixel[0] / tile).floor() as i64,
             (res.pixel[1] / tile).floor() as i64,
         );
         let t = tiles.entry(key).or_insert_with(|| empty.clone());
-        t.pull += res.j * (w * r * res.ds);
+        t.pull += j * (w * r * res.ds);
         let link = sil
             .boundary
             .get(res.sample)
@@ -145,7 +192,7 @@ fn view_part(
             }
         }
     });
-    let tiles_meat: Matrix6<f64> = tiles.values().map(|t| t.pull * t.pull.transpose()).sum();
+    let tiles_meat: Mat7 = tiles.values().map(|t| t.pull * t.pull.transpose()).sum();
     ViewPart {
         h,
         h_weight,
@@ -159,15 +206,15 @@ fn view_part(
 /// sum_t b_tk b_tk^T)`, `b_tk` joint k's pull in tile t, `b_k` its sum. The within-tile part
 /// is left out because the tile scatter of the residuals already holds it. Clamped to
 /// positive semi-definite.
-fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Matrix6<f64> {
+fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Mat7 {
     let q2 = noise_rad * noise_rad;
     if q2 <= 0.0 || joints == 0 {
-        return Matrix6::zeros();
+        return Mat7::zeros();
     }
-    let mut meat = Matrix6::zeros();
+    let mut meat = Mat7::zeros();
     for k in 0..joints {
-        let b: Twist = tiles.values().map(|t| t.joint_pulls[k]).sum();
-        let within: Matrix6<f64> = tiles
+        let b: Vec7 = tiles.values().map(|t| t.joint_pulls[k]).sum();
+        let within: Mat7 = tiles
             .values()
             .map(|t| t.joint_pulls[k] * t.joint_pulls[k].transpose())
             .sum();
@@ -175,6 +222,6 @@ fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64
     }
     let eig = meat.symmetric_eigen();
     eig.eigenvectors
-        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * Mat7::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
         * eig.eigenvectors.transpose()
 }

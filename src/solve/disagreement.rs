@@ -44,12 +44,14 @@ const ITERATIONS: [usize; 2] = [1, 6];
 
 /// The view-level jackknife covariance of the left increment of `camera_from_base` at `pose`
 /// and its degrees of freedom; `None` with fewer than [`JACKKNIFE_MIN_VIEWS`] views or when a
-/// left-out solve fails.
+/// left-out solve fails. Each left-out solve starts from the all-view mask offset `offset_px`
+/// and, when the options estimate it, fits it again.
 pub(super) fn view_jackknife(
     renderer: &dyn SilhouetteRenderer,
     camera: &Intrinsics,
     views: &[View],
     pose: &Isometry3<f64>,
+    offset_px: f64,
     opts: &SolveOptions,
 ) -> Option<(Matrix6<f64>, usize)> {
     let n = views.len();
@@ -68,6 +70,7 @@ pub(super) fn view_jackknife(
         let kept_robots: Vec<&PosedRobot> = kept.iter().map(|&i| robots[i]).collect();
         let mut walk = Walk {
             pose: *pose,
+            offset_px,
             iterations: 0,
             trajectory: Vec::new(),
         };

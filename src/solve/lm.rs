@@ -3,11 +3,13 @@
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
-use super::boundary::{accumulate, total_cost, Level};
+use nalgebra::{SMatrix, SVector};
+
+use super::boundary::{accumulate, total_cost, Level, Normal};
 use super::{SolveOptions, View};
 use crate::camera::Intrinsics;
 use crate::error::{Error, Result};
-use crate::geometry::exp_se3;
+use crate::geometry::{exp_se3, Twist};
 use crate::render::{PosedRobot, SilhouetteRenderer};
 
 /// Runs LM on the boundary residuals at each pyramid level in turn: the pose, the renders
@@ -18,9 +20,10 @@ pub(super) fn solve_lm(
     views: &[View],
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
-) -> Result<(Isometry3<f64>, usize, Vec<Isometry3<f64>>)> {
+) -> Result<Walk> {
     let mut walk = Walk {
         pose: *initial,
+        offset_px: 0.0,
         iterations: 0,
         trajectory: vec![*initial],
     };
@@ -45,7 +48,7 @@ pub(super) fn solve_lm(
         let cap = iteration_cap(factor, views.len(), opts);
         walk.level(renderer, &level, &level_views, factor, cap, opts)?;
     }
-    Ok((walk.pose, walk.iterations, walk.trajectory))
+    Ok(walk)
 }
 
 /// The Cauchy scale at pyramid `factor`: wide at coarse levels, tight at full resolution.
@@ -74,6 +77,9 @@ pub(super) fn iteration_cap(factor: u32, views: usize, opts: &SolveOptions) -> u
 /// An LM descent through the pyramid: where it stands, the renders it took, its iterates.
 pub(super) struct Walk {
     pub(super) pose: Isometry3<f64>,
+    /// How far the observed outline lies outward of the rendered one, full-resolution pixels
+    /// (0 unless [`SolveOptions::estimate_mask_offset`]).
+    pub(super) offset_px: f64,
     pub(super) iterations: usize,
     pub(super) trajectory: Vec<Isometry3<f64>>,
 }
@@ -90,7 +96,7 @@ impl Walk {
         opts: &SolveOptions,
     ) -> Result<()> {
         let started = std::time::Instant::now();
-        let mut current = accumulate(renderer, robots, level, &self.pose, opts);
+        let mut current = accumulate(renderer, robots, level, &self.pose, self.offset_px, opts);
         self.iterations += 1;
         if current.length == 0.0 {
             return Err(Error::Solve(
@@ -102,20 +108,20 @@ impl Walk {
         // Steps below ~1/100 pixel of the level are noise.
         let tolerance = 1e-5 * f64::from(factor);
         for _ in 0..cap {
-            let mut a = current.h;
-            for k in 0..6 {
-                a[(k, k)] += lambda * current.h[(k, k)].max(1e-12);
-            }
-            let Some(step) = a.cholesky().map(|c| -c.solve(&current.g)) else {
+            let Some((step, offset_step)) =
+                damped_step(&current, lambda, opts.estimate_mask_offset)
+            else {
                 lambda *= 10.0;
                 continue;
             };
             let candidate = exp_se3(&step) * self.pose;
-            let next = accumulate(renderer, robots, level, &candidate, opts);
+            let candidate_offset = self.offset_px + offset_step;
+            let next = accumulate(renderer, robots, level, &candidate, candidate_offset, opts);
             self.iterations += 1;
             level_iterations += 1;
             if next.length > 0.0 && total_cost(&next) <= total_cost(&current) {
                 self.pose = candidate;
+                self.offset_px = candidate_offset;
                 current = next;
                 self.trajectory.push(self.pose);
                 lambda = (lambda / 3.0).max(1e-7);
@@ -139,4 +145,29 @@ impl Walk {
         );
         Ok(())
     }
+}
+
+/// The damped Gauss–Newton step of the pose (and of the mask offset, when estimated).
+fn damped_step(n: &Normal, lambda: f64, with_offset: bool) -> Option<(Twist, f64)> {
+    if !with_offset {
+        let mut a = n.h;
+        for k in 0..6 {
+            a[(k, k)] += lambda * n.h[(k, k)].max(1e-12);
+        }
+        return a.cholesky().map(|c| (-c.solve(&n.g), 0.0));
+    }
+    let mut a = SMatrix::<f64, 7, 7>::zeros();
+    a.fixed_view_mut::<6, 6>(0, 0).copy_from(&n.h);
+    a.fixed_view_mut::<6, 1>(0, 6).copy_from(&n.h_pose_offset);
+    a.fixed_view_mut::<1, 6>(6, 0)
+        .copy_from(&n.h_pose_offset.transpose());
+    a[(6, 6)] = n.h_offset;
+    for k in 0..7 {
+        a[(k, k)] += lambda * a[(k, k)].max(1e-12);
+    }
+    let mut g = SVector::<f64, 7>::zeros();
+    g.fixed_rows_mut::<6>(0).copy_from(&n.g);
+    g[6] = n.g_offset;
+    let step = -a.cholesky()?.solve(&g);
+    Some((step.fixed_rows::<6>(0).into_owned(), step[6]))
 }

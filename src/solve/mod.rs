@@ -126,6 +126,10 @@ pub struct SolveOptions {
     /// Vertex-clustering cell at coarse pyramid levels, as a fraction of the level's pixel
     /// footprint at 1 m.
     pub coarse_cell_fraction: f64,
+    /// Estimate the masks' signed outline offset (a segmenter's fat or thin bias) jointly
+    /// with the pose (LM): the pose then no longer moves along the optical axis to make up
+    /// for it, and the covariance carries what not knowing it costs.
+    pub estimate_mask_offset: bool,
 }
 
 impl Default for SolveOptions {
@@ -150,6 +154,7 @@ impl Default for SolveOptions {
             refine_keep: 8,
             refine_inflation: 4.0,
             coarse_cell_fraction: 0.3,
+            estimate_mask_offset: false,
         }
     }
 }
@@ -159,12 +164,19 @@ impl Default for SolveOptions {
 pub struct SolveReport {
     /// The estimate.
     pub camera_from_base: Isometry3<f64>,
+    /// How far the observed masks' outline lies outward of the rendered robot's (when
+    /// [`SolveOptions::estimate_mask_offset`]).
+    pub mask_offset: Option<MaskOffset>,
     /// 6x6 covariance of the left increment `(rho, phi)` at the estimate: the reported one,
     /// built to cover the true error: the statistical covariance, widened by what the views'
     /// disagreement shows beyond it, plus the model floor.
     pub covariance: Matrix6<f64>,
-    /// The outline residuals' covariance alone (module `covariance`), without the floor.
+    /// The outline residuals' covariance alone (module `covariance`), without the floor,
+    /// with the mask offset estimated alongside when it was.
     pub statistical_covariance: Matrix6<f64>,
+    /// What estimating the mask offset added to `statistical_covariance` (zero when it was
+    /// not estimated): the mask-bias term.
+    pub mask_bias_covariance: Matrix6<f64>,
     /// What the views' disagreement showed (module `disagreement`).
     pub disagreement: Disagreement,
     /// The covariance the posterior refinement and exploration draw pose hypotheses from:
@@ -184,6 +196,16 @@ pub struct SolveReport {
     pub iterations: usize,
     /// Accepted iterates, first to last (exploration's "trajectory" candidates).
     pub trajectory: Vec<Isometry3<f64>>,
+}
+
+/// A segmenter's systematic bias: the signed offset of the observed masks' outline from the
+/// rendered robot's, estimated jointly with the pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MaskOffset {
+    /// Pixels outward (negative: the masks are thin).
+    pub px: f64,
+    /// Its 1-sigma, pixels.
+    pub sigma_px: f64,
 }
 
 /// The inter-view term of a report's covariance.
@@ -209,6 +231,8 @@ pub enum DominantTerm {
     InterView,
     /// The configured model-error floor.
     ModelFloor,
+    /// Not knowing the segmenter's outline offset.
+    MaskBias,
 }
 
 impl DominantTerm {
@@ -218,6 +242,7 @@ impl DominantTerm {
             DominantTerm::Statistical => "statistical",
             DominantTerm::InterView => "inter-view",
             DominantTerm::ModelFloor => "model floor",
+            DominantTerm::MaskBias => "mask bias",
         }
     }
 }
@@ -237,9 +262,14 @@ pub fn with_view_disagreement(
     }
     let pose = report.camera_from_base;
     let camera = camera.undistorted();
-    let Some((jackknife, dof)) =
-        disagreement::view_jackknife(renderer, &camera, views, &pose, opts)
-    else {
+    let Some((jackknife, dof)) = disagreement::view_jackknife(
+        renderer,
+        &camera,
+        views,
+        &pose,
+        report.mask_offset_px(),
+        opts,
+    ) else {
         report.disagreement = Disagreement::Unavailable;
         return report;
     };
@@ -263,11 +293,21 @@ pub fn solve(
         return Err(Error::Solve("no views to solve from".into()));
     }
     let camera = camera.undistorted();
-    let (pose, iterations, trajectory) = match opts.optimizer {
+    let first = match opts.optimizer {
         Optimizer::Lm => solve_lm(renderer, &camera, views, initial, opts)?,
-        Optimizer::Adam => solve_adam(renderer, &camera, views, initial, opts),
+        Optimizer::Adam => {
+            let (pose, iterations, trajectory) =
+                solve_adam(renderer, &camera, views, initial, opts);
+            lm::Walk {
+                pose,
+                offset_px: 0.0,
+                iterations,
+                trajectory,
+            }
+        }
     };
-    let report = finish(renderer, &camera, views, pose, iterations, trajectory, opts)?;
+    let iterations = first.iterations;
+    let report = finish(renderer, &camera, views, first, opts)?;
     if opts.optimizer == Optimizer::Adam {
         return Ok(report);
     }
@@ -277,16 +317,9 @@ pub fn solve(
     // The fast path landed in a poor local minimum (or the guess was rough): search a wide
     // neighbourhood of the guess at low resolution, then refine from the best candidate.
     let start = coarse_search(renderer, &camera, views, initial, opts);
-    let (pose, more, trajectory) = solve_lm(renderer, &camera, views, &start, opts)?;
-    let retry = finish(
-        renderer,
-        &camera,
-        views,
-        pose,
-        iterations + more,
-        trajectory,
-        opts,
-    )?;
+    let mut second = solve_lm(renderer, &camera, views, &start, opts)?;
+    second.iterations += iterations;
+    let retry = finish(renderer, &camera, views, second, opts)?;
     let best = if retry.mean_iou() > report.mean_iou() {
         retry
     } else {
@@ -301,6 +334,11 @@ pub(crate) fn mean(v: &[f64]) -> f64 {
 }
 
 impl SolveReport {
+    /// The estimated mask offset, pixels (0 when not estimated).
+    pub fn mask_offset_px(&self) -> f64 {
+        self.mask_offset.map_or(0.0, |m| m.px)
+    }
+
     /// Mean mask IoU over the views solved from.
     pub fn mean_iou(&self) -> f64 {
         mean(&self.per_view_iou)
@@ -318,6 +356,9 @@ impl SolveReport {
             ),
             (DominantTerm::ModelFloor, bound(&floor)),
         ];
+        if self.mask_offset.is_some() {
+            terms.push((DominantTerm::MaskBias, bound(&self.mask_bias_covariance)));
+        }
         if let Disagreement::Measured(c) = &self.disagreement {
             terms.push((DominantTerm::InterView, bound(c)));
         }
@@ -325,6 +366,14 @@ impl SolveReport {
             .into_iter()
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .map_or(DominantTerm::Statistical, |t| t.0)
+    }
+
+    /// The 95% camera-centre bound of the mask-bias term on its own, millimetres (when the
+    /// offset was estimated).
+    pub fn mask_bias_bound_mm(&self) -> Option<f64> {
+        self.mask_offset.map(|_| {
+            uncertainty_of(&self.mask_bias_covariance, &self.camera_from_base).camera_centre_95_mm
+        })
     }
 
     /// The 95% camera-centre bound of the statistical term and of what the inter-view term
@@ -346,25 +395,41 @@ fn finish(
     renderer: &dyn SilhouetteRenderer,
     camera: &Intrinsics,
     views: &[View],
-    pose: Isometry3<f64>,
-    iterations: usize,
-    trajectory: Vec<Isometry3<f64>>,
+    walk: lm::Walk,
     opts: &SolveOptions,
 ) -> Result<SolveReport> {
+    let lm::Walk {
+        pose,
+        offset_px,
+        iterations,
+        trajectory,
+    } = walk;
     let level = Level::new(camera, views, 1, opts.fine_robust_scale_px);
     let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.robot).collect();
-    let (n, silhouettes) = accumulate_keeping(renderer, &robots, &level, &pose, opts);
-    let dof = (n.length / opts.correlation_length_px - 6.0).max(1.0);
+    let (n, silhouettes) = accumulate_keeping(renderer, &robots, &level, &pose, offset_px, opts);
+    let fitted = if opts.estimate_mask_offset { 7.0 } else { 6.0 };
+    let dof = (n.length / opts.correlation_length_px - fitted).max(1.0);
     let sigma2 = n.weighted_sq / opts.correlation_length_px / dof;
     let unpinned = || Matrix6::from_diagonal_element(f64::INFINITY);
-    let statistical_covariance =
-        covariance::pose_covariance(&level, &silhouettes, &robots, &pose, opts)
-            .unwrap_or_else(unpinned);
+    let statistical =
+        covariance::pose_covariance(&level, &silhouettes, &robots, &pose, offset_px, opts);
+    let statistical_covariance = statistical.as_ref().map_or_else(unpinned, |s| s.pose);
+    let mask_bias_covariance = statistical.as_ref().map_or_else(Matrix6::zeros, |s| {
+        positive_part(&(s.pose - s.pose_offset_known))
+    });
+    let mask_offset = opts.estimate_mask_offset.then(|| MaskOffset {
+        px: offset_px,
+        sigma_px: statistical
+            .as_ref()
+            .and_then(|s| s.offset_px2)
+            .map_or(f64::INFINITY, |v| v.max(0.0).sqrt()),
+    });
     let covariance =
         statistical_covariance + model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
-    let sampling_covariance =
-        n.h.try_inverse()
-            .map_or_else(unpinned, |inv| inv * sigma2 * opts.correlation_length_px);
+    let sampling_covariance = n
+        .pose_normal(opts.estimate_mask_offset)
+        .try_inverse()
+        .map_or_else(unpinned, |inv| inv * sigma2 * opts.correlation_length_px);
     let uncertainty = uncertainty_of(&covariance, &pose);
     let renders: Vec<(f64, f64)> = silhouettes
         .par_iter()
@@ -374,8 +439,10 @@ fn finish(
     let loss = renders.iter().map(|r| r.1).sum::<f64>() / views.len() as f64;
     Ok(SolveReport {
         camera_from_base: pose,
+        mask_offset,
         covariance,
         statistical_covariance,
+        mask_bias_covariance,
         disagreement: Disagreement::NotMeasured,
         sampling_covariance,
         uncertainty,
@@ -385,4 +452,13 @@ fn finish(
         iterations,
         trajectory,
     })
+}
+
+/// `m` with its negative eigenvalues set to zero (a difference of two covariances built from
+/// the same residuals can dip below zero by rounding).
+fn positive_part(m: &Matrix6<f64>) -> Matrix6<f64> {
+    let eig = ((m + m.transpose()) * 0.5).symmetric_eigen();
+    eig.eigenvectors
+        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose()
 }

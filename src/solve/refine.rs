@@ -9,6 +9,7 @@ use crate::backend::Backend;
 use crate::camera::Intrinsics;
 use crate::error::Result;
 use crate::geometry::{exp_se3, Twist};
+use crate::mask::Mask;
 use crate::render::{PosedRobot, SilhouetteRenderer};
 
 /// Largest band half-width (pixels) the refinement accepts; beyond it the posterior is too wide
@@ -76,6 +77,7 @@ impl Band {
         renderer: &dyn SilhouetteRenderer,
         camera: &Intrinsics,
         view: &View,
+        observed: &Mask,
         centre: &Isometry3<f64>,
         radius: i64,
     ) -> Band {
@@ -157,7 +159,7 @@ impl Band {
             .collect();
         let outside_wrong = band
             .iter()
-            .zip(rendered.data.iter().zip(&view.observed.data))
+            .zip(rendered.data.iter().zip(&observed.data))
             .filter(|(&b, (&r, &o))| b == 0 && (r != 0) != (o != 0))
             .count();
         let robot = PosedRobot {
@@ -223,16 +225,30 @@ pub(super) fn refine(
         return Ok(report);
     }
     let radius = worst.ceil() as i64 + 1;
+    // Scored against masks with the estimated outline offset taken back out, so the mask
+    // loss does not pull the pose towards what a fat or thin segmenter drew.
+    let offset = report.mask_offset_px();
+    let observed: Vec<std::borrow::Cow<Mask>> = views
+        .par_iter()
+        .map(|v| {
+            if offset == 0.0 {
+                std::borrow::Cow::Borrowed(&v.observed)
+            } else {
+                std::borrow::Cow::Owned(v.observed.with_outline_offset(-offset))
+            }
+        })
+        .collect();
     let bands: Vec<Band> = views
         .par_iter()
-        .map(|v| Band::new(renderer, camera, v, &centre, radius))
+        .zip(&observed)
+        .map(|(v, o)| Band::new(renderer, camera, v, o, &centre, radius))
         .collect();
     // All samples in one batch: a GPU backend renders them in one submission, the CPU one
     // renders each band's window on one thread, samples in parallel; both count exactly.
     let poses: Vec<Isometry3<f64>> = offsets.iter().map(|xi| exp_se3(xi) * centre).collect();
     let robots: Vec<&PosedRobot> = bands.iter().map(|b| &b.robot).collect();
     let band: Vec<&[u8]> = bands.iter().map(|b| b.image_band.as_slice()).collect();
-    let observed: Vec<&[u8]> = views.iter().map(|v| v.observed.data.as_slice()).collect();
+    let observed: Vec<&[u8]> = observed.iter().map(|o| o.data.as_slice()).collect();
     let counts = renderer.band_mismatches(camera, &robots, &band, &observed, &poses);
     let mut scored: Vec<(f64, Twist)> = offsets
         .iter()
@@ -271,15 +287,13 @@ pub(super) fn refine(
     if tracing::enabled!(tracing::Level::DEBUG) {
         tracing::debug!("refine: {:.3} s", started.elapsed().as_secs_f64());
     }
-    let mut refined = finish(
-        renderer,
-        camera,
-        views,
+    let walk = super::lm::Walk {
         pose,
-        report.iterations + 1,
-        report.trajectory,
-        opts,
-    )?;
+        offset_px: report.mask_offset_px(),
+        iterations: report.iterations + 1,
+        trajectory: report.trajectory,
+    };
+    let mut refined = finish(renderer, camera, views, walk, opts)?;
     refined.iterations = report.iterations + 1;
     Ok(refined)
 }

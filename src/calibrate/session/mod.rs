@@ -160,6 +160,7 @@ impl<'a> Session<'a> {
             joint_noise_rad: settings.joint_noise_rad,
             floor_rotation_deg: settings.model_floor_rotation_deg,
             floor_translation_mm: settings.model_floor_translation_mm,
+            estimate_mask_offset: settings.estimate_mask_offset,
             ..SolveOptions::default()
         };
         Ok(Session {

@@ -202,7 +202,7 @@ pub(super) async fn events(
         ("format" = inline(crate::interop::ExportFormat), Path, description = "An export format (the page reads this list)"),
         ("camera" = Option<String>, Query, description = "The camera's name: required in a cell of `[[camera]]` tables, refused in a cell of one `[camera]`")),
     responses(
-        (status = 200, description = "The file, with Content-Disposition naming it; its content type is the format's", content((String = "application/yaml"), (String = "text/x-python"), (String = "application/xml"))),
+        (status = 200, description = "The file, with Content-Disposition naming it; its content type is the format's (each listed here from `ExportFormat`)"),
         (status = 400, description = "Unknown format; `camera` missing, unknown or not allowed", body = ErrorBody),
         (status = 401, description = "Missing or wrong token (only with protect_reads)", body = ErrorBody),
         (status = 404, description = "No such calibration, it has no result, or it did not calibrate the camera asked for", body = ErrorBody),

@@ -389,6 +389,9 @@ function termsText(t) {
   if (t.inter_view_centre_95_mm != null) {
     parts.push("inter-view " + t.inter_view_centre_95_mm.toFixed(2) + " mm");
   }
+  if (t.mask_bias_centre_95_mm != null) {
+    parts.push("mask bias " + t.mask_bias_centre_95_mm.toFixed(2) + " mm");
+  }
   return t.dominant + " (" + parts.join(", ") + ")";
 }
 

@@ -67,6 +67,8 @@ pub struct OfflineSolve {
     /// Model-error floor (rotation degrees, translation millimetres, 1 sigma per camera
     /// axis) added to the reported covariance.
     pub model_floor: (f64, f64),
+    /// Estimate the masks' outline offset with the pose ([`SolveOptions::estimate_mask_offset`]).
+    pub estimate_mask_offset: bool,
 }
 
 /// What an offline solve produced: every camera's solve, in the run's order (one for an
@@ -309,6 +311,7 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
         joint_noise_rad: req.joint_noise_rad,
         floor_rotation_deg: req.model_floor.0,
         floor_translation_mm: req.model_floor.1,
+        estimate_mask_offset: req.estimate_mask_offset,
         ..SolveOptions::default()
     }
 }

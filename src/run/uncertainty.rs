@@ -1,0 +1,201 @@
+//! `result.json`'s `uncertainty`: the reported figures, the terms they are made of and the
+//! segmenter's outline offset, as a solve's report gives them.
+
+use serde::{Deserialize, Serialize};
+
+/// `uncertainty`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct UncertaintyEntry {
+    /// Rotation about camera x, y, z, degrees (1 sigma).
+    pub rotation_deg: [f64; 3],
+    /// Translation along camera x, y, z, millimetres (1 sigma).
+    pub translation_mm: [f64; 3],
+    /// Radius of the ball around the estimated camera centre that holds the true one with
+    /// 95% probability, millimetres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_centre_95_mm: Option<f64>,
+    /// Covariance of the left increment `(rho, phi)` of `camera_from_base` (`rho` metres,
+    /// `phi` radians, both in the camera frame), row-major 6x6: what the figures above
+    /// summarise, for tools that propagate it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<Box<[[f64; 6]; 6]>>,
+    /// What the figures are made of (absent in results written before the terms were split).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub terms: Option<Box<UncertaintyTerms>>,
+    /// The segmenter's outline offset, estimated with the pose (absent unless asked for):
+    /// the figures above already hold what not knowing it costs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_offset: Option<MaskOffsetEntry>,
+}
+
+/// `uncertainty.mask_offset`: how far the masks' outline lay outward of the rendered robot.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MaskOffsetEntry {
+    /// Pixels outward (negative: the masks were thin).
+    pub px: f64,
+    /// Its 1 sigma, pixels.
+    pub sigma_px: f64,
+}
+
+/// `uncertainty.terms`: the parts of the reported covariance, each as the 95% camera-centre
+/// bound it would give on its own.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, utoipa::ToSchema)]
+pub struct UncertaintyTerms {
+    /// The term that sets the figures: `statistical` (the outline residuals' own scatter),
+    /// `inter-view` (the views' disagreement, from a view jackknife), `mask bias` (not
+    /// knowing the segmenter's outline offset) or `model floor`.
+    pub dominant: String,
+    /// The statistical term's bound, millimetres.
+    pub statistical_centre_95_mm: f64,
+    /// The inter-view term's bound, millimetres; absent when it was not measured (fewer
+    /// than three views).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inter_view_centre_95_mm: Option<f64>,
+    /// The mask-bias term's bound (what estimating the segmenter's outline offset added),
+    /// millimetres; absent when the offset was not estimated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mask_bias_centre_95_mm: Option<f64>,
+}
+
+impl UncertaintyEntry {
+    /// The entry for `u`, or `None` for a degenerate fit (no meaningful curvature): the
+    /// field is then left out rather than written as nulls.
+    pub fn of(u: &crate::solve::Uncertainty) -> Option<UncertaintyEntry> {
+        let covariance: [[f64; 6]; 6] =
+            std::array::from_fn(|r| std::array::from_fn(|c| u.covariance[(r, c)]));
+        u.rotation_deg
+            .iter()
+            .chain(&u.translation_mm)
+            .chain(std::iter::once(&u.camera_centre_95_mm))
+            .chain(covariance.iter().flatten())
+            .all(|v| v.is_finite())
+            .then_some(UncertaintyEntry {
+                rotation_deg: u.rotation_deg,
+                translation_mm: u.translation_mm,
+                camera_centre_95_mm: Some(u.camera_centre_95_mm),
+                covariance: Some(Box::new(covariance)),
+                terms: None,
+                mask_offset: None,
+            })
+    }
+
+    /// [`UncertaintyEntry::of`] the report's uncertainty, with the terms it is made of.
+    pub fn of_report(
+        report: &crate::solve::SolveReport,
+        opts: &crate::solve::SolveOptions,
+    ) -> Option<UncertaintyEntry> {
+        let (statistical, inter_view) = report.term_bounds_mm();
+        let mask_bias = report.mask_bias_bound_mm();
+        let mut entry = UncertaintyEntry::of(&report.uncertainty)?;
+        let finite = statistical.is_finite()
+            && inter_view.is_none_or(f64::is_finite)
+            && mask_bias.is_none_or(f64::is_finite);
+        entry.terms = finite.then(|| {
+            Box::new(UncertaintyTerms {
+                dominant: report.dominant_term(opts).name().into(),
+                statistical_centre_95_mm: statistical,
+                inter_view_centre_95_mm: inter_view,
+                mask_bias_centre_95_mm: mask_bias,
+            })
+        });
+        entry.mask_offset = report
+            .mask_offset
+            .filter(|m| m.px.is_finite() && m.sigma_px.is_finite())
+            .map(|m| MaskOffsetEntry {
+                px: m.px,
+                sigma_px: m.sigma_px,
+            });
+        Some(entry)
+    }
+
+    /// The first value that no solve could have written, as `(field path, problem)`: every
+    /// figure finite and not negative, the mask offset finite, the covariance symmetric with a
+    /// non-negative diagonal.
+    pub fn problem(&self) -> Option<(String, String)> {
+        let figures = self
+            .rotation_deg
+            .iter()
+            .map(|v| ("rotation_deg", *v))
+            .chain(self.translation_mm.iter().map(|v| ("translation_mm", *v)))
+            .chain(self.camera_centre_95_mm.map(|v| ("camera_centre_95_mm", v)));
+        for (field, v) in figures {
+            if !(v.is_finite() && v >= 0.0) {
+                return Some((
+                    format!("uncertainty.{field}"),
+                    format!("is {v}; allowed: a finite number >= 0"),
+                ));
+            }
+        }
+        if let Some(m) = &self.mask_offset {
+            if !(m.px.is_finite() && m.sigma_px.is_finite() && m.sigma_px >= 0.0) {
+                return Some((
+                    "uncertainty.mask_offset".into(),
+                    format!(
+                        "is {} px ± {} px; allowed: finite, with a sigma >= 0",
+                        m.px, m.sigma_px
+                    ),
+                ));
+            }
+        }
+        let c = self.covariance.as_ref()?;
+        for r in 0..6 {
+            for k in 0..6 {
+                let v = c[r][k];
+                let bad = !v.is_finite()
+                    || (r == k && v < 0.0)
+                    || (v - c[k][r]).abs() > 1e-9 * (c[r][r].abs() + c[k][k].abs()).max(1e-30);
+                if bad {
+                    return Some((
+                        format!("uncertainty.covariance[{r}][{k}]"),
+                        format!("is {v}; allowed: finite, symmetric, diagonal >= 0"),
+                    ));
+                }
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(mask_offset: Option<MaskOffsetEntry>) -> UncertaintyEntry {
+        UncertaintyEntry {
+            rotation_deg: [0.1; 3],
+            translation_mm: [0.5; 3],
+            camera_centre_95_mm: Some(2.0),
+            covariance: None,
+            terms: None,
+            mask_offset,
+        }
+    }
+
+    #[test]
+    fn a_mask_offset_reads_back_and_a_broken_one_is_named() {
+        let good = entry(Some(MaskOffsetEntry {
+            px: -0.87,
+            sigma_px: 0.04,
+        }));
+        assert_eq!(good.problem(), None);
+        let json = serde_json::to_string(&good).unwrap();
+        assert!(
+            json.contains("\"mask_offset\":{\"px\":-0.87,\"sigma_px\":0.04}"),
+            "{json}"
+        );
+        assert_eq!(
+            serde_json::from_str::<UncertaintyEntry>(&json).unwrap(),
+            good
+        );
+        assert!(!serde_json::to_string(&entry(None))
+            .unwrap()
+            .contains("mask_offset"));
+        let broken = entry(Some(MaskOffsetEntry {
+            px: 1.0,
+            sigma_px: f64::NAN,
+        }));
+        let (field, _) = broken.problem().expect("a NaN sigma is refused");
+        assert_eq!(field, "uncertainty.mask_offset");
+    }
+}
