@@ -267,18 +267,7 @@ fn api_contract_auth_conflict_progress_overlays_history_and_restart() {
     assert_eq!(h["active"].as_str(), Some(id.as_str()));
 
     // Every command the arm got was safe.
-    let cell = d.daemon.cell();
-    for (i, c) in cell
-        .sim_arm()
-        .as_ref()
-        .unwrap()
-        .commands()
-        .iter()
-        .enumerate()
-    {
-        assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
-        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
-    }
+    common::assert_every_command_safe(d.daemon.cell());
 
     // Restart on the same data folder: history and the active calibration survive.
     d.stop();

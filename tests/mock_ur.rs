@@ -30,15 +30,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 }
 
 fn config_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/mock-ur.toml")
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
+    common::config_path("mock-ur.toml")
 }
 
 fn spawn_mock(
@@ -107,7 +99,7 @@ fn assert_every_command_safe(cell: &Cell, commands: &[UrMoveRecord]) {
 #[test]
 fn calibration_through_the_ur_driver_reaches_the_truth_safely() {
     let _serial = serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let mock = spawn_mock(&rt, 5.0, vec![], false);
     let cell = Cell::build(cell_config(&mock, 5), &config_path()).unwrap();
     let dir = tempfile::tempdir().unwrap();
@@ -154,7 +146,7 @@ fn calibration_through_the_ur_driver_reaches_the_truth_safely() {
 #[test]
 fn protective_stop_mid_move_ends_the_calibration_with_the_arm_stopped() {
     let _serial = serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let stop = MockUrFault::ProtectiveStop {
         on_move: 0,
         at_fraction: 0.3,
@@ -188,7 +180,7 @@ fn protective_stop_mid_move_ends_the_calibration_with_the_arm_stopped() {
 #[test]
 fn controller_lost_for_good_aborts_with_one_line_and_the_arm_stopped() {
     let _serial = serial();
-    let rt = runtime();
+    let rt = common::runtime();
     let drop = MockUrFault::DropMidMove {
         on_move: 0,
         at_fraction: 0.2,

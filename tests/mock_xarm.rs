@@ -20,15 +20,7 @@ use easyhec_mocks::xarm::{MockFault, MockXArm, MockXArmConfig, MoveRecord};
 const START: [f64; 6] = [0.0, -0.35, -0.6, 0.0, 0.95, 0.0];
 
 fn config_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/mock-xarm.toml")
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .unwrap()
+    common::config_path("mock-xarm.toml")
 }
 
 fn spawn_mock(
@@ -107,7 +99,7 @@ fn assert_every_command_safe(cell: &Cell, commands: &[MoveRecord]) {
 
 #[test]
 fn calibration_through_the_xarm_driver_reaches_the_truth_safely() {
-    let rt = runtime();
+    let rt = common::runtime();
     let mock = spawn_mock(&rt, 5.0, vec![], false);
     let path = config_path();
     let cell = Cell::build(cell_config(&mock, 5), &path).unwrap();
@@ -156,7 +148,7 @@ fn calibration_through_the_xarm_driver_reaches_the_truth_safely() {
 /// `clear_faults = false` the calibration ends without any move reaching the arm.
 #[test]
 fn an_error_present_at_start_is_not_cleared_by_the_first_move() {
-    let rt = runtime();
+    let rt = common::runtime();
     let mock = spawn_mock(&rt, 5.0, Vec::new(), false);
     mock.inject_error(22);
     let mut cfg = cell_config(&mock, 3);
@@ -174,7 +166,7 @@ fn an_error_present_at_start_is_not_cleared_by_the_first_move() {
 
 #[test]
 fn link_lost_mid_move_ends_the_calibration_with_the_arm_stopped() {
-    let rt = runtime();
+    let rt = common::runtime();
     // The controller keeps executing after the drop (worst case); only the driver's stop,
     // sent on a new connection, halts it.
     let drop = MockFault::DropMidMove {
@@ -302,7 +294,7 @@ fn stops(mock: &MockXArm) -> usize {
 
 #[test]
 fn sigterm_mid_move_sends_the_arm_a_stop_before_calibrate_exits() {
-    let rt = runtime();
+    let rt = common::runtime();
     // Real-time motion, so the signal lands while the arm moves.
     let mock = spawn_mock(&rt, 1.0, vec![], false);
     let dir = tempfile::tempdir().unwrap();
@@ -350,7 +342,7 @@ fn sigterm_mid_move_sends_the_arm_a_stop_before_calibrate_exits() {
 
 #[test]
 fn a_loop_stopped_by_an_arm_fault_exits_with_its_own_code() {
-    let rt = runtime();
+    let rt = common::runtime();
     let fault = MockFault::ErrorMidMove {
         on_move: 0,
         at_fraction: 0.3,

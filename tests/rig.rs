@@ -135,13 +135,7 @@ fn assert_corrections_near_the_encoder_error(
 
 /// One motion served every camera: 3 moves for 4 views, each accepted and each path safe.
 fn assert_three_safe_moves(cell: &Cell) {
-    let sim = cell.sim_arm().unwrap();
-    let commands = sim.commands();
-    assert_eq!(commands.len(), 3);
-    for (i, c) in commands.iter().enumerate() {
-        assert!(c.accepted, "command {i} refused: {:?}", c.outcome);
-        common::assert_commanded_path_safe(&cell.checker, i, &c.from, &c.target, c.speed_rad_s);
-    }
+    assert_eq!(common::assert_every_command_safe(cell), 3);
 }
 
 #[test]

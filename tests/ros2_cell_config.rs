@@ -4,10 +4,6 @@
 
 mod common;
 
-use std::path::Path;
-
-use easyhec::cell::Cell;
-
 /// The shipped simulated xArm6 cell with its arm on ROS 2 and its camera filming
 /// `/joint_states`.
 fn base() -> String {
@@ -37,15 +33,6 @@ fn ros2_camera(base: &str, keys: &str) -> String {
         &base[..start],
         &base[end..]
     )
-}
-
-fn error_for(dir: &Path, name: &str, text: &str) -> String {
-    let p = dir.join(name);
-    std::fs::write(&p, text).unwrap();
-    match Cell::open(&p) {
-        Ok(_) => panic!("{name} accepted"),
-        Err(e) => e.to_string(),
-    }
 }
 
 #[test]
@@ -98,7 +85,7 @@ fn bad_ros2_keys_get_one_line_errors_naming_the_key() {
     }
     for (i, (text, needle)) in cases.iter().enumerate() {
         assert_ne!(text, &base, "case {i} changed nothing");
-        let e = error_for(dir.path(), &format!("bad{i}.toml"), text);
+        let e = common::cell_open_error(dir.path(), &format!("bad{i}.toml"), text);
         assert!(
             e.contains(&format!("bad{i}.toml")) && e.contains(needle),
             "case {i}: {e}"
@@ -111,7 +98,7 @@ fn bad_ros2_keys_get_one_line_errors_naming_the_key() {
 #[test]
 fn without_the_feature_a_ros2_cell_says_how_to_rebuild() {
     let dir = tempfile::tempdir().unwrap();
-    let e = error_for(dir.path(), "ros2.toml", &base());
+    let e = common::cell_open_error(dir.path(), "ros2.toml", &base());
     assert!(
         e.contains("arm.kind") && e.contains("rebuild with --features ros2"),
         "{e}"
@@ -127,7 +114,7 @@ fn without_the_feature_a_ros2_cell_says_how_to_rebuild() {
                 .display()
                 .to_string(),
         );
-    let e = error_for(dir.path(), "camera.toml", &ros2_camera(&sim_arm, ""));
+    let e = common::cell_open_error(dir.path(), "camera.toml", &ros2_camera(&sim_arm, ""));
     assert!(
         e.contains("camera.kind") && e.contains("rebuild with --features ros2"),
         "{e}"

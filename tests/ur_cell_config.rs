@@ -2,31 +2,21 @@
 //! UR tables get one line naming the key; without the `ur` feature building such a cell says
 //! how to get the driver.
 
-use std::path::PathBuf;
+mod common;
 
-use easyhec::cell::Cell;
 use easyhec::config::UrSettings;
 
 use easyhec::config::{read_config, ArmConfig};
 
-fn config_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/mock-ur.toml")
-}
-
-fn error_for(dir: &std::path::Path, name: &str, text: &str) -> String {
-    let p = dir.join(name);
-    std::fs::write(&p, text).unwrap();
-    match Cell::open(&p) {
-        Ok(_) => panic!("{name} accepted"),
-        Err(e) => e.to_string(),
-    }
+fn config_path() -> std::path::PathBuf {
+    common::config_path("mock-ur.toml")
 }
 
 /// The shipped config with its robot path made absolute (it is written to a temp dir).
 fn base() -> String {
     std::fs::read_to_string(config_path()).unwrap().replace(
         "../robots/ur5e/robot.urdf",
-        &PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        &common::repo_root()
             .join("robots/ur5e/robot.urdf")
             .display()
             .to_string(),
@@ -76,7 +66,7 @@ fn bad_ur_tables_get_one_line_errors_naming_the_key() {
     }
     for (i, (text, needle)) in cases.iter().enumerate() {
         assert_ne!(text, &base, "case {i} changed nothing");
-        let e = error_for(dir.path(), &format!("bad{i}.toml"), text);
+        let e = common::cell_open_error(dir.path(), &format!("bad{i}.toml"), text);
         assert!(
             e.contains(&format!("bad{i}.toml")) && e.contains(needle),
             "case {i}: {e}"
@@ -86,7 +76,7 @@ fn bad_ur_tables_get_one_line_errors_naming_the_key() {
 }
 
 fn base_urdf() -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    common::repo_root()
         .join("robots/ur5e/robot.urdf")
         .display()
         .to_string()
@@ -94,7 +84,7 @@ fn base_urdf() -> String {
 
 fn panda_urdf() -> String {
     // A Panda: 7 arm joints (and fingers), the wrong arm for a UR driver.
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+    common::repo_root()
         .join("robots/panda/robot.urdf")
         .display()
         .to_string()
@@ -104,7 +94,7 @@ fn panda_urdf() -> String {
 #[test]
 fn without_the_feature_a_ur_cell_says_how_to_rebuild() {
     let dir = tempfile::tempdir().unwrap();
-    let e = error_for(dir.path(), "ur.toml", &base());
+    let e = common::cell_open_error(dir.path(), "ur.toml", &base());
     assert!(
         e.contains("arm.kind") && e.contains("rebuild with --features ur"),
         "{e}"

@@ -8,8 +8,7 @@ use clap::Args;
 use easyhec::error::Error;
 use easyhec::interop::export::check_frame_name;
 use easyhec::interop::{export, ExportFormat};
-use easyhec::run::rig::{format_of, RigResultFile, RIG_RESULT_FORMAT};
-use easyhec::run::ResultFile;
+use easyhec::run::rig::{ResultCameras, RunLayout};
 
 use super::frames::FrameArgs;
 
@@ -29,8 +28,9 @@ pub struct ExportArgs {
 
 /// Writes a result in another tool's form.
 pub fn run(a: ExportArgs) -> anyhow::Result<()> {
-    if format_of(&a.result)?.as_deref() == Some(RIG_RESULT_FORMAT) {
-        return export_rig(&a);
+    let results = ResultCameras::read(&a.result)?;
+    if results.layout == RunLayout::NamedCameras {
+        return export_rig(&a, &results);
     }
     let format = a.format;
     if let Some(p) = &a.out {
@@ -39,11 +39,11 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
             return Err(Error::input(p, "--out", problem).into());
         }
     }
-    let result = ResultFile::read(&a.result)?;
+    let result = &results.cameras[0].result;
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
-    let edge = a.frames.edge(&result)?;
-    let text = export(&result, format, &edge)?;
+    let edge = a.frames.edge(result)?;
+    let text = export(result, format, &edge)?;
     match a.out {
         Some(p) => easyhec::io::write_atomic(&p, text.as_bytes())
             .with_context(|| format!("writing {}", p.display()))?,
@@ -54,13 +54,12 @@ pub fn run(a: ExportArgs) -> anyhow::Result<()> {
 
 /// Every camera of an `easyhec-result/2`, one file per camera in the `--out` folder
 /// (`<name>.<ext>`), each camera under its own child frame (`FrameArgs::rig_edges`).
-fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
-    let rig = RigResultFile::read(&a.result)?;
+fn export_rig(a: &ExportArgs, results: &ResultCameras) -> anyhow::Result<()> {
     let Some(dir) = &a.out else {
         return Err(Error::Usage(format!(
             "--out: {} holds {} cameras, written as one file per camera: give a folder",
             a.result.display(),
-            rig.cameras.len()
+            results.cameras.len()
         ))
         .into());
     };
@@ -69,20 +68,16 @@ fn export_rig(a: &ExportArgs) -> anyhow::Result<()> {
     }
     // Every camera's file is made before the folder or any file is written: a refused
     // camera leaves nothing half-exported.
-    let edges = a.frames.rig_edges(&rig)?;
+    let edges = a.frames.rig_edges(results)?;
     let mut files = Vec::with_capacity(edges.len());
-    for ((k, cam), edge) in rig.cameras.iter().enumerate().zip(&edges) {
-        let result = cam.as_result(&rig.timings_s);
-        check_frame_name(&result.base_link).map_err(|m| {
-            Error::input(
-                &a.result,
-                format!("cameras[{k}].base_link"),
-                format!("is {m}"),
-            )
-        })?;
-        let text = export(&result, a.format, edge)?;
-        let path = dir.join(a.format.file_name(&cam.name));
-        files.push((&cam.name, &edge.child, path, text));
+    for ((k, cam), edge) in results.cameras.iter().enumerate().zip(&edges) {
+        let result = &cam.result;
+        check_frame_name(&result.base_link)
+            .map_err(|m| Error::input(&a.result, results.key(k, "base_link"), format!("is {m}")))?;
+        let text = export(result, a.format, edge)?;
+        let name = cam.name.as_deref().unwrap_or_default();
+        let path = dir.join(a.format.file_name(name));
+        files.push((name, &edge.child, path, text));
     }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     for (name, child, path, text) in files {

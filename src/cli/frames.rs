@@ -4,7 +4,7 @@
 use clap::Args;
 use easyhec::interop::tf_edge::{camera_frame, parse_transform, DEFAULT_CHILD_FRAME};
 use easyhec::interop::TfEdge;
-use easyhec::run::rig::RigResultFile;
+use easyhec::run::rig::ResultCameras;
 use easyhec::run::ResultFile;
 
 /// How errors name the two frames.
@@ -51,26 +51,31 @@ impl FrameArgs {
     /// refused here: publish or export that camera's frame chain by itself. So is
     /// `--frame-id` when the cameras hang from different frames (a wrist camera's link beside
     /// the fixed cameras' base).
-    pub fn rig_edges(&self, rig: &RigResultFile) -> easyhec::error::Result<Vec<TfEdge>> {
+    pub fn rig_edges(&self, results: &ResultCameras) -> easyhec::error::Result<Vec<TfEdge>> {
         if self.optical_from_child.is_some() {
             return Err(easyhec::error::Error::Usage(format!(
                 "--optical-from-child: the result holds {} cameras, and a driver's offset belongs to one; allowed: only for a result of one camera",
-                rig.cameras.len()
+                results.cameras.len()
             )));
         }
-        let bases: std::collections::BTreeSet<&str> =
-            rig.cameras.iter().map(|c| c.base_link.as_str()).collect();
+        let bases: std::collections::BTreeSet<&str> = results
+            .cameras
+            .iter()
+            .map(|c| c.result.base_link.as_str())
+            .collect();
         if self.frame_id.is_some() && bases.len() > 1 {
             return Err(easyhec::error::Error::Usage(format!(
                 "--frame-id: the result's cameras hang from different frames ({bases:?}: a camera on a link beside fixed ones), and one parent cannot serve them; allowed: leave --frame-id out"
             )));
         }
-        rig.cameras
+        results
+            .cameras
             .iter()
             .map(|cam| {
                 let mut frames = self.clone();
-                frames.child_frame_id = camera_frame(&self.child_frame_id, &cam.name);
-                frames.edge(&cam.as_result(&rig.timings_s))
+                let name = cam.name.as_deref().unwrap_or_default();
+                frames.child_frame_id = camera_frame(&self.child_frame_id, name);
+                frames.edge(&cam.result)
             })
             .collect()
     }

@@ -50,21 +50,20 @@ pub fn run(a: PublishArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
-    let rig = easyhec::run::rig::format_of(&a.result)?.as_deref()
-        == Some(easyhec::run::rig::RIG_RESULT_FORMAT);
+    let results = easyhec::run::rig::ResultCameras::read(&a.result)?;
+    let rig = results.layout == easyhec::run::rig::RunLayout::NamedCameras;
     if rig && a.optical_frame_id.is_some() {
         return Err(Error::Usage(
             "--optical-frame-id: the result holds several cameras, and a driver's frames belong to one; allowed: only for a result of one camera".into(),
         )
         .into());
     }
-    let (result, rig_edges) = if rig {
-        let rig = easyhec::run::rig::RigResultFile::read(&a.result)?;
-        let edges = a.frames.rig_edges(&rig)?;
-        (rig.cameras[0].as_result(&rig.timings_s), Some(edges))
+    let rig_edges = if rig {
+        Some(a.frames.rig_edges(&results)?)
     } else {
-        (easyhec::run::ResultFile::read(&a.result)?, None)
+        None
     };
+    let result = results.cameras[0].result.clone();
     check_frame_name(&result.base_link)
         .map_err(|m| Error::input(&a.result, "base_link", format!("is {m}")))?;
     if let Some(optical) = &a.optical_frame_id {

@@ -21,8 +21,7 @@ use super::reconcile::check_result_pose;
 use super::store::{ActiveFile, CalibrationRecord, State, Store};
 use super::validate::{inside, resolved_inside};
 use super::{now, Daemon, Refusal};
-use crate::run::rig::RunLayout;
-use crate::run::rig::{RigResultFile, RigRunFile};
+use crate::run::rig::{ResultCameras, RigRunFile, RunLayout};
 use crate::run::{ResultFile, RunFile};
 
 impl Daemon {
@@ -32,15 +31,8 @@ impl Daemon {
         let record = self
             .status(id)
             .ok_or_else(|| Refusal::NotFound(format!("no calibration {id}")))?;
-        let results = if self.cell.layout() == RunLayout::NamedCameras {
-            let names: Vec<&str> = self.cell.cameras().iter().map(|c| c.name).collect();
-            activatable_cameras(&self.store, &record, &names)?
-                .into_iter()
-                .map(|(name, r)| (Some(name), r))
-                .collect()
-        } else {
-            vec![(None, activatable(&self.store, &record)?)]
-        };
+        let names: Vec<&str> = self.cell.cameras().iter().map(|c| c.name).collect();
+        let results = activatable(&self.store, &record, self.cell.layout(), &names)?;
         for (camera, result) in &results {
             if let Some(why) = self.frame_mismatch(camera.as_deref(), &result.base_link) {
                 return Err(refuse(&record, "result.json base_link", why));
@@ -53,47 +45,42 @@ impl Daemon {
     }
 }
 
-/// The result calibration `r` may be activated with, or a 409 naming it and the field.
-pub fn activatable(store: &Store, r: &CalibrationRecord) -> Result<ResultFile, Refusal> {
-    check_state(r)?;
-    let path = result_path(store, r)?;
-    let result = ResultFile::read(&path).map_err(|e| refuse(r, "result.json", e))?;
-    check_result_pose(&result).map_err(|(f, m)| refuse(r, &format!("result.json {f}"), m))?;
-    check_not_partial(store, r, &result)?;
-    check_views(store, r, &result, None)?;
-    Ok(result)
-}
-
-/// Each camera's result of a calibration of a list of cameras (`easyhec-result/2`), when
-/// [`activatable`]'s rules allow it and every camera is one of `names`.
-pub fn activatable_cameras(
+/// Each camera's result calibration `r` may be activated with (one unnamed camera for a
+/// `[camera]` cell), or a 409 naming it and the field: its file must be in the cell's
+/// `layout`, and every camera one of `names`.
+pub fn activatable(
     store: &Store,
     r: &CalibrationRecord,
+    layout: RunLayout,
     names: &[&str],
-) -> Result<Vec<(String, ResultFile)>, Refusal> {
+) -> Result<Vec<(Option<String>, ResultFile)>, Refusal> {
     check_state(r)?;
     let path = result_path(store, r)?;
-    let rig = RigResultFile::read(&path).map_err(|e| refuse(r, "result.json", e))?;
-    let mut out = Vec::new();
-    for (i, cam) in rig.cameras.iter().enumerate() {
-        if !names.contains(&cam.name.as_str()) {
+    let results = ResultCameras::read(&path).map_err(|e| refuse(r, "result.json", e))?;
+    if results.layout != layout {
+        return Err(refuse(
+            r,
+            "result.json format",
+            format!(
+                "records {:?}; allowed: {layout:?}, as this cell's cameras do",
+                results.layout
+            ),
+        ));
+    }
+    check_not_partial(store, r, &results.stop_reason)?;
+    let mut out = Vec::with_capacity(results.cameras.len());
+    for (k, cam) in results.cameras.iter().enumerate() {
+        if let Some(name) = cam.name.as_deref().filter(|n| !names.contains(n)) {
             return Err(refuse(
                 r,
-                &format!("result.json cameras[{i}].name"),
-                format!(
-                    "{:?} is no camera of this cell; allowed: {names:?}",
-                    cam.name
-                ),
+                &format!("result.json {}", results.key(k, "name")),
+                format!("{name:?} is no camera of this cell; allowed: {names:?}"),
             ));
         }
-        let mut result = cam.as_result(&rig.timings_s);
-        check_result_pose(&result)
-            .map_err(|(f, m)| refuse(r, &format!("result.json cameras[{i}].{f}"), m))?;
-        result.stop_reason = rig.stop_reason.clone();
-        check_not_partial(store, r, &result)?;
-        result.stop_reason = cam.stop_reason.clone();
-        check_views(store, r, &result, Some(&cam.name))?;
-        out.push((cam.name.clone(), result));
+        check_result_pose(&cam.result)
+            .map_err(|(f, m)| refuse(r, &format!("result.json {}", results.key(k, &f)), m))?;
+        check_views(store, r, &cam.result, cam.name.as_deref())?;
+        out.push((cam.name.clone(), cam.result.clone()));
     }
     Ok(out)
 }
@@ -203,15 +190,15 @@ fn result_path(store: &Store, r: &CalibrationRecord) -> Result<PathBuf, Refusal>
 fn check_not_partial(
     store: &Store,
     r: &CalibrationRecord,
-    result: &ResultFile,
+    stop_reason: &str,
 ) -> Result<(), Refusal> {
-    if r.state == State::Interrupted && result.stop_reason.starts_with("cancelled") {
+    if r.state == State::Interrupted && stop_reason.starts_with("cancelled") {
         return Err(refuse(
             r,
             "state",
             format!(
                 "interrupted, and result.json is the loop's partial result (stop_reason {:?}): re-solve it with `easyhec solve {}` first",
-                result.stop_reason,
+                stop_reason,
                 store.run_dir(r).display()
             ),
         ));

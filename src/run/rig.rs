@@ -519,6 +519,71 @@ pub fn format_of(path: &Path) -> Result<Option<String>> {
         .map(str::to_string))
 }
 
+/// Every camera of a `result.json`, whichever format holds it: what export, publish and the
+/// daemon read, so none of them chooses between `easyhec-result/1` and `/2` itself.
+#[derive(Clone, Debug)]
+pub struct ResultCameras {
+    /// The file's format.
+    pub layout: RunLayout,
+    /// Each camera, in the file's order: one unnamed for `easyhec-result/1`.
+    pub cameras: Vec<ResultCamera>,
+    /// Why the whole calibration stopped (a camera's own may differ in a list).
+    pub stop_reason: String,
+}
+
+/// One camera of [`ResultCameras`].
+#[derive(Clone, Debug)]
+pub struct ResultCamera {
+    /// Its name (`None` in a one-camera result).
+    pub name: Option<String>,
+    /// Its result as an `easyhec-result/1`: its own stop reason, the file's timings.
+    pub result: ResultFile,
+}
+
+impl ResultCameras {
+    /// Reads `path` in whichever format it is, with every check of that format's reader.
+    pub fn read(path: &Path) -> Result<ResultCameras> {
+        if format_of(path)?.as_deref() == Some(RIG_RESULT_FORMAT) {
+            let rig = RigResultFile::read(path)?;
+            return Ok(ResultCameras {
+                layout: RunLayout::NamedCameras,
+                cameras: rig
+                    .cameras
+                    .iter()
+                    .map(|c| ResultCamera {
+                        name: Some(c.name.clone()),
+                        result: c.as_result(&rig.timings_s),
+                    })
+                    .collect(),
+                stop_reason: rig.stop_reason,
+            });
+        }
+        let result = ResultFile::read(path)?;
+        Ok(ResultCameras {
+            layout: RunLayout::OneCamera,
+            stop_reason: result.stop_reason.clone(),
+            cameras: vec![ResultCamera { name: None, result }],
+        })
+    }
+
+    /// The key of `field` of camera `k` in the file: `cameras[k].field` in a list, `field`
+    /// for one camera.
+    pub fn key(&self, k: usize, field: &str) -> String {
+        match self.layout {
+            RunLayout::NamedCameras => format!("cameras[{k}].{field}"),
+            RunLayout::OneCamera => field.to_string(),
+        }
+    }
+
+    /// The cameras' names, in order (empty for one unnamed camera).
+    pub fn names(&self) -> Vec<&str> {
+        self.cameras
+            .iter()
+            .filter_map(|c| c.name.as_deref())
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -40,7 +40,9 @@ struct ViewPart {
     tiles_meat: Mat7,
     /// Tiles the outline crossed.
     tiles: usize,
-    /// Scatter of the pull the view's joint errors put on the normal equations.
+    /// Scatter of the pull the view's joint errors put on the normal equations, before it is
+    /// clamped to positive semi-definite (per parameter set: a clamp over seven parameters
+    /// is not the clamp of the pose's six).
     joints_meat: Mat7,
 }
 
@@ -80,10 +82,7 @@ pub(super) fn pose_covariance(
     // Residuals at the estimate have the fitted directions taken out of them: scale their
     // scatter back up by tiles / (tiles - fitted).
     let dof = tiles.saturating_sub(fitted).max(1) as f64;
-    let meat: Mat7 = parts
-        .iter()
-        .map(|p| p.tiles_meat * (tiles as f64 / dof) + p.joints_meat)
-        .sum();
+    let scale = tiles as f64 / dof;
     let pose_block = |m: &Mat7| -> Matrix6<f64> { m.fixed_view::<6, 6>(0, 0).into_owned() };
     // Past the Cauchy scale the influence's slope is negative, so a fit with many residuals
     // there (a poor one, flagged as such) can leave `h` indefinite; the IRLS weight's matrix
@@ -93,7 +92,11 @@ pub(super) fn pose_covariance(
             .cholesky()
             .or_else(|| pose_block(&h_weight).cholesky())?
             .inverse();
-        inv * pose_block(&meat) * inv
+        let meat: Matrix6<f64> = parts
+            .iter()
+            .map(|p| pose_block(&p.tiles_meat) * scale + positive_part(&pose_block(&p.joints_meat)))
+            .sum();
+        inv * meat * inv
     };
     if !opts.estimate_mask_offset {
         return Some(Statistical {
@@ -103,6 +106,10 @@ pub(super) fn pose_covariance(
         });
     }
     let inv = h.cholesky().or_else(|| h_weight.cholesky())?.inverse();
+    let meat: Mat7 = parts
+        .iter()
+        .map(|p| p.tiles_meat * scale + positive_part7(&p.joints_meat))
+        .sum();
     let both = inv * meat * inv;
     Some(Statistical {
         pose: pose_block(&both),
@@ -204,8 +211,8 @@ fn view_part(
 
 /// The scatter of the pull of a view's joint errors between tiles: `q^2 sum_k (b_k b_k^T -
 /// sum_t b_tk b_tk^T)`, `b_tk` joint k's pull in tile t, `b_k` its sum. The within-tile part
-/// is left out because the tile scatter of the residuals already holds it. Clamped to
-/// positive semi-definite.
+/// is left out because the tile scatter of the residuals already holds it. Not yet clamped
+/// to positive semi-definite.
 fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64) -> Mat7 {
     let q2 = noise_rad * noise_rad;
     if q2 <= 0.0 || joints == 0 {
@@ -220,7 +227,20 @@ fn joints_meat(tiles: &BTreeMap<(i64, i64), Tile>, joints: usize, noise_rad: f64
             .sum();
         meat += (b * b.transpose() - within) * q2;
     }
-    let eig = meat.symmetric_eigen();
+    meat
+}
+
+/// `m` with its negative eigenvalues set to zero.
+pub(super) fn positive_part(m: &Matrix6<f64>) -> Matrix6<f64> {
+    let eig = m.symmetric_eigen();
+    eig.eigenvectors
+        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
+        * eig.eigenvectors.transpose()
+}
+
+/// [`positive_part`] over the pose and the mask offset.
+fn positive_part7(m: &Mat7) -> Mat7 {
+    let eig = m.symmetric_eigen();
     eig.eigenvectors
         * Mat7::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
         * eig.eigenvectors.transpose()

@@ -415,7 +415,10 @@ fn finish(
         covariance::pose_covariance(&level, &silhouettes, &robots, &pose, offset_px, opts);
     let statistical_covariance = statistical.as_ref().map_or_else(unpinned, |s| s.pose);
     let mask_bias_covariance = statistical.as_ref().map_or_else(Matrix6::zeros, |s| {
-        positive_part(&(s.pose - s.pose_offset_known))
+        // The difference of two covariances of the same residuals: symmetrised and clamped,
+        // since rounding can take it a hair below zero.
+        let d = s.pose - s.pose_offset_known;
+        covariance::positive_part(&((d + d.transpose()) * 0.5))
     });
     let mask_offset = opts.estimate_mask_offset.then(|| MaskOffset {
         px: offset_px,
@@ -452,13 +455,4 @@ fn finish(
         iterations,
         trajectory,
     })
-}
-
-/// `m` with its negative eigenvalues set to zero (a difference of two covariances built from
-/// the same residuals can dip below zero by rounding).
-fn positive_part(m: &Matrix6<f64>) -> Matrix6<f64> {
-    let eig = ((m + m.transpose()) * 0.5).symmetric_eigen();
-    eig.eigenvectors
-        * Matrix6::from_diagonal(&eig.eigenvalues.map(|l| l.max(0.0)))
-        * eig.eigenvectors.transpose()
 }

@@ -64,6 +64,27 @@ pub fn solve_run(run: &std::path::Path, extra: &[&str]) -> std::process::Output 
 /// Command `i` from `from` to `target` at `speed_rad_s` passes the checker, and so does every
 /// pose of its straight joint-space path sampled 20x finer than the checker's own sampling
 /// (an independent re-check of what the arm executed).
+/// Writes `text` as `dir/name` and opens it as a cell: the one-line error that gives
+/// (panics when the cell opens).
+pub fn cell_open_error(dir: &std::path::Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    match easyhec::cell::Cell::open(&p) {
+        Ok(_) => panic!("{name} accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
+/// The runtime the mock-controller tests drive a calibration on: two workers, as CI has
+/// two cores.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
 pub fn assert_commanded_path_safe(
     checker: &easyhec::safety::SafetyChecker,
     i: usize,

@@ -260,21 +260,33 @@ pub(super) fn read_camera_result(
     camera: Option<&str>,
 ) -> Result<crate::run::ResultFile, Refusal> {
     let unreadable = |e: crate::error::Error| Refusal::Internal(format!("calibration {id}: {e}"));
-    let Some(name) = camera else {
-        return crate::run::ResultFile::read(path).map_err(unreadable);
+    let results = crate::run::rig::ResultCameras::read(path).map_err(unreadable)?;
+    // The route checked `camera` against the cell; a file of the other layout is a store
+    // that no longer matches its cell.
+    let layout = if camera.is_some() {
+        RunLayout::NamedCameras
+    } else {
+        RunLayout::OneCamera
     };
-    let rig = crate::run::rig::RigResultFile::read(path).map_err(unreadable)?;
-    rig.cameras
+    if results.layout != layout {
+        return Err(Refusal::Internal(format!(
+            "calibration {id}: {} is {:?}, and this cell's cameras record {layout:?}",
+            path.display(),
+            results.layout
+        )));
+    }
+    let Some(name) = camera else {
+        return Ok(results.cameras[0].result.clone());
+    };
+    results
+        .cameras
         .iter()
-        .find(|c| c.name == name)
-        .map(|c| c.as_result(&rig.timings_s))
+        .find(|c| c.name.as_deref() == Some(name))
+        .map(|c| c.result.clone())
         .ok_or_else(|| {
             Refusal::NotFound(format!(
                 "calibration {id} did not calibrate camera {name:?}; it calibrated {:?}",
-                rig.cameras
-                    .iter()
-                    .map(|c| c.name.as_str())
-                    .collect::<Vec<_>>()
+                results.names()
             ))
         })
 }
