@@ -69,3 +69,23 @@ fn an_offset_mask_moves_its_outline_by_whole_pixels() {
     assert_eq!(count(&square.with_outline_offset(-1.0)), 18 * 18);
     assert_eq!(count(&square.with_outline_offset(0.3)), 400);
 }
+
+#[test]
+fn the_adam_baseline_refuses_to_fit_an_offset() {
+    let out = std::process::Command::new(common::easyhec_bin())
+        .args([
+            "solve",
+            "no-such-run",
+            "--optimizer",
+            "adam",
+            "--estimate-mask-offset",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("--estimate-mask-offset") && stderr.trim().lines().count() == 1,
+        "{stderr}"
+    );
+}

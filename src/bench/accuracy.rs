@@ -108,7 +108,8 @@ pub struct AccuracyBench {
     /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
     #[arg(long, default_value = "standard", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
     pub noise: String,
-    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    /// Estimate the masks' outline offset with the pose, as `easyhec solve
+    /// --estimate-mask-offset` does.
     #[arg(long)]
     pub mask_offset: bool,
 }

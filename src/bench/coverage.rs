@@ -51,7 +51,8 @@ pub struct CoverageBench {
     /// Segmentation-noise preset of the scenes (docs/uncertainty.md).
     #[arg(long, default_value = "segmenter", value_parser = clap::builder::PossibleValuesParser::new(NoiseModel::PRESETS))]
     pub noise: String,
-    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    /// Estimate the masks' outline offset with the pose, as `easyhec solve
+    /// --estimate-mask-offset` does.
     #[arg(long)]
     pub mask_offset: bool,
 }

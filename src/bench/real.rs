@@ -47,7 +47,8 @@ pub struct RealBench {
     /// --ignore-masks`), from the rough guess and with no guess, against the mask pose.
     #[arg(long)]
     pub images: bool,
-    /// Estimate the masks' outline offset with the pose (`--estimate-mask-offset`).
+    /// Estimate the masks' outline offset with the pose, as `easyhec solve
+    /// --estimate-mask-offset` does.
     #[arg(long)]
     pub mask_offset: bool,
 }

@@ -97,6 +97,12 @@ pub enum SegmenterArg {
 /// Solves the run and prints the outcome (remarks on stderr as they happen).
 pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     let optimizer = a.optimizer;
+    if optimizer == Optimizer::Adam && a.estimate_mask_offset {
+        return Err(easyhec::error::Error::Usage(
+            "--estimate-mask-offset: the Adam baseline fits the pose alone; allowed: with --optimizer lm (the default)".into(),
+        )
+        .into());
+    }
     let selection = match a.select {
         SelectArg::First => Selection::First,
         SelectArg::Random => Selection::Random(a.seed),

@@ -62,8 +62,9 @@ pub fn activatable(
             r,
             "result.json format",
             format!(
-                "records {:?}; allowed: {layout:?}, as this cell's cameras do",
-                results.layout
+                "is {}; allowed: {}, which this cell's cameras record",
+                results.layout.result_format(),
+                layout.result_format()
             ),
         ));
     }

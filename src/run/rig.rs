@@ -447,6 +447,14 @@ pub enum RunLayout {
 }
 
 impl RunLayout {
+    /// The `result.json` format tag this layout writes.
+    pub fn result_format(self) -> &'static str {
+        match self {
+            RunLayout::OneCamera => super::RESULT_FORMAT,
+            RunLayout::NamedCameras => RIG_RESULT_FORMAT,
+        }
+    }
+
     /// The layout a cell's cameras record: a `[camera]` table one camera, `[[camera]]`
     /// tables named cameras (even one).
     pub fn of_cameras(cameras: &crate::config::CameraSet) -> RunLayout {

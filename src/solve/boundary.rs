@@ -332,9 +332,10 @@ pub(super) struct Residual {
     pub(super) cap: f64,
     /// Derivative of `r` with respect to the left increment of `camera_from_base`.
     pub(super) j: Twist,
-    /// Derivative of `r` with respect to an outward offset of the observed outline, in
-    /// pixels of the level: +1 for a rendered crossing (it lies that much further inside the
-    /// observed outline), -1 for an observed one.
+    /// How the mask offset enters the model residual `r + offset_sign * b` (`b` the observed
+    /// outline's outward offset, pixels of the level): +1 for a rendered crossing, whose raw
+    /// `r` reads `-b` at the true pose (the observed outline lies `b` outside it), -1 for an
+    /// observed crossing, whose raw `r` reads `+b`.
     pub(super) offset_sign: f64,
     /// Outline length it stands for, pixels.
     pub(super) ds: f64,

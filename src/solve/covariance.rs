@@ -77,6 +77,14 @@ pub(super) fn pose_covariance(
         .collect();
     let h: Mat7 = parts.iter().map(|p| p.h).sum();
     let h_weight: Mat7 = parts.iter().map(|p| p.h_weight).sum();
+    // With the offset fitted, both covariances below take their bread from the same matrix,
+    // so that their difference (the mask-bias term) means something: the weight's when the
+    // slope's 7x7 is not positive definite (then neither 6x6 block is trusted either).
+    let h = if opts.estimate_mask_offset && h.cholesky().is_none() {
+        h_weight
+    } else {
+        h
+    };
     let tiles: usize = parts.iter().map(|p| p.tiles).sum();
     let fitted = if opts.estimate_mask_offset { 7 } else { 6 };
     // Residuals at the estimate have the fitted directions taken out of them: scale their

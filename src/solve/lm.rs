@@ -1,9 +1,7 @@
 //! Levenberg–Marquardt, coarse to fine over the image pyramid (the default optimiser).
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, SMatrix, SVector};
 use rayon::prelude::*;
-
-use nalgebra::{SMatrix, SVector};
 
 use super::boundary::{accumulate, total_cost, Level, Normal};
 use super::{SolveOptions, View};

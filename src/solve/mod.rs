@@ -293,6 +293,17 @@ pub fn solve(
         return Err(Error::Solve("no views to solve from".into()));
     }
     let camera = camera.undistorted();
+    // Adam fits the pose alone: its report must not claim an offset it never fitted.
+    let adam_opts;
+    let opts = if opts.optimizer == Optimizer::Adam && opts.estimate_mask_offset {
+        adam_opts = SolveOptions {
+            estimate_mask_offset: false,
+            ..opts.clone()
+        };
+        &adam_opts
+    } else {
+        opts
+    };
     let first = match opts.optimizer {
         Optimizer::Lm => solve_lm(renderer, &camera, views, initial, opts)?,
         Optimizer::Adam => {
@@ -349,10 +360,12 @@ impl SolveReport {
         let bound =
             |c: &Matrix6<f64>| uncertainty_of(c, &self.camera_from_base).camera_centre_95_mm;
         let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
+        // The mask-bias term is part of the statistical covariance: set against the rest of
+        // it, not against the whole.
         let mut terms = vec![
             (
                 DominantTerm::Statistical,
-                bound(&self.statistical_covariance),
+                bound(&(self.statistical_covariance - self.mask_bias_covariance)),
             ),
             (DominantTerm::ModelFloor, bound(&floor)),
         ];

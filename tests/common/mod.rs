@@ -61,9 +61,6 @@ pub fn solve_run(run: &std::path::Path, extra: &[&str]) -> std::process::Output 
         .expect("easyhec runs")
 }
 
-/// Command `i` from `from` to `target` at `speed_rad_s` passes the checker, and so does every
-/// pose of its straight joint-space path sampled 20x finer than the checker's own sampling
-/// (an independent re-check of what the arm executed).
 /// Writes `text` as `dir/name` and opens it as a cell: the one-line error that gives
 /// (panics when the cell opens).
 pub fn cell_open_error(dir: &std::path::Path, name: &str, text: &str) -> String {
@@ -85,6 +82,9 @@ pub fn runtime() -> tokio::runtime::Runtime {
         .unwrap()
 }
 
+/// Command `i` from `from` to `target` at `speed_rad_s` passes the checker, and so does every
+/// pose of its straight joint-space path sampled 20x finer than the checker's own sampling
+/// (an independent re-check of what the arm executed).
 pub fn assert_commanded_path_safe(
     checker: &easyhec::safety::SafetyChecker,
     i: usize,

@@ -270,9 +270,10 @@ pub(super) fn read_camera_result(
     };
     if results.layout != layout {
         return Err(Refusal::Internal(format!(
-            "calibration {id}: {} is {:?}, and this cell's cameras record {layout:?}",
+            "calibration {id}: {} is {}, and this cell's cameras record {}",
             path.display(),
-            results.layout
+            results.layout.result_format(),
+            layout.result_format()
         )));
     }
     let Some(name) = camera else {
