@@ -75,7 +75,7 @@ fn export_rig(a: &ExportArgs, results: &ResultCameras) -> anyhow::Result<()> {
         check_frame_name(&result.base_link)
             .map_err(|m| Error::input(&a.result, results.key(k, "base_link"), format!("is {m}")))?;
         let text = export(result, a.format, edge)?;
-        let name = cam.name.as_deref().unwrap_or_default();
+        let name = cam.name_or_empty();
         let path = dir.join(a.format.file_name(name));
         files.push((name, &edge.child, path, text));
     }

@@ -73,7 +73,7 @@ impl FrameArgs {
             .iter()
             .map(|cam| {
                 let mut frames = self.clone();
-                let name = cam.name.as_deref().unwrap_or_default();
+                let name = cam.name_or_empty();
                 frames.child_frame_id = camera_frame(&self.child_frame_id, name);
                 frames.edge(&cam.result)
             })

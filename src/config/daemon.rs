@@ -48,6 +48,13 @@ pub struct DaemonSettings {
     /// calibration stale.
     #[serde(default = "default_max_boundary_px")]
     pub bump_max_boundary_px: f64,
+    /// Largest uniform outline offset (pixels) a check puts down to its segmenter rather than
+    /// to the camera: a segmenter that draws masks fatter or thinner than the one the
+    /// calibration used moves the whole outline outward or inward, which no bump does. The
+    /// check removes the typical offset (the mean of the middle half), up to this, before it measures IoU and boundary
+    /// distance (0: measure the masks as they are).
+    #[serde(default = "default_max_mask_offset_px")]
+    pub bump_max_mask_offset_px: f64,
     /// Recalibrate, warm-started from the stale pose, when a check finds a bump.
     #[serde(default)]
     pub recalibrate_on_bump: bool,
@@ -111,6 +118,12 @@ fn default_min_iou() -> f64 {
 fn default_max_boundary_px() -> f64 {
     1.5
 }
+fn default_max_mask_offset_px() -> f64 {
+    2.0
+}
+/// Largest `bump_max_mask_offset_px`: past a few pixels a uniform offset is no segmenter's
+/// habit.
+pub const BUMP_MAX_MASK_OFFSET_MAX_PX: f64 = 8.0;
 fn yes() -> bool {
     true
 }
@@ -219,6 +232,13 @@ impl DaemonSettings {
                     "{}: use a positive number of pixels, e.g. 1.5",
                     self.bump_max_boundary_px
                 ),
+            );
+        }
+        let offset = self.bump_max_mask_offset_px;
+        if !(0.0..=BUMP_MAX_MASK_OFFSET_MAX_PX).contains(&offset) {
+            return bad(
+                "bump_max_mask_offset_px",
+                format!("{offset}: use 0 to {BUMP_MAX_MASK_OFFSET_MAX_PX} pixels, e.g. 2"),
             );
         }
         if let Some(q) = &self.check_pose {

@@ -3,7 +3,8 @@
 //! segmenter (the same path the loop uses; a context-aware one, `builtin`, also gets the
 //! active calibration's recorded frames for its background plate), render the robot's silhouette under the active
 //! `camera_from_base` at the reported joints, and compare: mask IoU and the mean distance
-//! between the two outlines, both ways, in pixels. Below `bump_min_iou` or above
+//! between the two outlines, both ways, in pixels, once the segmenter's uniform outline
+//! offset (a fat or thin habit, up to `bump_max_mask_offset_px`) is taken out. Below `bump_min_iou` or above
 //! `bump_max_boundary_px` plus what the calibration's own uncertainty explains (twice the RMS
 //! outline displacement its covariance predicts at the check view) the calibration is marked
 //! stale, so an honestly uncertain calibration is not called bumped for its own uncertainty; with `recalibrate_on_bump` a
@@ -27,38 +28,72 @@ use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
 use crate::run::rig::RunLayout;
 use crate::run::RunFile;
 
-/// Agreement of an observed mask with a rendered one.
+/// Agreement of an observed mask with a rendered one, once the segmenter's own outline
+/// offset is taken out.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Agreement {
     /// Intersection over union.
     pub iou: f64,
     /// Mean outline distance, both ways, pixels.
     pub boundary_px: f64,
+    /// The outline offset taken out: how far the observed outline lies outward of the
+    /// rendered one (the mean of the middle half of its distances, pixels, negative inward).
+    pub mask_offset_px: f64,
 }
 
-/// Mean absolute distance from `from`'s outline crossings to `to`'s boundary, pixels
-/// (`None` when `from` has no outline inside the image).
-fn mean_outline_distance(from: &Mask, to: &SignedDistance) -> Option<f64> {
-    let crossings = from.outline_crossings();
-    let d: Vec<f64> = crossings
+/// Signed distances (pixels, negative inside `to`) of `from`'s outline crossings in `to`'s
+/// field.
+fn outline_distances(from: &Mask, to: &SignedDistance) -> Vec<f64> {
+    from.outline_crossings()
         .iter()
-        .filter_map(|c| to.sample(c[0], c[1]).map(|(v, _)| v.abs()))
-        .collect();
-    (!d.is_empty()).then(|| d.iter().sum::<f64>() / d.len() as f64)
+        .filter_map(|c| to.sample(c[0], c[1]).map(|(v, _)| v))
+        .collect()
 }
 
-/// IoU and symmetric mean outline distance of two masks of the same image.
-pub fn agreement(observed: &Mask, rendered: &Mask) -> Agreement {
-    let iou = observed.iou(rendered);
+/// The mean of the middle half of `values` (none of them NaN): as robust as the median to
+/// the outline a knock or a blob moves, and not stuck to the few values that distances on a
+/// pixel grid take.
+fn middle_half_mean(values: impl Iterator<Item = f64>) -> f64 {
+    let mut sorted: Vec<f64> = values.collect();
+    sorted.sort_unstable_by(f64::total_cmp);
+    let n = sorted.len();
+    let middle = &sorted[n / 4..(n - n / 4).max(n / 4 + 1).min(n)];
+    middle.iter().sum::<f64>() / middle.len().max(1) as f64
+}
+
+/// IoU and symmetric mean outline distance of two masks of the same image, after moving the
+/// observed outline back by its typical offset from the rendered one, up to `max_offset_px`.
+///
+/// Why: a segmenter that draws masks a pixel fat or thin (another network, another
+/// threshold, another light than at the calibration) moves the whole outline one way, which
+/// no camera motion does: a knock shifts or turns the silhouette, so its outline moves out
+/// on one side and in on the other and the typical offset stays near zero. Only a move
+/// along the optical axis scales the outline one way, and then not uniformly, so what is
+/// left after the offset still shows it.
+pub fn agreement(observed: &Mask, rendered: &Mask, max_offset_px: f64) -> Agreement {
     let (sd_obs, sd_ren) = (SignedDistance::of(observed), SignedDistance::of(rendered));
-    let a = mean_outline_distance(rendered, &sd_obs);
-    let b = mean_outline_distance(observed, &sd_ren);
-    let boundary_px = match (a, b) {
-        (Some(a), Some(b)) => 0.5 * (a + b),
+    // How far the observed outline lies outward of the rendered one, seen from either side.
+    let from_rendered: Vec<f64> = outline_distances(rendered, &sd_obs)
+        .into_iter()
+        .map(|d| -d)
+        .collect();
+    let from_observed = outline_distances(observed, &sd_ren);
+    if from_rendered.is_empty() || from_observed.is_empty() {
         // One of them shows no robot at all: as far off as it gets.
-        _ => f64::from(observed.width.max(observed.height)),
-    };
-    Agreement { iou, boundary_px }
+        return Agreement {
+            iou: observed.iou(rendered),
+            boundary_px: f64::from(observed.width.max(observed.height)),
+            mask_offset_px: 0.0,
+        };
+    }
+    let offset = middle_half_mean(from_rendered.iter().chain(&from_observed).copied())
+        .clamp(-max_offset_px, max_offset_px);
+    let mean_apart = |d: &[f64]| d.iter().map(|v| (v - offset).abs()).sum::<f64>() / d.len() as f64;
+    Agreement {
+        iou: observed.with_outline_offset(-offset).iou(rendered),
+        boundary_px: 0.5 * (mean_apart(&from_rendered) + mean_apart(&from_observed)),
+        mask_offset_px: offset,
+    }
 }
 
 /// Runs one bump check under the arm lease: every camera with an active calibration is
@@ -103,6 +138,7 @@ pub async fn check(
                 moved_to_check_pose: moved,
                 iou: a.iou,
                 boundary_px: a.boundary_px,
+                mask_offset_px: a.mask_offset_px,
                 min_iou: s.bump_min_iou,
                 max_boundary_px,
                 explained_px: *explained_px,
@@ -379,7 +415,11 @@ impl CameraCheck {
         let explained = self
             .covariance
             .map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
-        Ok((agreement(&observed, &rendered.mask), explained))
+        let max_offset_px = self.daemon.settings().bump_max_mask_offset_px;
+        Ok((
+            agreement(&observed, &rendered.mask, max_offset_px),
+            explained,
+        ))
     }
 }
 
@@ -461,6 +501,63 @@ mod tests {
             CpuRenderer.render(&posed, &camera, &pose, Some(1.0)),
             camera,
         )
+    }
+
+    #[test]
+    fn a_segmenter_drawing_fat_or_thin_reads_as_its_offset_not_as_a_bump() {
+        let (sil, _) = seen();
+        let rendered = &sil.mask;
+        for habit in [1.0, -1.0] {
+            // Every outline pixel one pixel outward (or inward).
+            let observed = rendered.with_outline_offset(habit);
+            let raw = agreement(&observed, rendered, 0.0);
+            let taken_out = agreement(&observed, rendered, 2.0);
+            eprintln!("{habit:+} px: as drawn {raw:?}; offset taken out {taken_out:?}");
+            assert_eq!(raw.mask_offset_px, 0.0);
+            assert!(raw.boundary_px > 0.8, "{habit}: {raw:?}");
+            assert!(
+                (taken_out.mask_offset_px - habit).abs() < 0.3,
+                "{habit}: {taken_out:?}"
+            );
+            assert!(taken_out.boundary_px < 0.35, "{habit}: {taken_out:?}");
+            assert!(
+                taken_out.iou > 0.97 && taken_out.iou > raw.iou,
+                "{habit}: {taken_out:?} {raw:?}"
+            );
+        }
+        // The offset taken out never exceeds the bound.
+        let far = agreement(&rendered.with_outline_offset(4.0), rendered, 2.0);
+        assert_eq!(far.mask_offset_px, 2.0, "{far:?}");
+        assert!(far.boundary_px > 1.5, "{far:?}");
+    }
+
+    #[test]
+    fn a_knocked_camera_still_reads_as_a_bump_through_a_fat_segmenter() {
+        let (sil, camera) = seen();
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
+        let robot = RobotModel::from_urdf(urdf).unwrap();
+        let posed = PosedRobot::new(&robot, &[0.3, -0.4, -0.5, 0.2, 0.9, 0.1]);
+        let pose = look_at_camera_from_base(
+            &Vector3::new(1.3, 0.5, 0.8),
+            &Vector3::new(0.1, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        // About 1 degree and 15 mm, as the daemon's bump test knocks its camera.
+        let knock = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.010, -0.008, 0.008),
+            nalgebra::UnitQuaternion::from_euler_angles(0.010, -0.012, 0.006),
+        );
+        let moved = CpuRenderer
+            .render(&posed, &camera, &(knock * pose), None)
+            .mask;
+        let knocked = agreement(&moved, &sil.mask, 2.0);
+        let knocked_fat = agreement(&moved.with_outline_offset(1.0), &sil.mask, 2.0);
+        eprintln!("knocked {knocked:?}; knocked and fat {knocked_fat:?}");
+        // The default threshold is 1.5 px; both stay well past it.
+        assert!(knocked.boundary_px > 3.0, "{knocked:?}");
+        assert!(knocked_fat.boundary_px > 3.0, "{knocked_fat:?}");
+        assert!(knocked.mask_offset_px.abs() < 1.0, "{knocked:?}");
+        assert!(knocked_fat.iou < 0.9, "{knocked_fat:?}");
     }
 
     #[test]

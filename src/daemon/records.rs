@@ -210,10 +210,17 @@ pub struct CheckRecord {
     pub joints: Vec<f64>,
     /// Whether the arm was moved to `check_pose` first.
     pub moved_to_check_pose: bool,
-    /// IoU of the observed mask and the silhouette rendered under the calibration.
+    /// IoU of the observed mask and the silhouette rendered under the calibration, once the
+    /// segmenter's outline offset (`mask_offset_px`) is taken out.
     pub iou: f64,
-    /// Mean distance between the two outlines, both ways, pixels.
+    /// Mean distance between the two outlines, both ways, pixels, once the segmenter's
+    /// outline offset is taken out.
     pub boundary_px: f64,
+    /// How far the observed outline lay outward of the rendered one (the mean of the middle half of its distances, pixels,
+    /// negative: inward), up to `bump_max_mask_offset_px` either way: a segmenter's fat or thin
+    /// habit, which the two figures above do not count.
+    #[serde(default)]
+    pub mask_offset_px: f64,
     /// Thresholds applied: IoU below…
     pub min_iou: f64,
     /// …or boundary distance above this marks the calibration stale: `bump_max_boundary_px`

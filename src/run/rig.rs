@@ -548,6 +548,14 @@ pub struct ResultCamera {
     pub result: ResultFile,
 }
 
+impl ResultCamera {
+    /// Its name, empty for the one camera of an `easyhec-result/1`: file and frame names
+    /// built from it then carry no camera part.
+    pub fn name_or_empty(&self) -> &str {
+        self.name.as_deref().unwrap_or_default()
+    }
+}
+
 impl ResultCameras {
     /// Reads `path` in whichever format it is, with every check of that format's reader.
     pub fn read(path: &Path) -> Result<ResultCameras> {

@@ -424,6 +424,12 @@ function showCameras(list) {
   $("cameras").replaceChildren(...rows);
 }
 
+// What a check took out as its segmenter's fat or thin habit before measuring, if anything.
+function offsetNote(c) {
+  const px = c.mask_offset_px || 0;
+  return px ? ", masks " + fmt(Math.abs(px), 2) + " px " + (px > 0 ? "fat" : "thin") + " (taken out)" : "";
+}
+
 // The verdict of a check of several cameras: which moved, if any.
 function showChecks(list) {
   if (!list || !list.length) return;
@@ -433,7 +439,7 @@ function showChecks(list) {
   v.className = "badge " + (moved.length ? "bad" : "ok");
   $("check-at").textContent = list[0].at + " (" + list[0].trigger + ")";
   $("check-iou").textContent = list.map((c) => c.camera + " " + fmt(c.iou, 4)).join(", ");
-  $("check-boundary").textContent = list.map((c) => c.camera + " " + fmt(c.boundary_px, 2) + " px").join(", ");
+  $("check-boundary").textContent = list.map((c) => c.camera + " " + fmt(c.boundary_px, 2) + " px" + offsetNote(c)).join(", ");
   $("check-recal").textContent = list[0].recalibration || "—";
 }
 
@@ -444,7 +450,7 @@ function showCheck(c) {
   v.className = "badge " + (c.stale ? "bad" : "ok");
   $("check-at").textContent = c.at + " (" + c.trigger + ", " + c.calibration_id + ")";
   $("check-iou").textContent = fmt(c.iou, 4) + " (stale below " + c.min_iou + ")";
-  $("check-boundary").textContent = fmt(c.boundary_px, 2) + " px (stale above " + c.max_boundary_px + " px)";
+  $("check-boundary").textContent = fmt(c.boundary_px, 2) + " px (stale above " + c.max_boundary_px + " px)" + offsetNote(c);
   $("check-recal").textContent = c.recalibration || "—";
 }
 
