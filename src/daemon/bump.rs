@@ -1,15 +1,16 @@
 //! Bump detection: is the active calibration still right? With the arm idle (or after a
 //! checked move to `[daemon] check_pose`), capture one frame, segment it with the cell's
 //! segmenter (the same path the loop uses; a context-aware one, `builtin`, also gets the
-//! active calibration's recorded frames for its background plate), render the robot's silhouette under the active
-//! `camera_from_base` at the reported joints, and compare: mask IoU and the mean distance
-//! between the two outlines, both ways, in pixels, once the segmenter's uniform outline
-//! offset (a fat or thin habit, up to `bump_max_mask_offset_px`) is taken out. Below `bump_min_iou` or above
+//! active calibration's recorded frames for its background plate), render the robot's
+//! silhouette under the active `camera_from_base` at the reported joints, and compare: mask
+//! IoU and the mean distance between the two outlines, both ways, in pixels, once the
+//! segmenter's uniform outline offset (a fat or thin habit, up to
+//! `bump_max_mask_offset_px`) is taken out. Below `bump_min_iou` or above
 //! `bump_max_boundary_px` plus what the calibration's own uncertainty explains (twice the RMS
 //! outline displacement its covariance predicts at the check view) the calibration is marked
-//! stale, so an honestly uncertain calibration is not called bumped for its own uncertainty; with `recalibrate_on_bump` a
-//! recalibration starts, warm-started from the stale pose (a knocked camera moves by
-//! centimetres and degrees, well inside the solver's basin).
+//! stale, so an honestly uncertain calibration is not called bumped for its own uncertainty;
+//! with `recalibrate_on_bump` a recalibration starts, warm-started from the stale pose (a
+//! knocked camera moves by centimetres and degrees, well inside the solver's basin).
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -57,8 +58,11 @@ fn middle_half_mean(values: impl Iterator<Item = f64>) -> f64 {
     let mut sorted: Vec<f64> = values.collect();
     sorted.sort_unstable_by(f64::total_cmp);
     let n = sorted.len();
-    let middle = &sorted[n / 4..(n - n / 4).max(n / 4 + 1).min(n)];
-    middle.iter().sum::<f64>() / middle.len().max(1) as f64
+    if n == 0 {
+        return 0.0;
+    }
+    let middle = &sorted[n / 4..n - n / 4];
+    middle.iter().sum::<f64>() / middle.len() as f64
 }
 
 /// IoU and symmetric mean outline distance of two masks of the same image, after moving the
@@ -86,8 +90,12 @@ pub fn agreement(observed: &Mask, rendered: &Mask, max_offset_px: f64) -> Agreem
             mask_offset_px: 0.0,
         };
     }
-    let offset = middle_half_mean(from_rendered.iter().chain(&from_observed).copied())
-        .clamp(-max_offset_px, max_offset_px);
+    let offset = if max_offset_px > 0.0 {
+        middle_half_mean(from_rendered.iter().chain(&from_observed).copied())
+            .clamp(-max_offset_px, max_offset_px)
+    } else {
+        0.0
+    };
     let mean_apart = |d: &[f64]| d.iter().map(|v| (v - offset).abs()).sum::<f64>() / d.len() as f64;
     Agreement {
         iou: observed.with_outline_offset(-offset).iou(rendered),
@@ -513,7 +521,7 @@ mod tests {
             let raw = agreement(&observed, rendered, 0.0);
             let taken_out = agreement(&observed, rendered, 2.0);
             eprintln!("{habit:+} px: as drawn {raw:?}; offset taken out {taken_out:?}");
-            assert_eq!(raw.mask_offset_px, 0.0);
+            assert_eq!(raw.mask_offset_px.to_bits(), 0.0f64.to_bits());
             assert!(raw.boundary_px > 0.8, "{habit}: {raw:?}");
             assert!(
                 (taken_out.mask_offset_px - habit).abs() < 0.3,
