@@ -427,7 +427,7 @@ function showCameras(list) {
 // What a check took out as its segmenter's fat or thin habit before measuring, if anything.
 function offsetNote(c) {
   const px = c.mask_offset_px || 0;
-  return px ? ", masks " + fmt(Math.abs(px), 2) + " px " + (px > 0 ? "fat" : "thin") + " (taken out)" : "";
+  return Math.abs(px) >= 0.005 ? ", masks " + fmt(Math.abs(px), 2) + " px " + (px > 0 ? "fat" : "thin") + " (taken out)" : "";
 }
 
 // The verdict of a check of several cameras: which moved, if any.
