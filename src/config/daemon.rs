@@ -51,8 +51,8 @@ pub struct DaemonSettings {
     /// Largest uniform outline offset (pixels) a check puts down to its segmenter rather than
     /// to the camera: a segmenter that draws masks fatter or thinner than the one the
     /// calibration used moves the whole outline outward or inward, which no bump does. The
-    /// check removes the typical offset (the mean of the middle half), up to this, before it measures IoU and boundary
-    /// distance (0: measure the masks as they are).
+    /// check removes the typical offset (the mean of the middle half), up to this, before it
+    /// measures IoU and boundary distance (0: measure the masks as they are).
     #[serde(default = "default_max_mask_offset_px")]
     pub bump_max_mask_offset_px: f64,
     /// Recalibrate, warm-started from the stale pose, when a check finds a bump.

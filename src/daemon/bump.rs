@@ -494,8 +494,8 @@ mod tests {
     use crate::geometry::look_at_camera_from_base;
     use crate::robot::RobotModel;
 
-    /// The xArm6 seen from 1.5 m, rendered with outline samples.
-    fn seen() -> (Silhouette, Intrinsics) {
+    /// The posed xArm6, the camera and the pose it is seen from, about 1.5 m away.
+    fn scene() -> (PosedRobot, Intrinsics, Isometry3<f64>) {
         let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
         let robot = RobotModel::from_urdf(urdf).unwrap();
         let camera = Intrinsics::pinhole(640, 480, 600.0, 600.0, 319.5, 239.5);
@@ -505,6 +505,12 @@ mod tests {
             &Vector3::z(),
         );
         let posed = PosedRobot::new(&robot, &[0.3, -0.4, -0.5, 0.2, 0.9, 0.1]);
+        (posed, camera, pose)
+    }
+
+    /// The xArm6 seen from 1.5 m, rendered with outline samples.
+    fn seen() -> (Silhouette, Intrinsics) {
+        let (posed, camera, pose) = scene();
         (
             CpuRenderer.render(&posed, &camera, &pose, Some(1.0)),
             camera,
@@ -541,15 +547,8 @@ mod tests {
 
     #[test]
     fn a_knocked_camera_still_reads_as_a_bump_through_a_fat_segmenter() {
-        let (sil, camera) = seen();
-        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
-        let robot = RobotModel::from_urdf(urdf).unwrap();
-        let posed = PosedRobot::new(&robot, &[0.3, -0.4, -0.5, 0.2, 0.9, 0.1]);
-        let pose = look_at_camera_from_base(
-            &Vector3::new(1.3, 0.5, 0.8),
-            &Vector3::new(0.1, 0.0, 0.3),
-            &Vector3::z(),
-        );
+        let (sil, _) = seen();
+        let (posed, camera, pose) = scene();
         // About 1 degree and 15 mm, as the daemon's bump test knocks its camera.
         let knock = Isometry3::from_parts(
             nalgebra::Translation3::new(0.010, -0.008, 0.008),

@@ -216,9 +216,9 @@ pub struct CheckRecord {
     /// Mean distance between the two outlines, both ways, pixels, once the segmenter's
     /// outline offset is taken out.
     pub boundary_px: f64,
-    /// How far the observed outline lay outward of the rendered one (the mean of the middle half of its distances, pixels,
-    /// negative: inward), up to `bump_max_mask_offset_px` either way: a segmenter's fat or thin
-    /// habit, which the two figures above do not count.
+    /// How far the observed outline lay outward of the rendered one (the mean of the middle
+    /// half of its distances, pixels, negative: inward), up to `bump_max_mask_offset_px`
+    /// either way: a segmenter's fat or thin habit, which the two figures above do not count.
     #[serde(default)]
     pub mask_offset_px: f64,
     /// Thresholds applied: IoU below…
