@@ -254,13 +254,34 @@ pub trait SilhouetteRenderer: Send + Sync {
     }
 }
 
-/// The reference renderer: scan-converts every triangle on the CPU (rayon over triangle
-/// chunks), then walks silhouette edges.
+/// The reference renderer: scan-converts every triangle on the CPU (rayon over views, or
+/// over triangle chunks when there are fewer views than threads), then walks silhouette edges.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CpuRenderer;
 
 /// Triangles per parallel rasterisation job.
 const RASTER_CHUNK: usize = 8192;
+
+/// Marks every pixel whose centre lies inside (or on) any of `triangles` (corners indexing
+/// `pixels`; a NaN corner, behind the camera, drops its triangle).
+///
+/// One winding goes first, the other second: on a closed mesh each winding alone covers the
+/// whole silhouette, so nearly every triangle of the second pass finds its box already
+/// marked and is skipped ([`fill_triangle`]). The union is the same in any order.
+pub fn fill_triangles(mask: &mut Mask, triangles: &[[u32; 3]], pixels: &[[f64; 2]]) {
+    for first_pass in [true, false] {
+        for t in triangles {
+            let [a, b, c] = t.map(|i| pixels[i as usize]);
+            if a[0].is_nan() || b[0].is_nan() || c[0].is_nan() {
+                continue;
+            }
+            let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+            if (area > 0.0) == first_pass {
+                fill_triangle(mask, a, b, c);
+            }
+        }
+    }
+}
 
 /// Marks every pixel whose centre lies inside (or on) triangle `a b c`.
 #[inline]
@@ -277,6 +298,14 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
     if ymin > ymax || xmin > xmax {
         return;
     }
+    let width = mask.width as usize;
+    let (x0, x1, y0, y1) = (xmin as usize, xmax as usize, ymin as usize, ymax as usize);
+    let small = x1 - x0 <= 4;
+    // Marking only ever sets pixels, so a triangle whose whole box is already marked adds
+    // nothing. Behind the robot's near side that is most of its far side.
+    if small && (y0..=y1).all(|y| !mask.data[y * width + x0..=y * width + x1].contains(&0)) {
+        return;
+    }
     let s = area.signum();
     // Edge functions E(x, y) = ka x + kb y + kc, >= 0 inside (for either winding).
     let edge = |p: [f64; 2], q: [f64; 2]| {
@@ -284,9 +313,7 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
         [-s * ey, s * ex, s * (ey * p[0] - ex * p[1])]
     };
     let e = [edge(a, b), edge(b, c), edge(c, a)];
-    let width = mask.width as usize;
-    let (x0, x1, y0, y1) = (xmin as usize, xmax as usize, ymin as usize, ymax as usize);
-    if x1 - x0 <= 4 {
+    if small {
         // Small triangles (most of a robot mesh): test pixel centres directly.
         for y in y0..=y1 {
             let yf = y as f64;
@@ -296,19 +323,24 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
                 e[1][1] * yf + e[1][2],
                 e[2][1] * yf + e[2][2],
             ];
-            for x in x0..=x1 {
+            // Branch-free: which of a few pixels a triangle covers is not predictable, and
+            // mispredicted branches cost more than the three tests.
+            for (x, px) in (x0..=x1).zip(&mut mask.data[row + x0..=row + x1]) {
                 let xf = x as f64;
-                if e[0][0] * xf + base[0] >= 0.0
-                    && e[1][0] * xf + base[1] >= 0.0
-                    && e[2][0] * xf + base[2] >= 0.0
-                {
-                    mask.data[row + x] = 1;
-                }
+                let inside = (e[0][0] * xf + base[0] >= 0.0)
+                    & (e[1][0] * xf + base[1] >= 0.0)
+                    & (e[2][0] * xf + base[2] >= 0.0);
+                *px |= u8::from(inside);
             }
         }
         return;
     }
     for y in y0..=y1 {
+        let row = y * width;
+        // As for a small triangle's box, a row of the box already marked needs no span.
+        if !mask.data[row + x0..=row + x1].contains(&0) {
+            continue;
+        }
         let yf = y as f64;
         let (mut lo, mut hi) = (xmin, xmax);
         for k in &e {
@@ -323,7 +355,6 @@ pub fn fill_triangle(mask: &mut Mask, a: [f64; 2], b: [f64; 2], c: [f64; 2]) {
             }
         }
         if lo <= hi {
-            let row = y * width;
             mask.data[row + lo as usize..=row + hi as usize].fill(1);
         }
     }
@@ -356,23 +387,31 @@ pub fn rasterize(topology: &TriMesh, pixels: &[[f64; 2]], width: u32, height: u3
         .len()
         .div_ceil(rayon::current_num_threads())
         .max(RASTER_CHUNK);
+    rasterize_in_chunks(topology, pixels, width, height, chunk)
+}
+
+/// [`rasterize`] on the calling thread, into one buffer: for callers that already keep every
+/// thread busy (one view each), where splitting a view only adds buffers and OR passes.
+fn rasterize_serial(topology: &TriMesh, pixels: &[[f64; 2]], width: u32, height: u32) -> Mask {
+    let everything = topology.triangles.len().max(1);
+    rasterize_in_chunks(topology, pixels, width, height, everything)
+}
+
+/// The union silhouette, rasterised `chunk` triangles per job.
+fn rasterize_in_chunks(
+    topology: &TriMesh,
+    pixels: &[[f64; 2]],
+    width: u32,
+    height: u32,
+    chunk: usize,
+) -> Mask {
     topology
         .triangles
         .par_chunks(chunk)
         .fold(
             || Mask::new(width, height),
             |mut m, tris| {
-                for t in tris {
-                    let (a, b, c) = (
-                        pixels[t[0] as usize],
-                        pixels[t[1] as usize],
-                        pixels[t[2] as usize],
-                    );
-                    if a[0].is_nan() || b[0].is_nan() || c[0].is_nan() {
-                        continue;
-                    }
-                    fill_triangle(&mut m, a, b, c);
-                }
+                fill_triangles(&mut m, tris, pixels);
                 m
             },
         )
@@ -414,17 +453,20 @@ pub fn outline_samples(
     step_px: f64,
 ) -> Vec<BoundarySample> {
     let facing = triangle_facing(topology, pixels);
+    // One buffer per rayon job, concatenated in edge order (as a sequential pass would).
     let mut crossings: Vec<Crossing> = topology
         .edges
         .par_iter()
-        .flat_map_iter(|e| {
-            match silhouette_edge(e, topology, pixels, &facing) {
-                Some(edge) => edge_crossings(e, edge, points_camera, mask, step_px),
-                None => Vec::new(),
+        .fold(Vec::new, |mut out, e| {
+            if let Some(edge) = silhouette_edge(e, topology, pixels, &facing) {
+                edge_crossings(e, edge, points_camera, mask, step_px, &mut out);
             }
-            .into_iter()
+            out
         })
-        .collect();
+        .reduce(Vec::new, |mut a, mut b| {
+            a.append(&mut b);
+            a
+        });
     crossings.par_sort_unstable_by(|a, b| {
         a.slot
             .cmp(&b.slot)
@@ -503,19 +545,20 @@ fn silhouette_edge(
     Some(SilhouetteEdge { pa, pb, d, n, open })
 }
 
-/// The crossings of one silhouette edge with the pixel-centre rows and columns where the mask
-/// changes (see [`outline_samples`]), thinned to every `step_px`-th scan line.
+/// Appends to `out` the crossings of one silhouette edge with the pixel-centre rows and
+/// columns where the mask changes (see [`outline_samples`]), thinned to every `step_px`-th
+/// scan line.
 fn edge_crossings(
     e: &Edge,
     edge: SilhouetteEdge,
     points_camera: &[Point3<f64>],
     mask: &Mask,
     step_px: f64,
-) -> Vec<Crossing> {
+    out: &mut Vec<Crossing>,
+) {
     let SilhouetteEdge { pa, pb, d, n, open } = edge;
     let (w, h) = (i64::from(mask.width), i64::from(mask.height));
     let row_slots = (h * (w - 1)).max(0);
-    let mut out: Vec<Crossing> = Vec::new();
     let (qa, qb) = (points_camera[e.a as usize], points_camera[e.b as usize]);
     let ds = 1.0 / (n[0].abs() + n[1].abs());
     let stride = step_px.round().max(1.0) as i64;
@@ -607,7 +650,6 @@ fn edge_crossings(
             }
         }
     }
-    out
 }
 
 impl SilhouetteRenderer for CpuRenderer {
@@ -624,12 +666,49 @@ impl SilhouetteRenderer for CpuRenderer {
     ) -> Silhouette {
         let (pixels, points) = project_vertices(&robot.vertices_base, camera, camera_from_base);
         let mask = rasterize(&robot.topology, &pixels, camera.width, camera.height);
-        let boundary = match boundary_step_px {
-            Some(step) => outline_samples(&robot.topology, &pixels, &points, &mask, step),
-            None => Vec::new(),
-        };
-        Silhouette { mask, boundary }
+        silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
     }
+
+    fn render_many(
+        &self,
+        robots: &[&PosedRobot],
+        camera: &Intrinsics,
+        camera_from_base: &Isometry3<f64>,
+        boundary_step_px: Option<f64>,
+    ) -> Vec<Silhouette> {
+        // With a view per thread or more, the views are the parallel work and each is
+        // rasterised whole on its thread.
+        if robots.len() < rayon::current_num_threads() {
+            return robots
+                .par_iter()
+                .map(|r| self.render(r, camera, camera_from_base, boundary_step_px))
+                .collect();
+        }
+        robots
+            .par_iter()
+            .map(|robot| {
+                let (pixels, points) =
+                    project_vertices(&robot.vertices_base, camera, camera_from_base);
+                let mask = rasterize_serial(&robot.topology, &pixels, camera.width, camera.height);
+                silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
+            })
+            .collect()
+    }
+}
+
+/// A rendered view: its mask and, when `boundary_step_px` is given, its outline samples.
+fn silhouette_from(
+    robot: &PosedRobot,
+    pixels: &[[f64; 2]],
+    points: &[Point3<f64>],
+    mask: Mask,
+    boundary_step_px: Option<f64>,
+) -> Silhouette {
+    let boundary = match boundary_step_px {
+        Some(step) => outline_samples(&robot.topology, pixels, points, &mask, step),
+        None => Vec::new(),
+    };
+    Silhouette { mask, boundary }
 }
 
 /// Renders at `factor`x resolution and keeps, per pixel, the covered fraction of its
@@ -678,6 +757,86 @@ mod tests {
         for v in 0..10 {
             for u in 0..10 {
                 assert_eq!(m.get(u, v), u + v <= 9, "{u},{v}");
+            }
+        }
+    }
+
+    #[test]
+    fn skipping_marked_boxes_leaves_the_union_of_the_triangles() {
+        // Overlapping triangles of both windings, small and large, some partly off the image,
+        // one with a corner behind the camera: the marked pixels are exactly the centres some
+        // triangle covers, whatever the skipping.
+        let (w, h) = (64u32, 48u32);
+        let mut seed = 7u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut pixels = Vec::new();
+        let mut triangles = Vec::new();
+        for i in 0..400u32 {
+            let size = if i % 4 == 0 { 30.0 } else { 4.0 };
+            let (cx, cy) = (next() * 74.0 - 5.0, next() * 58.0 - 5.0);
+            for _ in 0..3 {
+                pixels.push([cx + (next() - 0.5) * size, cy + (next() - 0.5) * size]);
+            }
+            triangles.push([3 * i, 3 * i + 1, 3 * i + 2]);
+        }
+        pixels[5] = [f64::NAN, f64::NAN];
+        let mut mask = Mask::new(w, h);
+        fill_triangles(&mut mask, &triangles, &pixels);
+        let inside = |t: &[u32; 3], x: f64, y: f64| {
+            let [a, b, c] = t.map(|i| pixels[i as usize]);
+            let side =
+                |p: [f64; 2], q: [f64; 2]| (q[0] - p[0]) * (y - p[1]) - (q[1] - p[1]) * (x - p[0]);
+            let (d0, d1, d2) = (side(a, b), side(b, c), side(c, a));
+            (d0 >= 0.0 && d1 >= 0.0 && d2 >= 0.0) || (d0 <= 0.0 && d1 <= 0.0 && d2 <= 0.0)
+        };
+        let mut marked = 0;
+        for v in 0..h {
+            for u in 0..w {
+                let expected = triangles
+                    .iter()
+                    .any(|t| inside(t, f64::from(u), f64::from(v)));
+                assert_eq!(mask.get(i64::from(u), i64::from(v)), expected, "{u},{v}");
+                marked += usize::from(expected);
+            }
+        }
+        assert!(marked > 1000 && marked < (w * h) as usize, "{marked}");
+    }
+
+    #[test]
+    fn views_rendered_together_match_views_rendered_alone() {
+        let robot = crate::robot::RobotModel::from_urdf(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/robots/xarm6/robot.urdf"
+        ))
+        .unwrap();
+        let camera = Intrinsics::pinhole(320, 240, 300.0, 300.0, 159.5, 119.5);
+        let pose = crate::geometry::look_at_camera_from_base(
+            &nalgebra::Vector3::new(1.2, 0.5, 0.7),
+            &nalgebra::Vector3::new(0.2, 0.0, 0.3),
+            &nalgebra::Vector3::z(),
+        );
+        let posed: Vec<PosedRobot> = (0..4)
+            .map(|k| PosedRobot::new(&robot, &[0.3 * f64::from(k), -0.4, -0.5, 0.2, 0.9, 0.1]))
+            .collect();
+        let refs: Vec<&PosedRobot> = posed.iter().collect();
+        // Two threads, as on CI: four views take the path that rasterises each view whole.
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let together = pool.install(|| CpuRenderer.render_many(&refs, &camera, &pose, Some(1.0)));
+        for (r, t) in posed.iter().zip(&together) {
+            let alone = CpuRenderer.render(r, &camera, &pose, Some(1.0));
+            assert_eq!(alone.mask.data, t.mask.data);
+            assert!(alone.mask.data.iter().filter(|&&v| v != 0).count() > 500);
+            assert_eq!(alone.boundary.len(), t.boundary.len());
+            for (a, b) in alone.boundary.iter().zip(&t.boundary) {
+                assert_eq!((a.pixel, a.normal, a.vertex), (b.pixel, b.normal, b.vertex));
             }
         }
     }

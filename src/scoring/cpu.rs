@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use super::BatchScoring;
 use crate::camera::Intrinsics;
 use crate::mask::Mask;
-use crate::render::{fill_triangle, CpuRenderer, PosedRobot, NEAR_PLANE_M};
+use crate::render::{fill_triangles, CpuRenderer, PosedRobot, NEAR_PLANE_M};
 
 /// Rasterises `robot` at `pose` into `mask` (cleared first) on the calling thread, with the
 /// CPU renderer's pixel rule; `pixels` holds the projected vertices (resized as needed, so a
@@ -34,12 +34,7 @@ fn rasterize_at(
             [f64::NAN, f64::NAN]
         };
     }
-    for t in &robot.topology.triangles {
-        let [a, b, c] = t.map(|i| pixels[i as usize]);
-        if !(a[0].is_nan() || b[0].is_nan() || c[0].is_nan()) {
-            fill_triangle(mask, a, b, c);
-        }
-    }
+    fill_triangles(mask, &robot.topology.triangles, pixels);
 }
 
 /// Total per-pixel variance of the candidates' silhouettes of `robot`, in pixels of the

@@ -134,6 +134,7 @@ impl ObservedLevel {
 
 /// Normal equations (`h`, `g`) of Cauchy-weighted outline residuals, with their robust cost,
 /// weighted squared sum and the outline length (px) they cover.
+#[derive(Clone)]
 pub(super) struct Normal {
     cost: f64,
     pub(super) h: Matrix6<f64>,
@@ -308,6 +309,32 @@ pub(super) fn accumulate_keeping(
     (normal, silhouettes)
 }
 
+/// Each view's normal equations at `pose`, apart: summed over some of the views
+/// ([`sum_over`]) they are those views' [`accumulate`] without rendering them again.
+pub(super) fn per_view_normals(
+    renderer: &dyn SilhouetteRenderer,
+    robots: &[&PosedRobot],
+    level: &Level,
+    pose: &Isometry3<f64>,
+    offset_px: f64,
+    opts: &SolveOptions,
+) -> Vec<Normal> {
+    let silhouettes =
+        renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
+    silhouettes
+        .par_iter()
+        .zip(&level.views)
+        .map(|(sil, obs)| view_normal(sil, obs, level, offset_px))
+        .collect()
+}
+
+/// The normal equations of the views at `kept`, from [`per_view_normals`].
+pub(super) fn sum_over(normals: &[Normal], kept: &[usize]) -> Normal {
+    kept.iter()
+        .map(|&i| normals[i].clone())
+        .fold(Normal::zero(), Normal::merge)
+}
+
 /// One view's Cauchy-weighted normal equations, with the observed outline lying
 /// `offset_px` (full-resolution pixels) outward of the rendered one.
 fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level, offset_px: f64) -> Normal {
@@ -399,5 +426,61 @@ pub(super) fn total_cost(n: &Normal) -> f64 {
         n.cost / n.length
     } else {
         f64::INFINITY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{exp_se3, look_at_camera_from_base};
+    use crate::render::CpuRenderer;
+    use crate::robot::RobotModel;
+    use nalgebra::Vector3;
+
+    #[test]
+    fn per_view_normals_summed_over_some_views_are_those_views_accumulated() {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/xarm6/robot.urdf");
+        let robot = RobotModel::from_urdf(urdf).unwrap();
+        let camera = Intrinsics::pinhole(320, 240, 300.0, 300.0, 159.5, 119.5);
+        let truth = look_at_camera_from_base(
+            &Vector3::new(1.2, 0.5, 0.7),
+            &Vector3::new(0.2, 0.0, 0.3),
+            &Vector3::z(),
+        );
+        let views: Vec<View> = (0..3)
+            .map(|k| {
+                let posed =
+                    PosedRobot::new(&robot, &[0.4 * f64::from(k), -0.4, -0.5, 0.2, 0.9, 0.1]);
+                let observed = CpuRenderer.render(&posed, &camera, &truth, None).mask;
+                View {
+                    robot: posed,
+                    observed,
+                }
+            })
+            .collect();
+        let opts = SolveOptions::default();
+        let level = Level::new(&camera, &views, 1, 0.5);
+        let pose = exp_se3(&Twist::new(0.004, -0.003, 0.002, 0.01, -0.005, 0.007)) * truth;
+        let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.robot).collect();
+        let normals = per_view_normals(&CpuRenderer, &robots, &level, &pose, 0.3, &opts);
+        let kept = [0, 2];
+        let summed = sum_over(&normals, &kept);
+        let kept_robots = [robots[0], robots[2]];
+        let direct = accumulate(
+            &CpuRenderer,
+            &kept_robots,
+            &level.keeping(&kept),
+            &pose,
+            0.3,
+            &opts,
+        );
+        assert!(direct.length > 100.0 && direct.cost > 0.0);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-12);
+        assert!(close(summed.cost, direct.cost) && close(summed.length, direct.length));
+        assert!((summed.h - direct.h).norm() <= 1e-9 * direct.h.norm());
+        assert!((summed.g - direct.g).norm() <= 1e-9 * direct.g.norm());
+        // Leaving the middle view out changes them: the sum is over the kept views only.
+        let all = sum_over(&normals, &[0, 1, 2]);
+        assert!(all.length > summed.length + 50.0);
     }
 }

@@ -10,7 +10,8 @@
 //! each group is left out in turn and the rest solved again, warm: one LM iteration at the
 //! second-finest pyramid level, whose wider Cauchy scale lets the pose leave the all-view
 //! basin as a cold solve would, then LM at full resolution. The observations of both levels
-//! are built once and shared. With `d_j` the left increment of group `j`'s solve,
+//! are built once and shared, and so is the first render: every left-out solve starts at the
+//! same pose, where its normal equations are a sum of per-view ones. With `d_j` the left increment of group `j`'s solve,
 //! `C = (g-1)/g sum (d_j - d)(d_j - d)^T` estimates the estimate's covariance.
 //!
 //! The jackknife does not replace the statistical covariance `S`; it adds what it shows
@@ -24,7 +25,7 @@
 
 use nalgebra::{Isometry3, Matrix6};
 
-use super::boundary::Level;
+use super::boundary::{per_view_normals, sum_over, Level};
 use super::lm::{robust_scale_at, Walk};
 use super::{SolveOptions, View};
 use crate::camera::Intrinsics;
@@ -64,6 +65,10 @@ pub(super) fn view_jackknife(
         .map(|f| (f, Level::new(camera, views, f, robust_scale_at(f, opts))))
         .collect();
     let robots: Vec<&PosedRobot> = views.iter().map(|v| &v.robot).collect();
+    // Every left-out solve starts at `pose` on the coarser level: its first normal equations
+    // are a sum of the same per-view ones, rendered once here.
+    let (first_factor, first_level) = levels.first()?;
+    let first_normals = per_view_normals(renderer, &robots, first_level, pose, offset_px, opts);
     let mut deltas = Vec::with_capacity(groups);
     for group in 0..groups {
         let kept: Vec<usize> = (0..n).filter(|i| i % groups != group).collect();
@@ -76,8 +81,9 @@ pub(super) fn view_jackknife(
         };
         let caps = &ITERATIONS[ITERATIONS.len() - levels.len()..];
         for ((factor, level), &cap) in levels.iter().zip(caps) {
+            let start = (factor == first_factor).then(|| sum_over(&first_normals, &kept));
             let level = level.keeping(&kept);
-            walk.level(renderer, &level, &kept_robots, *factor, cap, opts)
+            walk.level(renderer, &level, &kept_robots, *factor, cap, opts, start)
                 .ok()?;
         }
         deltas.push(log_se3(&(walk.pose * pose.inverse())));

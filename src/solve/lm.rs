@@ -44,7 +44,7 @@ pub(super) fn solve_lm(
             decimated.iter().collect()
         };
         let cap = iteration_cap(factor, views.len(), opts);
-        walk.level(renderer, &level, &level_views, factor, cap, opts)?;
+        walk.level(renderer, &level, &level_views, factor, cap, opts, None)?;
     }
     Ok(walk)
 }
@@ -83,7 +83,9 @@ pub(super) struct Walk {
 }
 
 impl Walk {
-    /// At most `cap` LM iterations on `level`, whose observations belong to `robots`.
+    /// At most `cap` LM iterations on `level`, whose observations belong to `robots`;
+    /// `start`, when given, is the normal equations at the walk's pose (saving a render).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn level(
         &mut self,
         renderer: &dyn SilhouetteRenderer,
@@ -92,9 +94,13 @@ impl Walk {
         factor: u32,
         cap: usize,
         opts: &SolveOptions,
+        start: Option<Normal>,
     ) -> Result<()> {
         let started = std::time::Instant::now();
-        let mut current = accumulate(renderer, robots, level, &self.pose, self.offset_px, opts);
+        let mut current = match start {
+            Some(normal) => normal,
+            None => accumulate(renderer, robots, level, &self.pose, self.offset_px, opts),
+        };
         self.iterations += 1;
         if current.length == 0.0 {
             return Err(Error::Solve(
