@@ -664,9 +664,7 @@ impl SilhouetteRenderer for CpuRenderer {
         camera_from_base: &Isometry3<f64>,
         boundary_step_px: Option<f64>,
     ) -> Silhouette {
-        let (pixels, points) = project_vertices(&robot.vertices_base, camera, camera_from_base);
-        let mask = rasterize(&robot.topology, &pixels, camera.width, camera.height);
-        silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
+        render_view(robot, camera, camera_from_base, boundary_step_px, false)
     }
 
     fn render_many(
@@ -678,26 +676,33 @@ impl SilhouetteRenderer for CpuRenderer {
     ) -> Vec<Silhouette> {
         // With a view per thread or more, the views are the parallel work and each is
         // rasterised whole on its thread.
-        if robots.len() < rayon::current_num_threads() {
-            return robots
-                .par_iter()
-                .map(|r| self.render(r, camera, camera_from_base, boundary_step_px))
-                .collect();
-        }
+        let whole = robots.len() >= rayon::current_num_threads();
         robots
             .par_iter()
-            .map(|robot| {
-                let (pixels, points) =
-                    project_vertices(&robot.vertices_base, camera, camera_from_base);
-                let mask = rasterize_serial(&robot.topology, &pixels, camera.width, camera.height);
-                silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
-            })
+            .map(|r| render_view(r, camera, camera_from_base, boundary_step_px, whole))
             .collect()
     }
 }
 
+/// One view on the CPU; `whole` rasterises it on the calling thread ([`rasterize_serial`]).
+fn render_view(
+    robot: &PosedRobot,
+    camera: &Intrinsics,
+    camera_from_base: &Isometry3<f64>,
+    boundary_step_px: Option<f64>,
+    whole: bool,
+) -> Silhouette {
+    let (pixels, points) = project_vertices(&robot.vertices_base, camera, camera_from_base);
+    let mask = if whole {
+        rasterize_serial(&robot.topology, &pixels, camera.width, camera.height)
+    } else {
+        rasterize(&robot.topology, &pixels, camera.width, camera.height)
+    };
+    silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
+}
+
 /// A rendered view: its mask and, when `boundary_step_px` is given, its outline samples.
-fn silhouette_from(
+pub(crate) fn silhouette_from(
     robot: &PosedRobot,
     pixels: &[[f64; 2]],
     points: &[Point3<f64>],

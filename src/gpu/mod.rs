@@ -6,8 +6,8 @@
 //!   f64 (the same projection, distortion and near-plane rule as [`CpuRenderer`]), uploaded as
 //!   pixel positions, and every view of a solve is drawn into one layer of a texture array in
 //!   a single submission; the masks come back and the outline samples are taken from them on
-//!   the CPU with [`outline_samples`], so the solver's gradient is the CPU's code on the
-//!   GPU's mask.
+//!   the CPU with [`crate::render::outline_samples`], so the solver's gradient is the CPU's
+//!   code on the GPU's mask.
 //! - **Exploration** ([`BatchScoring::disagreement_many`]): a compute rasteriser, one
 //!   thread per (triangle, camera candidate, joint sample), applies the CPU's pixel rule in f32
 //!   and sets one bit per covered pixel in the candidate's bitmask; a second pass counts per
@@ -51,7 +51,7 @@ use rayon::prelude::*;
 
 use crate::camera::Intrinsics;
 use crate::mask::Mask;
-use crate::render::{outline_samples, PosedRobot, Silhouette, SilhouetteRenderer};
+use crate::render::{silhouette_from, PosedRobot, Silhouette, SilhouetteRenderer};
 use crate::scoring::BatchScoring;
 
 /// GPU memory one exploration batch may use for its candidate bitmasks and vertices, bytes.
@@ -172,11 +172,7 @@ impl SilhouetteRenderer for WgpuRenderer {
             .into_par_iter()
             .zip(robots.par_iter())
             .map(|((mask, (pixels, points)), robot)| {
-                let boundary = match boundary_step_px {
-                    Some(step) => outline_samples(&robot.topology, &pixels, &points, &mask, step),
-                    None => Vec::new(),
-                };
-                Silhouette { mask, boundary }
+                silhouette_from(robot, &pixels, &points, mask, boundary_step_px)
             })
             .collect()
     }

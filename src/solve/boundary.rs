@@ -301,12 +301,20 @@ pub(super) fn accumulate_keeping(
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    let normal = silhouettes
+    let normal = view_normals(&silhouettes, level, offset_px).reduce(Normal::zero, Normal::merge);
+    (normal, silhouettes)
+}
+
+/// Each of `silhouettes`' normal equations against its observation in `level`.
+fn view_normals<'a>(
+    silhouettes: &'a [Silhouette],
+    level: &'a Level,
+    offset_px: f64,
+) -> impl IndexedParallelIterator<Item = Normal> + 'a {
+    silhouettes
         .par_iter()
         .zip(&level.views)
-        .map(|(sil, obs)| view_normal(sil, obs, level, offset_px))
-        .reduce(Normal::zero, Normal::merge);
-    (normal, silhouettes)
+        .map(move |(sil, obs)| view_normal(sil, obs, level, offset_px))
 }
 
 /// Each view's normal equations at `pose`, apart: summed over some of the views
@@ -321,11 +329,7 @@ pub(super) fn per_view_normals(
 ) -> Vec<Normal> {
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    silhouettes
-        .par_iter()
-        .zip(&level.views)
-        .map(|(sil, obs)| view_normal(sil, obs, level, offset_px))
-        .collect()
+    view_normals(&silhouettes, level, offset_px).collect()
 }
 
 /// The normal equations of the views at `kept`, from [`per_view_normals`].
