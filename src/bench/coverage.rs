@@ -56,10 +56,11 @@ pub struct CoverageBench {
     #[arg(long)]
     pub mask_offset: bool,
     /// The joint error the solver is told, radians, as `easyhec solve --joint-noise-rad`
-    /// (0 to 0.1): a cell states its arm's. The scenes' own comes with `--noise`: 0.5 mrad,
-    /// but 0.3 for `blurred` and none for `none`.
-    #[arg(long, default_value_t = 5e-4)]
-    pub joint_noise_rad: f64,
+    /// (0 to 0.1). By default the scenes' own, as a cell states its arm's in `[calibration]
+    /// joint_noise_rad`: it comes with `--noise` (0.5 mrad, but 0.3 for `blurred` and none for
+    /// `none`). Set it to see what a wrong statement costs.
+    #[arg(long)]
+    pub joint_noise_rad: Option<f64>,
 }
 
 impl CoverageBench {
@@ -75,13 +76,7 @@ impl CoverageBench {
         if self.views.iter().any(|&k| !(1..=20).contains(&k)) {
             return Err(Error::Usage("--views: each count must be 1..=20".into()));
         }
-        let bound = crate::config::checks::bounds::JOINT_NOISE_RAD;
-        if !(0.0..=bound).contains(&self.joint_noise_rad) {
-            return Err(Error::Usage(format!(
-                "--joint-noise-rad {}: allowed: 0 to {bound} rad",
-                self.joint_noise_rad
-            )));
-        }
+        let joint_noise_rad = self.stated_joint_noise_rad(&noise)?;
         let model = RobotModel::from_urdf(&self.robot)?;
         let synth = SynthOptions {
             noise,
@@ -91,7 +86,7 @@ impl CoverageBench {
         for seed in 0..self.scenes {
             let opts = SolveOptions {
                 estimate_mask_offset: self.mask_offset,
-                joint_noise_rad: self.joint_noise_rad,
+                joint_noise_rad,
                 ..SolveOptions::default()
             };
             for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts)? {
@@ -107,6 +102,21 @@ impl CoverageBench {
         let mut report = Report::default();
         report.line(summarize(&self.noise, &trials, &self.views));
         Ok(report)
+    }
+}
+
+impl CoverageBench {
+    /// The joint noise the solver is told: `--joint-noise-rad` when given, else the scenes'
+    /// own (`noise`'s), as a cell states its arm's.
+    fn stated_joint_noise_rad(&self, noise: &NoiseModel) -> Result<f64> {
+        let stated = self.joint_noise_rad.unwrap_or(noise.joint_noise_rad);
+        let bound = crate::config::checks::bounds::JOINT_NOISE_RAD;
+        if !(0.0..=bound).contains(&stated) {
+            return Err(Error::Usage(format!(
+                "--joint-noise-rad {stated}: allowed: 0 to {bound} rad"
+            )));
+        }
+        Ok(stated)
     }
 }
 
@@ -195,4 +205,38 @@ pub fn summarize(noise: &str, trials: &[CoverageTrial], view_counts: &[usize]) -
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bench(noise: &str, joint_noise_rad: Option<f64>) -> CoverageBench {
+        CoverageBench {
+            robot: PathBuf::from("robot.urdf"),
+            scenes: 1,
+            views: vec![1],
+            noise: noise.into(),
+            mask_offset: false,
+            joint_noise_rad,
+        }
+    }
+
+    #[test]
+    fn the_solver_is_told_the_scenes_joint_noise_unless_the_flag_says_otherwise() {
+        let told = |noise: &str, flag: Option<f64>| {
+            let model = NoiseModel::preset(noise).unwrap();
+            bench(noise, flag).stated_joint_noise_rad(&model)
+        };
+        assert_eq!(told("blurred", None).unwrap(), 3e-4);
+        assert_eq!(told("segmenter", None).unwrap(), 5e-4);
+        assert_eq!(told("none", None).unwrap(), 0.0);
+        assert_eq!(told("blurred", Some(5e-4)).unwrap(), 5e-4);
+        let refused = told("blurred", Some(1.0)).unwrap_err().to_string();
+        assert!(
+            refused.contains("--joint-noise-rad 1: allowed: 0 to"),
+            "{refused}"
+        );
+        assert!(told("blurred", Some(f64::NAN)).is_err());
+    }
 }
