@@ -61,6 +61,10 @@ pub struct CoverageBench {
     /// `none`). Set it to see what a wrong statement costs.
     #[arg(long)]
     pub joint_noise_rad: Option<f64>,
+    /// Judge the statistical covariance alone, without the view jackknife's inter-view term:
+    /// what a result reported before the term, and how much the term adds.
+    #[arg(long)]
+    pub statistical_only: bool,
 }
 
 impl CoverageBench {
@@ -89,7 +93,8 @@ impl CoverageBench {
                 joint_noise_rad,
                 ..SolveOptions::default()
             };
-            for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts)? {
+            let with_inter_view = !self.statistical_only;
+            for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts, with_inter_view)? {
                 log(&format!(
                     "seed {} views {}: {:.4} deg {:.3} mm; |error|/sigma rot {:.2} {:.2} {:.2} trans {:.2} {:.2} {:.2}; centre {:.3} mm of bound {:.3} mm",
                     t.seed, t.views, t.rotation_deg, t.translation_mm,
@@ -120,13 +125,15 @@ impl CoverageBench {
     }
 }
 
-/// Solves one seeded scene from its first k views for each k in `view_counts`.
+/// Solves one seeded scene from its first k views for each k in `view_counts`, as a result is
+/// reported (`with_inter_view`) or with the statistical covariance alone.
 fn coverage_of_scene(
     robot: &RobotModel,
     seed: u64,
     view_counts: &[usize],
     synth: &SynthOptions,
     opts: &SolveOptions,
+    with_inter_view: bool,
 ) -> Result<Vec<CoverageTrial>> {
     let max_views = view_counts.iter().copied().max().unwrap_or(1);
     let (scene, views, init) = seeded_scene(robot, seed, max_views, synth)?;
@@ -134,7 +141,11 @@ fn coverage_of_scene(
     let mut trials = Vec::new();
     for &k in view_counts {
         let rep = solve(&CpuRenderer, &scene.camera, &views[..k], &init, opts)?;
-        let rep = with_view_disagreement(&CpuRenderer, &scene.camera, &views[..k], rep, opts);
+        let rep = if with_inter_view {
+            with_view_disagreement(&CpuRenderer, &scene.camera, &views[..k], rep, opts)
+        } else {
+            rep
+        };
         let est = rep.camera_from_base;
         trials.push(CoverageTrial {
             seed,
@@ -219,6 +230,7 @@ mod tests {
             noise: noise.into(),
             mask_offset: false,
             joint_noise_rad,
+            statistical_only: false,
         }
     }
 
