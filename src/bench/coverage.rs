@@ -108,9 +108,7 @@ impl CoverageBench {
         report.line(summarize(&self.noise, &trials, &self.views));
         Ok(report)
     }
-}
 
-impl CoverageBench {
     /// The joint noise the solver is told: `--joint-noise-rad` when given, else the scenes'
     /// own (`noise`'s), as a cell states its arm's.
     fn stated_joint_noise_rad(&self, noise: &NoiseModel) -> Result<f64> {
