@@ -65,6 +65,10 @@ pub struct CoverageBench {
     /// what a result reported before the term, and how much the term adds.
     #[arg(long)]
     pub statistical_only: bool,
+    /// Report LM's pose without the posterior refinement: how far the covariance, built from
+    /// LM's residuals, fits the pose it comes from.
+    #[arg(long)]
+    pub no_refine: bool,
 }
 
 impl CoverageBench {
@@ -87,12 +91,8 @@ impl CoverageBench {
             ..SynthOptions::default()
         };
         let mut trials = Vec::new();
+        let opts = self.solve_options(joint_noise_rad);
         for seed in 0..self.scenes {
-            let opts = SolveOptions {
-                estimate_mask_offset: self.mask_offset,
-                joint_noise_rad,
-                ..SolveOptions::default()
-            };
             let with_inter_view = !self.statistical_only;
             for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts, with_inter_view)? {
                 log(&format!(
@@ -107,6 +107,22 @@ impl CoverageBench {
         let mut report = Report::default();
         report.line(summarize(&self.noise, &trials, &self.views));
         Ok(report)
+    }
+
+    /// The solver's options: a result's, with the mask offset, the joint noise and the
+    /// refinement as the flags say.
+    fn solve_options(&self, joint_noise_rad: f64) -> SolveOptions {
+        let defaults = SolveOptions::default();
+        SolveOptions {
+            estimate_mask_offset: self.mask_offset,
+            joint_noise_rad,
+            refine_samples: if self.no_refine {
+                0
+            } else {
+                defaults.refine_samples
+            },
+            ..defaults
+        }
     }
 
     /// The joint noise the solver is told: `--joint-noise-rad` when given, else the scenes'
@@ -229,6 +245,7 @@ mod tests {
             mask_offset: false,
             joint_noise_rad,
             statistical_only: false,
+            no_refine: false,
         }
     }
 
@@ -248,5 +265,19 @@ mod tests {
             "{refused}"
         );
         assert!(told("blurred", Some(f64::NAN)).is_err());
+    }
+
+    #[test]
+    fn no_refine_turns_the_refinement_off_and_nothing_else() {
+        let plain = bench("segmenter", None).solve_options(5e-4);
+        let mut flagged = bench("segmenter", None);
+        flagged.no_refine = true;
+        let unrefined = flagged.solve_options(5e-4);
+        assert!(plain.refine_samples > 1, "{}", plain.refine_samples);
+        // The solver skips the refinement below two samples.
+        assert!(unrefined.refine_samples <= 1);
+        assert_eq!(unrefined.joint_noise_rad, plain.joint_noise_rad);
+        assert_eq!(unrefined.estimate_mask_offset, plain.estimate_mask_offset);
+        assert_eq!(unrefined.pyramid, plain.pyramid);
     }
 }
