@@ -185,7 +185,8 @@ impl Band {
 /// (mostly depth), so its minimiser wanders within that valley. Sample poses from the LM's
 /// Gaussian posterior (inflated), score each by the paper's mask loss over all views, and
 /// average the best few in the tangent space — a cheap posterior mean under the mask loss.
-/// On the benchmark it cuts the median translation error by ~40% (README).
+/// On the `segmenter` benchmark it cuts the median translation error by 23% at 1 view and
+/// 37–39% at 3 and 5 (docs/benchmarks.md, `bench coverage --no-refine`).
 pub(super) fn refine(
     renderer: &dyn Backend,
     camera: &Intrinsics,
