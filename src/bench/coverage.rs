@@ -93,8 +93,8 @@ impl CoverageBench {
         };
         let mut trials = Vec::new();
         let opts = self.solve_options(joint_noise_rad);
+        let with_inter_view = !self.statistical_only;
         for seed in 0..self.scenes {
-            let with_inter_view = !self.statistical_only;
             for t in coverage_of_scene(&model, seed, &self.views, &synth, &opts, with_inter_view)? {
                 log(&format!(
                     "seed {} views {}: {:.4} deg {:.3} mm; |error|/sigma rot {:.2} {:.2} {:.2} trans {:.2} {:.2} {:.2}; centre {:.3} mm of bound {:.3} mm",
