@@ -160,25 +160,42 @@ impl Mask {
         if factor == 1 {
             return self.clone();
         }
-        let (w, h) = (self.width.div_ceil(factor), self.height.div_ceil(factor));
-        let mut sum = vec![0u32; (w * h) as usize];
-        let mut cnt = vec![0u32; (w * h) as usize];
-        for v in 0..self.height {
-            for u in 0..self.width {
-                let i = ((v / factor) * w + u / factor) as usize;
-                sum[i] += u32::from(self.data[(v * self.width + u) as usize]);
-                cnt[i] += 1;
-            }
-        }
+        let (w, h, set, count) = self.block_counts(factor);
         Mask {
             width: w,
             height: h,
-            data: sum
+            data: set
                 .iter()
-                .zip(&cnt)
+                .zip(&count)
                 .map(|(&s, &c)| u8::from(2 * s >= c))
                 .collect(),
         }
+    }
+
+    /// The fraction of robot pixels in each `factor` x `factor` block, row-major over the
+    /// [`Mask::downsample`]d size (an edge block counts only the pixels it covers).
+    pub fn block_fractions(&self, factor: u32) -> Vec<f32> {
+        let (_, _, set, count) = self.block_counts(factor.max(1));
+        set.iter()
+            .zip(&count)
+            .map(|(&s, &c)| s as f32 / c.max(1) as f32)
+            .collect()
+    }
+
+    /// Per `factor` x `factor` block: the downsampled width and height, the robot pixels and
+    /// all pixels of each block.
+    fn block_counts(&self, factor: u32) -> (u32, u32, Vec<u32>, Vec<u32>) {
+        let (w, h) = (self.width.div_ceil(factor), self.height.div_ceil(factor));
+        let mut set = vec![0u32; (w * h) as usize];
+        let mut count = vec![0u32; (w * h) as usize];
+        for v in 0..self.height {
+            for u in 0..self.width {
+                let i = ((v / factor) * w + u / factor) as usize;
+                set[i] += u32::from(self.data[(v * self.width + u) as usize] != 0);
+                count[i] += 1;
+            }
+        }
+        (w, h, set, count)
     }
 
     /// The width and height a mask file's header states (see [`image_size`]).
@@ -396,6 +413,23 @@ mod tests {
             }
         }
         m
+    }
+
+    #[test]
+    fn block_fractions_count_only_the_pixels_an_edge_block_covers() {
+        let mut m = Mask::new(10, 3);
+        for u in [0, 1, 8, 9] {
+            m.set(u, 0, true);
+        }
+        // 8x8 blocks: the first covers 8x3 pixels (2 set), the second 2x3 (2 set).
+        let f = m.block_fractions(8);
+        assert_eq!(f.len(), 2);
+        assert!((f[0] - 2.0 / 24.0).abs() < 1e-6, "{f:?}");
+        assert!((f[1] - 2.0 / 6.0).abs() < 1e-6, "{f:?}");
+        // Downsampling thresholds the same counts at one half.
+        assert_eq!(m.downsample(8).data, vec![0, 0]);
+        m.set(9, 1, true);
+        assert_eq!(m.downsample(8).data, vec![0, 1]);
     }
 
     #[test]

@@ -63,7 +63,16 @@ impl Default for BuiltinParams {
     }
 }
 
-type Rgb = [f32; 3];
+pub(super) type Rgb = [f32; 3];
+
+/// A frame's pixels as floating-point RGB.
+pub(super) fn rgb_of(frame: &Frame) -> Vec<Rgb> {
+    frame
+        .rgb
+        .chunks_exact(3)
+        .map(|c| [f32::from(c[0]), f32::from(c[1]), f32::from(c[2])])
+        .collect()
+}
 
 /// Segments all views of one static camera together (see the module docs).
 pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<Vec<Mask>> {
@@ -127,16 +136,7 @@ fn segment(
             "segmenter 'builtin' needs a second view of the same camera or a prior pose: give the cell an [calibration] initial_guess (or the run an initial_guess)".into(),
         ));
     }
-    let images: Vec<Vec<Rgb>> = views
-        .par_iter()
-        .map(|v| {
-            v.frame
-                .rgb
-                .chunks_exact(3)
-                .map(|c| [f32::from(c[0]), f32::from(c[1]), f32::from(c[2])])
-                .collect()
-        })
-        .collect();
+    let images: Vec<Vec<Rgb>> = views.par_iter().map(|v| rgb_of(v.frame)).collect();
     // Signed distance to each prior (positive inside), pixels.
     let priors: Vec<Option<Vec<f32>>> = views
         .par_iter()
@@ -160,7 +160,7 @@ fn segment(
         gains = images
             .par_iter()
             .zip(&excluded)
-            .map(|(img, ex)| fit_gain(img, &plate, ex))
+            .map(|(img, ex)| fit_gain(img, &plate.colour, |i| !ex[i] && plate.support[i] >= 2))
             .collect();
         let plate = background_plate(&images, &gains, &excluded, w * h);
         let change: Vec<Vec<f32>> = images
@@ -258,7 +258,7 @@ fn prior_llr(sd: f32, band: f32) -> f32 {
     }
 }
 
-fn scaled(px: &Rgb, g: &Rgb) -> Rgb {
+pub(super) fn scaled(px: &Rgb, g: &Rgb) -> Rgb {
     [px[0] * g[0], px[1] * g[1], px[2] * g[2]]
 }
 
@@ -315,7 +315,7 @@ fn background_plate(images: &[Vec<Rgb>], gains: &[Rgb], excluded: &[Vec<bool>], 
     Plate { colour, support }
 }
 
-fn median_f32(v: &mut [f32]) -> f32 {
+pub(super) fn median_f32(v: &mut [f32]) -> f32 {
     v.sort_by(f32::total_cmp);
     let n = v.len();
     if n % 2 == 1 {
@@ -325,15 +325,16 @@ fn median_f32(v: &mut [f32]) -> f32 {
     }
 }
 
-/// Per-channel gain mapping this frame onto the plate, fitted on pixels it lends to the
-/// plate (median of ratios: robust to the robot and to shadows covering some of them).
-fn fit_gain(img: &[Rgb], plate: &Plate, excluded: &[bool]) -> Rgb {
+/// Per-channel gain mapping this frame onto `target` (the plate, or another frame), fitted on
+/// the `usable` pixels (median of ratios: robust to the robot and to shadows covering some of
+/// them); 1 where fewer than 100 pixels are usable.
+pub(super) fn fit_gain(img: &[Rgb], target: &[Rgb], usable: impl Fn(usize) -> bool) -> Rgb {
     let mut out = [1f32; 3];
     for (c, o) in out.iter_mut().enumerate() {
         let mut ratios: Vec<f32> = (0..img.len())
             .step_by(3)
-            .filter(|&i| !excluded[i] && plate.support[i] >= 2 && img[i][c] > 12.0)
-            .map(|i| plate.colour[i][c] / img[i][c])
+            .filter(|&i| usable(i) && img[i][c] > 12.0)
+            .map(|i| target[i][c] / img[i][c])
             .collect();
         if ratios.len() > 100 {
             *o = median_f32(&mut ratios).clamp(0.25, 4.0);
@@ -342,26 +343,29 @@ fn fit_gain(img: &[Rgb], plate: &Plate, excluded: &[bool]) -> Rgb {
     out
 }
 
-/// Colour distance to the plate that forgives shadows: the pixel is compared with the plate
-/// colour scaled by the best darkening factor in [0.35, 1], plus a small cost for darkening.
+/// Colour distance to the plate that forgives shadows ([`shadow_tolerant_distance`]), each
+/// pixel first scaled by the frame's gain `g`.
 fn change_distance(img: &[Rgb], g: &Rgb, plate: &Plate) -> Vec<f32> {
     img.iter()
         .zip(&plate.colour)
-        .map(|(px, p)| {
-            let f = scaled(px, g);
-            let direct = dist(&f, p);
-            let pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
-            if pp < 1.0 {
-                return direct;
-            }
-            let alpha = ((f[0] * p[0] + f[1] * p[1] + f[2] * p[2]) / pp).clamp(0.35, 1.0);
-            let shadow = dist(&f, &[p[0] * alpha, p[1] * alpha, p[2] * alpha]);
-            direct.min(shadow + 20.0 * (1.0 - alpha))
-        })
+        .map(|(px, p)| shadow_tolerant_distance(&scaled(px, g), p))
         .collect()
 }
 
-fn dist(a: &Rgb, b: &Rgb) -> f32 {
+/// Colour distance from `f` to `p` that forgives shadows: `f` is compared with `p` scaled by
+/// the best darkening factor in [0.35, 1], plus a small cost for darkening.
+fn shadow_tolerant_distance(f: &Rgb, p: &Rgb) -> f32 {
+    let direct = dist(f, p);
+    let pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2];
+    if pp < 1.0 {
+        return direct;
+    }
+    let alpha = ((f[0] * p[0] + f[1] * p[1] + f[2] * p[2]) / pp).clamp(0.35, 1.0);
+    let shadow = dist(f, &[p[0] * alpha, p[1] * alpha, p[2] * alpha]);
+    direct.min(shadow + 20.0 * (1.0 - alpha))
+}
+
+pub(super) fn dist(a: &Rgb, b: &Rgb) -> f32 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 

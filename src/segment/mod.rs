@@ -7,6 +7,7 @@
 //! context also override [`Segmenter::segment_views`] and [`Segmenter::uses_context`].
 
 pub mod builtin;
+pub mod change;
 #[cfg(feature = "sim")]
 mod sim_truth;
 

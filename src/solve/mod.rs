@@ -39,6 +39,7 @@ mod uncertainty;
 pub use covariance::model_floor;
 pub use disagreement::{JACKKNIFE_MIN_VIEWS, MAX_GROUPS};
 pub use search::coarse_search;
+pub(crate) use search::cross_entropy_search;
 pub use shared_joints::{
     refine_with_joint_corrections, solve_with_shared_joints, CameraSolve, SharedCamera,
     SharedRefinement, SharedSolve,

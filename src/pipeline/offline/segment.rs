@@ -10,6 +10,7 @@ use crate::backend::Backend;
 use crate::camera::LensWarp;
 use crate::config::SegmenterConfig;
 use crate::error::{Error, Result};
+use crate::init::change::initialise_from_change;
 use crate::init::{initialise, InitOptions};
 use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
 use crate::render::PosedRobot;
@@ -55,7 +56,14 @@ pub(super) fn segment_run(
         .iter()
         .map(|&i| PosedRobot::new(&run.robot, &run.views[i].joints))
         .collect();
-    let guess = run.initial_guess;
+    let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
+    let guess = match run.initial_guess {
+        Some(g) => Some(g),
+        None if segmenter.uses_context() && frame_refs.len() >= 2 => {
+            change_start(renderer, run, &frame_refs, &robots, &name, note)
+        }
+        None => None,
+    };
     let camera = run.camera.clone();
     let start = |views: &[View]| -> Result<Isometry3<f64>> {
         match guess {
@@ -70,7 +78,6 @@ pub(super) fn segment_run(
             .camera_from_base),
         }
     };
-    let frame_refs: Vec<&easyhec_drivers::Frame> = frames.iter().collect();
     let settled = segment_solve::segment_and_solve(
         renderer,
         &run.camera,
@@ -115,6 +122,42 @@ pub(super) fn segment_run(
         run.views[i].needs_mask = false;
     }
     Ok((settled.report.mean_iou() >= POOR_FIT_IOU).then_some(settled.report.camera_from_base))
+}
+
+/// With no guess, a start from what changed between the views ([`initialise_from_change`]),
+/// which a segmenter's first, pose-less masks are too poor to find by their fit; `None` (the
+/// mask-fit initialisation then runs on those masks) when no pose explains the change. The
+/// pose found is then used as a guess is, band and all: like a tape-measured guess it is a
+/// few degrees and centimetres off, and the settled fit, not the start, decides the result.
+fn change_start(
+    renderer: &dyn Backend,
+    run: &LoadedRun,
+    frames: &[&easyhec_drivers::Frame],
+    robots: &[PosedRobot],
+    name: &str,
+    note: &mut dyn FnMut(&str),
+) -> Option<Isometry3<f64>> {
+    match initialise_from_change(
+        renderer,
+        &run.camera,
+        frames,
+        robots,
+        &InitOptions::default(),
+    ) {
+        Ok(found) => {
+            note(&format!(
+                "segmenter {name}: no initial guess; started from the camera pose that explains what changed between the views (overlap {:.2})",
+                found.score
+            ));
+            Some(found.camera_from_base)
+        }
+        Err(e) => {
+            note(&format!(
+                "segmenter {name}: {e}; initialising from its first masks instead"
+            ));
+            None
+        }
+    }
 }
 
 /// What the view-pair search needs of the run being segmented.

@@ -6,6 +6,8 @@
 //! cross-entropy search and the full solver; the best result wins. A low final IoU is reported
 //! as a failure, never returned as a pose.
 
+pub mod change;
+
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
@@ -133,23 +135,8 @@ pub fn initialise(
         })
         .collect();
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-    // Refine distinct hypotheses: the top scores are mostly neighbours of one pose, and a wrong
-    // (e.g. mirrored) pose must not take every slot.
-    let mut starts: Vec<Isometry3<f64>> = Vec::new();
-    for (_, pose) in &scored {
-        if starts.len() >= opts.refine_best.max(1) {
-            break;
-        }
-        let distinct = starts.iter().all(|s| {
-            crate::geometry::rotation_error_deg(s, pose) > 25.0
-                || crate::geometry::camera_centre_error_mm(s, pose) > 300.0
-        });
-        if distinct {
-            starts.push(*pose);
-        }
-    }
     let mut best: Option<SolveReport> = None;
-    for start in &starts {
+    for start in &distinct_starts(&scored, opts.refine_best) {
         let refined = coarse_search(renderer, &pinhole, views, start, solve_opts);
         let Ok(report) = solve(renderer, &pinhole, views, &refined, solve_opts) else {
             continue;
@@ -171,6 +158,25 @@ pub fn initialise(
         ))),
         None => Err(Error::Solve("automatic initialisation failed: no hypothesis could be refined".into())),
     }
+}
+
+/// Up to `count` of `scored` (best first) that differ from each other: the top scores are
+/// mostly neighbours of one pose, and a wrong (e.g. mirrored) pose must not take every slot.
+fn distinct_starts(scored: &[(f64, Isometry3<f64>)], count: usize) -> Vec<Isometry3<f64>> {
+    let mut starts: Vec<Isometry3<f64>> = Vec::new();
+    for (_, pose) in scored {
+        if starts.len() >= count.max(1) {
+            break;
+        }
+        let distinct = starts.iter().all(|s| {
+            crate::geometry::rotation_error_deg(s, pose) > 25.0
+                || crate::geometry::camera_centre_error_mm(s, pose) > 300.0
+        });
+        if distinct {
+            starts.push(*pose);
+        }
+    }
+    starts
 }
 
 /// Centroid of the robot pixels, or `None` for an empty mask.
