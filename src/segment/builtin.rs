@@ -327,7 +327,7 @@ pub(super) fn median_f32(v: &mut [f32]) -> f32 {
 
 /// Per-channel gain mapping this frame onto `target` (the plate, or another frame), fitted on
 /// the `usable` pixels (median of ratios: robust to the robot and to shadows covering some of
-/// them); 1 where fewer than 100 pixels are usable.
+/// them); 1 where 100 pixels or fewer are usable.
 pub(super) fn fit_gain(img: &[Rgb], target: &[Rgb], usable: impl Fn(usize) -> bool) -> Rgb {
     let mut out = [1f32; 3];
     for (c, o) in out.iter_mut().enumerate() {

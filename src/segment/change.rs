@@ -18,7 +18,7 @@ const SAMPLE_STRIDE: usize = 7;
 /// The pixels whose colour differs between `a` and `b` (the same size) past the noise, `b`
 /// first scaled per channel onto `a`'s exposure. Shadows count as change: forgiving them (as
 /// the segmenter does against its plate) also forgives a white robot in front of a grey wall,
-/// which differs from it mostly in brightness (on the real xArm7 set the true pose's overlap
+/// which differs from it mostly in brightness (on the real xArm7 set the best start's overlap
 /// fell from 0.62 to 0.31).
 pub fn changed_between(a: &Frame, b: &Frame) -> Mask {
     let (a_rgb, b_rgb) = (rgb_of(a), rgb_of(b));
