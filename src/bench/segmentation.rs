@@ -265,6 +265,11 @@ pub struct SegmentBench {
     /// Renderer: cpu, wgpu or auto.
     #[arg(long, default_value = "auto")]
     pub renderer: RendererChoice,
+    /// Calibrate the simulated cells with no initial guess: the loop first takes views near
+    /// the start pose and starts from what changed between them. Cells that fail are counted
+    /// and named, not fatal.
+    #[arg(long)]
+    pub no_guess: bool,
 }
 
 impl SegmentBench {
@@ -278,15 +283,28 @@ impl SegmentBench {
             run,
             frames,
             renderer,
+            no_guess,
         } = self.clone();
         let preset = frames;
         if scenes > 0 {
             let mut base = read_config(&config)?;
             base.calibration.renderer = renderer;
             let mut trials = Vec::new();
+            let mut failed = Vec::new();
             for seed in 0..scenes {
-                let cfg = seeded_sim_cell(&base, &config, seed)?;
-                let t = cell_trial(&cfg, &config, seed, views, preset)?;
+                let mut cfg = seeded_sim_cell(&base, &config, seed)?;
+                if no_guess {
+                    cfg.calibration.initial_guess = None;
+                }
+                let t = match cell_trial(&cfg, &config, seed, views, preset) {
+                    Ok(t) => t,
+                    Err(e @ Error::Solve(_)) if no_guess => {
+                        log(&format!("seed {seed}: failed: {e}"));
+                        failed.push(seed);
+                        continue;
+                    }
+                    Err(e) => return Err(e),
+                };
                 log(&format!(
                     "seed {seed}: IoU {:?}; {:.4} deg {:.3} mm",
                     t.ious
@@ -298,25 +316,15 @@ impl SegmentBench {
                 ));
                 trials.push(t);
             }
-            let ious: Vec<f64> = trials.iter().flat_map(|t| t.ious.clone()).collect();
-            let rot: Vec<f64> = trials.iter().map(|t| t.rotation_deg).collect();
-            let trans: Vec<f64> = trials.iter().map(|t| t.translation_mm).collect();
-            let offsets: Vec<f64> = trials
-                .iter()
-                .flat_map(|t| t.boundary_offsets.iter().copied())
-                .collect();
-            let (bias, spread) = offset_summary(&offsets);
-            report.line(format!(
-                "builtin on {scenes} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); outline offset against the truth mean {bias:+.3} px, mean |offset| {spread:.3} px ({crossings} crossings); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
-                median(&ious),
-                ious.iter().sum::<f64>() / ious.len().max(1) as f64,
-                ious.iter().copied().fold(f64::INFINITY, f64::min),
-                median(&rot),
-                median(&trans),
-                rot.iter().copied().fold(0.0, f64::max),
-                trans.iter().copied().fold(0.0, f64::max),
-                crossings = offsets.len(),
-            ));
+            if no_guess {
+                report.line(format!(
+                    "no initial guess: {} of {scenes} cells calibrated (failed: seeds {failed:?})",
+                    trials.len()
+                ));
+            }
+            if !trials.is_empty() {
+                report.line(summary(&trials, views));
+            }
         }
         if let Some(run) = run {
             let f = run_figures(&run, renderer)?;
@@ -336,4 +344,28 @@ impl SegmentBench {
         }
         Ok(report)
     }
+}
+
+/// The summary line of the simulated cells that calibrated.
+fn summary(trials: &[CellTrial], views: usize) -> String {
+    let calibrated = trials.len();
+    let ious: Vec<f64> = trials.iter().flat_map(|t| t.ious.clone()).collect();
+    let rot: Vec<f64> = trials.iter().map(|t| t.rotation_deg).collect();
+    let trans: Vec<f64> = trials.iter().map(|t| t.translation_mm).collect();
+    let offsets: Vec<f64> = trials
+        .iter()
+        .flat_map(|t| t.boundary_offsets.iter().copied())
+        .collect();
+    let (bias, spread) = offset_summary(&offsets);
+    format!(
+        "builtin on {calibrated} simulated cells, {views} views: mask IoU median {:.4} mean {:.4} (min {:.4}); outline offset against the truth mean {bias:+.3} px, mean |offset| {spread:.3} px ({crossings} crossings); RGB-only calibration median {:.4} deg / {:.3} mm (worst {:.4} deg / {:.3} mm)",
+        median(&ious),
+        ious.iter().sum::<f64>() / ious.len().max(1) as f64,
+        ious.iter().copied().fold(f64::INFINITY, f64::min),
+        median(&rot),
+        median(&trans),
+        rot.iter().copied().fold(0.0, f64::max),
+        trans.iter().copied().fold(0.0, f64::max),
+        crossings = offsets.len(),
+    )
 }

@@ -101,7 +101,8 @@ pub struct PlannedPose {
     /// unless the variance ranked them all).
     pub variance: Option<f64>,
     /// What the view shows under the current estimate: the share of the robot inside the image
-    /// (fixed camera), or the share of the image the robot covers (camera on a link).
+    /// (fixed camera), or the share of the image the robot covers (camera on a link). NaN for
+    /// a seeding move, taken before there is any estimate (score 0 then too).
     pub in_image: f64,
     /// Clearances along the path.
     pub clearance: Clearance,

@@ -55,11 +55,14 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<()> {
     });
     let confirm: Option<ConfirmMove> = if a.confirm {
         Some(Arc::new(|p: &PlannedPose| {
+            let why = if p.in_image.is_finite() {
+                format!("score {:.1}, {:.0}% in image", p.score, p.in_image * 100.0)
+            } else {
+                "a seeding view near the start: no camera estimate yet".into()
+            };
             eprint!(
-                "move to {} (score {:.1}, {:.0}% in image, clearance {:.1} mm self / {:.1} mm environment)? [y/N] ",
+                "move to {} ({why}, clearance {:.1} mm self / {:.1} mm environment)? [y/N] ",
                 fmt_joints(&p.joints),
-                p.score,
-                p.in_image * 100.0,
                 p.clearance.self_m * 1e3,
                 p.clearance.environment_m * 1e3
             );

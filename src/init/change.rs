@@ -64,6 +64,20 @@ pub fn initialise_from_change(
     robots: &[PosedRobot],
     opts: &InitOptions,
 ) -> Result<ChangeStart> {
+    let mut starts = starts_from_change(renderer, camera, frames, robots, opts)?;
+    Ok(starts.swap_remove(0))
+}
+
+/// [`initialise_from_change`]'s distinct refined starts, best first, every one explaining the
+/// change well enough: a caller that can tell a right start by its fit (a few views taken
+/// close together leave the change ambiguous) tries them in turn.
+pub fn starts_from_change(
+    renderer: &dyn SilhouetteRenderer,
+    camera: &Intrinsics,
+    frames: &[&Frame],
+    robots: &[PosedRobot],
+    opts: &InitOptions,
+) -> Result<Vec<ChangeStart>> {
     if frames.len() < 2 || frames.len() != robots.len() {
         return Err(Error::Solve(
             "initialisation from images needs two or more views of one camera".into(),
@@ -103,43 +117,49 @@ pub fn initialise_from_change(
             .map(|pose| (score(&pose), pose))
             .collect();
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-    best_refined(&scored, opts, score)
+    refined(&scored, opts, score)
 }
 
-/// The best of `scored`'s distinct leaders (best first) after a cross-entropy search on
-/// `score` from each, or why none will do.
-fn best_refined(
+/// `scored`'s distinct leaders after a cross-entropy search on `score` from each, best first,
+/// those that explain the change well enough; or why none does.
+fn refined(
     scored: &[(f64, Isometry3<f64>)],
     opts: &InitOptions,
     score: impl Fn(&Isometry3<f64>) -> f64 + Sync,
-) -> Result<ChangeStart> {
-    let best = distinct_starts(scored, opts.refine_best)
+) -> Result<Vec<ChangeStart>> {
+    let mut found: Vec<ChangeStart> = distinct_starts(scored, opts.refine_best)
         .into_iter()
         .enumerate()
         .map(|(k, start)| {
             let pose = cross_entropy_search(&start, k as u64, &score);
-            (score(&pose), pose)
+            ChangeStart {
+                score: score(&pose),
+                camera_from_base: pose,
+            }
         })
-        .max_by(|a, b| a.0.total_cmp(&b.0));
-    let Some((overlap, pose)) = best else {
+        .collect();
+    // Stable and reversed, so that of equal scores the later wins, as a maximum would pick.
+    found.reverse();
+    found.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let Some(best) = found.first() else {
         return Err(Error::Solve(
             "initialisation from images failed: no hypothesis to score".into(),
         ));
     };
     tracing::debug!(
-        "initialisation from change: overlap {overlap:.3}, camera_from_base translation {:?} m, rotation vector {:?} rad",
-        pose.translation.vector.as_slice(),
-        pose.rotation.scaled_axis().as_slice()
+        "initialisation from change: overlap {:.3}, camera_from_base translation {:?} m, rotation vector {:?} rad",
+        best.score,
+        best.camera_from_base.translation.vector.as_slice(),
+        best.camera_from_base.rotation.scaled_axis().as_slice()
     );
-    if overlap < MIN_SCORE {
+    if best.score < MIN_SCORE {
         return Err(Error::Solve(format!(
-            "initialisation from images failed: no camera pose explains what changed between the views (best overlap {overlap:.2} < {MIN_SCORE:.2}); give initial_guess.camera_from_base"
+            "initialisation from images failed: no camera pose explains what changed between the views (best overlap {:.2} < {MIN_SCORE:.2}); give initial_guess.camera_from_base",
+            best.score
         )));
     }
-    Ok(ChangeStart {
-        camera_from_base: pose,
-        score: overlap,
-    })
+    found.retain(|f| f.score >= MIN_SCORE);
+    Ok(found)
 }
 
 /// Up to [`MAX_VIEWS`] view indices spread evenly over `n` views.

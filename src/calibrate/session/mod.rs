@@ -3,6 +3,7 @@
 //! the set-up and reporting helpers (`setup`) have files of their own.
 
 mod motion;
+mod seed;
 mod setup;
 mod stop;
 
@@ -206,42 +207,56 @@ impl<'a> Session<'a> {
     }
 
     /// The view where the arm stands, and the first estimate of every camera from it (its
-    /// guess, or an automatic initialisation).
+    /// guess, or an automatic initialisation); with no guess and a segmenter that needs
+    /// context, the seeding views near the start and the estimate they settle (`seed`).
     pub(super) async fn first_view(&mut self) -> Result<()> {
+        let events = if self.needs_seed_views() {
+            self.seed_views().await?
+        } else {
+            let t = Instant::now();
+            self.capture(true).await?;
+            self.capture_s += t.elapsed().as_secs_f64();
+            emit_view(self.opts, &self.taken);
+            self.pb.set_position(1);
+            Vec::new()
+        };
         let t = Instant::now();
-        self.capture(true).await?;
-        self.capture_s += t.elapsed().as_secs_f64();
-        emit_view(self.opts, &self.taken);
-        self.pb.set_position(1);
-        let t = Instant::now();
-        let r = self.renderer.as_ref();
-        let opts = &self.solve_opts;
-        let reports: Vec<Result<SolveReport>> = self
-            .tracks
-            .iter()
-            .map(|t| (&t.camera, &t.views[..], t.guess))
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(|(camera, views, guess)| match guess {
-                Some(g) => solve(r, camera, views, &g, opts),
-                None => initialise(r, camera, views, opts, &InitOptions::default()),
+        let (r, opts) = (self.renderer.as_ref(), &self.solve_opts);
+        // Seeding settles its camera's first estimate itself.
+        let pending: Vec<usize> = (0..self.tracks.len())
+            .filter(|&k| self.tracks[k].report.is_none())
+            .collect();
+        let reports: Vec<Result<SolveReport>> = pending
+            .par_iter()
+            .map(|&k| {
+                let track = &self.tracks[k];
+                match track.guess {
+                    Some(g) => solve(r, &track.camera, &track.views, &g, opts),
+                    None => initialise(
+                        r,
+                        &track.camera,
+                        &track.views,
+                        opts,
+                        &InitOptions::default(),
+                    ),
+                }
             })
             .collect();
-        for (track, report) in self.tracks.iter_mut().zip(reports) {
-            track.report = Some(report?);
+        for (k, report) in pending.into_iter().zip(reports) {
+            self.tracks[k].report = Some(report?);
         }
         self.solve_s += t.elapsed().as_secs_f64();
         let report = self.report();
         self.rounds = vec![RoundRecord {
             round: 0,
-            views: 1,
+            views: self.views(),
             camera_from_base: to_rows(&report.camera_from_base),
             mean_iou: report.mean_iou(),
             loss: report.loss,
             pose_change: None,
             best_variance: None,
             next_joints: None,
-            events: Vec::new(),
+            events,
             cameras: self.camera_rounds(),
         }];
         self.rec.write_rounds(&self.rounds)?;
@@ -508,25 +523,7 @@ impl<'a> Session<'a> {
     /// every earlier one under the estimate, and earlier masks are re-segmented and
     /// rewritten when they change.
     async fn capture(&mut self, first: bool) -> Result<()> {
-        let cell = self.cell;
-        let joints = cell.arm.read_joints().await?;
-        let mut frames = Vec::with_capacity(self.tracks.len());
-        for t in &self.tracks {
-            let frame = t.unit.device.grab().await?;
-            let camera = &t.camera;
-            if frame.width != camera.width || frame.height != camera.height {
-                let which = if self.several() {
-                    format!("camera '{}'", t.unit.name)
-                } else {
-                    "camera".into()
-                };
-                return Err(Error::Hardware(format!(
-                    "{which} returned a {}x{} frame; its intrinsics say {}x{}",
-                    frame.width, frame.height, camera.width, camera.height
-                )));
-            }
-            frames.push(frame);
-        }
+        let (joints, mut frames) = self.grab_all().await?;
         if self.tracks[0].live.is_some() {
             let frame = frames
                 .pop()
@@ -551,6 +548,30 @@ impl<'a> Session<'a> {
             });
         }
         Ok(())
+    }
+
+    /// Reads the joints and grabs a frame from every camera, each checked against its
+    /// intrinsics' size.
+    async fn grab_all(&self) -> Result<(Vec<f64>, Vec<easyhec_drivers::Frame>)> {
+        let joints = self.cell.arm.read_joints().await?;
+        let mut frames = Vec::with_capacity(self.tracks.len());
+        for t in &self.tracks {
+            let frame = t.unit.device.grab().await?;
+            let camera = &t.camera;
+            if frame.width != camera.width || frame.height != camera.height {
+                let which = if self.several() {
+                    format!("camera '{}'", t.unit.name)
+                } else {
+                    "camera".into()
+                };
+                return Err(Error::Hardware(format!(
+                    "{which} returned a {}x{} frame; its intrinsics say {}x{}",
+                    frame.width, frame.height, camera.width, camera.height
+                )));
+            }
+            frames.push(frame);
+        }
+        Ok((joints, frames))
     }
 
     /// [`Session::capture`] for a context-aware segmenter: every frame so far is segmented
