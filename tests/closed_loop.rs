@@ -557,3 +557,52 @@ fn a_declined_or_cancelled_seeding_move_ends_the_run_unmoved() {
         assert!(!dir.path().join("run/result.json").exists());
     }
 }
+
+/// A planned move the operator declines, or a cancel that comes before it, stops the loop
+/// there: the move never reaches the arm, and the result holds the views taken so far.
+#[test]
+fn a_declined_or_cancelled_planned_move_stops_the_loop_where_it_is() {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use std::sync::Arc;
+    let asked = Arc::new(AtomicUsize::new(0));
+    let counter = asked.clone();
+    // The first move is approved, the second declined.
+    let declined = RunOptions {
+        confirm: Some(Arc::new(move |_: &easyhec::calibrate::PlannedPose| {
+            counter.fetch_add(1, Ordering::SeqCst) == 0
+        })),
+        ..RunOptions::default()
+    };
+    let cancel = Arc::new(AtomicBool::new(false));
+    let flag = cancel.clone();
+    let seen = AtomicUsize::new(0);
+    // Both moves are approved, but the run is cancelled while the operator looks at the
+    // second.
+    let cancelled = RunOptions {
+        confirm: Some(Arc::new(move |_: &easyhec::calibrate::PlannedPose| {
+            if seen.fetch_add(1, Ordering::SeqCst) == 1 {
+                flag.store(true, Ordering::SeqCst);
+            }
+            true
+        })),
+        cancel: Some(cancel),
+        ..RunOptions::default()
+    };
+    for (opts, why) in [
+        (declined, "operator declined a move after 2 views"),
+        (cancelled, "cancelled"),
+    ] {
+        let path = common::config_path("sim-xarm6.toml");
+        let cell = Cell::build(quick(read_config(&path).unwrap(), 6), &path).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let outcome = run(&cell, &dir.path().join("run"), &opts).unwrap();
+        assert!(
+            outcome.result.stop_reason.contains(why),
+            "{}",
+            outcome.result.stop_reason
+        );
+        assert_eq!(outcome.result.views_used.len(), 2, "{why}");
+        assert_eq!(common::assert_every_command_safe(&cell), 1, "{why}");
+        assert!(dir.path().join("run/result.json").is_file());
+    }
+}

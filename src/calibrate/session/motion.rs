@@ -12,6 +12,16 @@ use crate::safety::CheckedMove;
 
 use super::{MoveOutcome, Session};
 
+/// Whether a checked move may be sent ([`Session::approve`]).
+pub(super) enum Approval {
+    /// The operator said no.
+    Declined,
+    /// The run was cancelled.
+    Cancelled,
+    /// Send it.
+    Approved,
+}
+
 impl Session<'_> {
     /// Asks the operator (when configured), then sends the checked move and watches it, the
     /// cancel flag included; a failed move is recorded and, within the failure budget,
@@ -22,23 +32,19 @@ impl Session<'_> {
         mv: &CheckedMove,
     ) -> Result<MoveOutcome> {
         let n = self.views();
-        if let Some(confirm) = &self.opts.confirm {
-            if !self.pb.suspend(|| confirm(pose)) {
-                return Ok(MoveOutcome::Stop(StopReason::OperatorDeclined { views: n }));
+        match self.approve(pose) {
+            Approval::Declined => {
+                return Ok(MoveOutcome::Stop(StopReason::OperatorDeclined { views: n }))
             }
-        }
-        if self.opts.cancelled() {
-            return Ok(MoveOutcome::Stop(StopReason::Cancelled { views: n }));
+            Approval::Cancelled => {
+                return Ok(MoveOutcome::Stop(StopReason::Cancelled { views: n }))
+            }
+            Approval::Approved => {}
         }
         self.last_round().next_joints = Some(pose.joints.clone());
-        self.pb.set_message(format!("moving to view {}", n + 1));
-        self.opts.emit(Progress::Moving {
-            view: n,
-            joints: pose.joints.clone(),
-        });
-        let t = Instant::now();
-        let moved = self.execute(mv).await;
-        self.motion_s += t.elapsed().as_secs_f64();
+        let moved = self
+            .send(pose, mv, format!("moving to view {}", n + 1))
+            .await;
         if self.opts.cancelled() {
             if moved.is_err() {
                 let _ = self.cell.arm.stop().await;
@@ -52,6 +58,39 @@ impl Session<'_> {
             Ok(()) => Ok(MoveOutcome::Arrived),
             Err(e) => self.after_failed_move(e).await,
         }
+    }
+
+    /// The operator's confirmation (when configured), then the cancel flag: the two things
+    /// that may still keep a checked move from being sent.
+    pub(super) fn approve(&self, pose: &PlannedPose) -> Approval {
+        if let Some(confirm) = &self.opts.confirm {
+            if !self.pb.suspend(|| confirm(pose)) {
+                return Approval::Declined;
+            }
+        }
+        if self.opts.cancelled() {
+            return Approval::Cancelled;
+        }
+        Approval::Approved
+    }
+
+    /// Announces an approved move (the `Moving` event, the progress line), sends it and
+    /// waits for it ([`Session::execute`]), timing it as motion.
+    pub(super) async fn send(
+        &mut self,
+        pose: &PlannedPose,
+        mv: &CheckedMove,
+        message: String,
+    ) -> Result<()> {
+        self.opts.emit(Progress::Moving {
+            view: self.views(),
+            joints: pose.joints.clone(),
+        });
+        self.pb.set_message(message);
+        let t = Instant::now();
+        let moved = self.execute(mv).await;
+        self.motion_s += t.elapsed().as_secs_f64();
+        moved
     }
 
     /// Sends a checked move and waits for it, stopping the arm if the run is cancelled.

@@ -20,7 +20,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::backend::Backend;
-use crate::calibrate::{PlannedPose, Progress};
+use crate::calibrate::PlannedPose;
 use crate::camera::Intrinsics;
 use crate::camera::LensWarp;
 use crate::error::{Error, Result};
@@ -32,6 +32,7 @@ use crate::safety::{CheckedMove, SafetyChecker};
 use crate::segment::Segmenter;
 use crate::solve::{SolveOptions, View};
 
+use super::motion::Approval;
 use super::Session;
 
 /// Views the seeding takes, the one where the arm stands included: three pairs of views, and
@@ -136,27 +137,22 @@ impl Session<'_> {
             clearance: mv.clearance,
             path_samples: mv.samples,
         };
-        if let Some(confirm) = &self.opts.confirm {
-            if !self.pb.suspend(|| confirm(&pose)) {
+        match self.approve(&pose) {
+            Approval::Declined => {
                 return Err(Error::Hardware(format!(
                     "operator declined seeding move {view} (no initial guess: the first views are taken near the start pose); no result"
-                )));
+                )))
             }
+            Approval::Cancelled => {
+                return Err(Error::Hardware(format!(
+                    "calibration cancelled before seeding move {view}; no result"
+                )))
+            }
+            Approval::Approved => {}
         }
-        if self.opts.cancelled() {
-            return Err(Error::Hardware(format!(
-                "calibration cancelled before seeding move {view}; no result"
-            )));
-        }
-        self.opts.emit(Progress::Moving {
-            view,
-            joints: pose.joints,
-        });
-        self.pb
-            .set_message(format!("seeding: moving to view {}", view + 1));
-        let t = Instant::now();
-        let moved = self.execute(mv).await;
-        self.motion_s += t.elapsed().as_secs_f64();
+        let moved = self
+            .send(&pose, mv, format!("seeding: moving to view {}", view + 1))
+            .await;
         if let Err(e) = moved {
             let _ = self.cell.arm.stop().await;
             return Err(Error::Hardware(format!(
