@@ -502,6 +502,17 @@ fn with_no_guess_colour_frames_alone_start_from_seeding_views() {
     eprintln!("builtin loop with no guess: {r:.4} deg {t:.3} mm");
     // Measured 0.041° / 0.35 mm.
     assert!(r <= 0.1 && t <= 1.0, "error {r:.4} deg {t:.3} mm");
+    // The builtin masks' result carries the segmentation term, and its bound holds the truth.
+    let u = outcome.result.uncertainty.as_ref().unwrap();
+    let terms = u.terms.as_ref().unwrap();
+    assert!(terms.segmentation_centre_95_mm.is_some(), "{terms:?}");
+    let truth = cell.units[0].sim.camera_from_base.unwrap();
+    let centre_mm =
+        easyhec::geometry::camera_centre_error_mm(&outcome.result.camera_from_base(), &truth);
+    assert!(
+        centre_mm <= u.camera_centre_95_mm.unwrap(),
+        "{centre_mm} mm: {u:?}"
+    );
     let round0 = &outcome.rounds[0];
     assert_eq!(round0.views, 3, "{:?}", round0.events);
     assert!(

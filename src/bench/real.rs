@@ -63,8 +63,25 @@ pub struct ImagesOnly {
     pub apart: std::result::Result<([f64; 3], [f64; 3]), String>,
     /// Per-view IoU of the segmenter's masks against the provided ones.
     pub mask_iou: Vec<f64>,
+    /// What the images-only result promised: its 95% camera-centre bound and its
+    /// segmentation term's (mm; NaN when not measured), and the largest offset on any axis
+    /// of the mask pose and of the reference in its reported 1σ.
+    pub promise: Option<Promise>,
     /// Wall time, seconds.
     pub wall_s: f64,
+}
+
+/// An images-only result's uncertainty held against the poses it should cover.
+#[derive(Clone, Copy, Debug)]
+pub struct Promise {
+    /// Reported 95% camera-centre bound, millimetres.
+    pub centre_95_mm: f64,
+    /// The segmentation term's bound on its own, millimetres (NaN when not measured).
+    pub segmentation_centre_95_mm: f64,
+    /// The mask pose's largest offset on any axis, in reported σ.
+    pub mask_pose_sigmas: f64,
+    /// The reference's largest offset on any axis, in reported σ.
+    pub reference_sigmas: f64,
 }
 
 /// What `bench real` measured.
@@ -328,12 +345,25 @@ pub fn images_only(
                 start: start_name,
                 apart: Err(e.to_string()),
                 mask_iou: Vec::new(),
+                promise: None,
                 wall_s,
             })
         }
     };
-    let est = outcome.first().report.camera_from_base;
+    let report = &outcome.first().report;
+    let est = report.camera_from_base;
     let reference = read_pose_file(&dir.join("reference.json"))?;
+    let largest = |other: &Isometry3<f64>| {
+        super::coverage::errors_in_sigmas(&est, other, &report.uncertainty)
+            .iter()
+            .fold(0.0f64, |m, z| m.max(z.abs()))
+    };
+    let promise = Promise {
+        centre_95_mm: report.uncertainty.camera_centre_95_mm,
+        segmentation_centre_95_mm: report.undecided_bound_mm().unwrap_or(f64::NAN),
+        mask_pose_sigmas: largest(mask_pose),
+        reference_sigmas: largest(&reference),
+    };
     let apart = |other: &Isometry3<f64>| {
         [
             rotation_error_deg(&est, other),
@@ -356,6 +386,7 @@ pub fn images_only(
         start: start_name,
         apart: Ok((apart(mask_pose), apart(&reference))),
         mask_iou,
+        promise: Some(promise),
         wall_s,
     })
 }
@@ -371,8 +402,14 @@ fn images_line(i: &ImagesOnly) -> String {
             )
         }
     };
+    let promised = i.promise.map_or(String::new(), |p| {
+        format!(
+            "; reported 95% centre bound {:.2} mm (segmentation term {:.2} mm), the mask pose at most {:.2}σ and the reference at most {:.2}σ away on any axis",
+            p.centre_95_mm, p.segmentation_centre_95_mm, p.mask_pose_sigmas, p.reference_sigmas
+        )
+    });
     format!(
-        "images only, {}: {:.3} deg, {:.2} mm (camera centre {:.2} mm) from the mask pose; {:.3} deg, {:.2} mm from the reference; mask IoU against the provided masks mean {:.3} (min {:.3}); {:.1} s",
+        "images only, {}: {:.3} deg, {:.2} mm (camera centre {:.2} mm) from the mask pose; {:.3} deg, {:.2} mm from the reference; mask IoU against the provided masks mean {:.3} (min {:.3}){promised}; {:.1} s",
         i.start,
         m[0],
         m[1],

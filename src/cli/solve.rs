@@ -175,6 +175,10 @@ fn report_one(outcome: &OfflineOutcome) -> anyhow::Result<()> {
         outln!(
             "the uncertainty is set by how far the views disagree (each view's outline pulls the pose its own way: mesh, joint or mask errors), not by outline noise"
         );
+    } else if dominant == Some(DominantTerm::Segmentation.name()) {
+        outln!(
+            "the uncertainty is set by the pixels the segmenter could not decide from the images (robot against a background of its own colour, or never uncovered): masks from a segmentation network, or a background that differs from the robot, tighten it"
+        );
     }
     if let Some((path, rot, trans)) = &camera.truth_error {
         outln!(

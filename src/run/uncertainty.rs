@@ -44,7 +44,8 @@ pub struct MaskOffsetEntry {
 pub struct UncertaintyTerms {
     /// The term that sets the figures: `statistical` (the outline residuals' own scatter),
     /// `inter-view` (the views' disagreement, from a view jackknife), `mask bias` (not
-    /// knowing the segmenter's outline offset) or `model floor`.
+    /// knowing the segmenter's outline offset), `segmentation` (the pixels the segmenter
+    /// could not decide) or `model floor`.
     pub dominant: String,
     /// The statistical term's bound, millimetres.
     pub statistical_centre_95_mm: f64,
@@ -56,6 +57,11 @@ pub struct UncertaintyTerms {
     /// millimetres; absent when the offset was not estimated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mask_bias_centre_95_mm: Option<f64>,
+    /// The segmentation term's bound (how far the pixels the segmenter could not decide
+    /// could move the pose), millimetres; absent when not measured (masks given, or a
+    /// segmenter without per-pixel evidence).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub segmentation_centre_95_mm: Option<f64>,
 }
 
 impl UncertaintyEntry {
@@ -87,16 +93,19 @@ impl UncertaintyEntry {
     ) -> Option<UncertaintyEntry> {
         let (statistical, inter_view) = report.term_bounds_mm();
         let mask_bias = report.mask_bias_bound_mm();
+        let segmentation = report.undecided_bound_mm();
         let mut entry = UncertaintyEntry::of(&report.uncertainty)?;
         let finite = statistical.is_finite()
             && inter_view.is_none_or(f64::is_finite)
-            && mask_bias.is_none_or(f64::is_finite);
+            && mask_bias.is_none_or(f64::is_finite)
+            && segmentation.is_none_or(f64::is_finite);
         entry.terms = finite.then(|| {
             Box::new(UncertaintyTerms {
                 dominant: report.dominant_term(opts).name().into(),
                 statistical_centre_95_mm: statistical,
                 inter_view_centre_95_mm: inter_view,
                 mask_bias_centre_95_mm: mask_bias,
+                segmentation_centre_95_mm: segmentation,
             })
         });
         entry.mask_offset = report

@@ -231,7 +231,7 @@ fn segment(
 }
 
 /// Positive inside the mask, negative outside, pixels.
-fn signed_distance(mask: &Mask, w: usize, h: usize) -> Vec<f32> {
+pub(crate) fn signed_distance(mask: &Mask, w: usize, h: usize) -> Vec<f32> {
     let to_bg = edt_squared(w, h, |i| mask.data[i] == 0);
     let to_fg = edt_squared(w, h, |i| mask.data[i] != 0);
     (0..w * h)

@@ -24,6 +24,9 @@ use crate::mask::Mask;
 #[cfg(feature = "onnx")]
 pub mod onnx;
 
+/// Masks with, per view, each pixel's log-odds for robot from the images alone.
+pub type Evidence = (Vec<Mask>, Vec<Vec<f32>>);
+
 /// Produces a robot mask from a frame.
 pub trait Segmenter: Send + Sync {
     /// Name for logs and errors.
@@ -49,6 +52,14 @@ pub trait Segmenter: Send + Sync {
     /// segmenter has such evidence: it lets a caller fit each view's joints to its image where
     /// the recorded ones are wrong ([`crate::pipeline::segment_solve::search_view_pairs`]). None by default.
     fn evidence(&self, _frames: &[&Frame]) -> Result<Option<Vec<Vec<f32>>>> {
+        Ok(None)
+    }
+
+    /// [`Segmenter::segment_views`]'s masks with each pixel's log-odds for robot before the
+    /// segmenter's smoothing, the prior's own pull left out, when the segmenter has such
+    /// evidence: where it is near zero the images did not decide the label
+    /// ([`crate::pipeline::undecided`]). None by default.
+    fn segment_views_with_evidence(&self, _views: &[ViewInput<'_>]) -> Result<Option<Evidence>> {
         Ok(None)
     }
 }
@@ -164,6 +175,10 @@ impl Segmenter for Builtin {
 
     fn uses_context(&self) -> bool {
         true
+    }
+
+    fn segment_views_with_evidence(&self, views: &[ViewInput<'_>]) -> Result<Option<Evidence>> {
+        builtin::segment_views_with_evidence(views, &self.params).map(Some)
     }
 
     /// Change and colour evidence with no prior (the plate from every view).

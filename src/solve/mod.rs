@@ -180,6 +180,10 @@ pub struct SolveReport {
     pub mask_bias_covariance: Matrix6<f64>,
     /// What the views' disagreement showed (module `disagreement`).
     pub disagreement: Disagreement,
+    /// What the pixels the segmenter left undecided could move the pose by
+    /// ([`with_undecided_pixels`]); `None` when not measured (masks given, or a segmenter
+    /// without per-pixel evidence).
+    pub undecided_covariance: Option<Matrix6<f64>>,
     /// The covariance the posterior refinement and exploration draw pose hypotheses from:
     /// the fit's curvature scaled by the outline noise. Their settings were tuned on it; it
     /// is no promise about the error.
@@ -234,6 +238,8 @@ pub enum DominantTerm {
     ModelFloor,
     /// Not knowing the segmenter's outline offset.
     MaskBias,
+    /// The pixels the segmenter could not decide.
+    Segmentation,
 }
 
 impl DominantTerm {
@@ -244,6 +250,7 @@ impl DominantTerm {
             DominantTerm::InterView => "inter-view",
             DominantTerm::ModelFloor => "model floor",
             DominantTerm::MaskBias => "mask bias",
+            DominantTerm::Segmentation => "segmentation",
         }
     }
 }
@@ -279,6 +286,19 @@ pub fn with_view_disagreement(
     report.covariance = widened + floor;
     report.uncertainty = uncertainty_of(&report.covariance, &pose);
     report.disagreement = Disagreement::Measured(Box::new(widened - report.statistical_covariance));
+    report
+}
+
+/// Adds the segmentation term `undecided` (module [`crate::pipeline::undecided`]) to
+/// `report`'s covariance: the views' disagreement cannot show a segmenter's error that every
+/// view shares, such as masks that run fat wherever the robot meets a wall of its own colour.
+pub fn with_undecided_pixels(mut report: SolveReport, undecided: Matrix6<f64>) -> SolveReport {
+    if report.undecided_covariance.is_some() {
+        return report;
+    }
+    report.covariance += undecided;
+    report.uncertainty = uncertainty_of(&report.covariance, &report.camera_from_base);
+    report.undecided_covariance = Some(undecided);
     report
 }
 
@@ -376,6 +396,9 @@ impl SolveReport {
         if let Disagreement::Measured(c) = &self.disagreement {
             terms.push((DominantTerm::InterView, bound(c)));
         }
+        if let Some(c) = &self.undecided_covariance {
+            terms.push((DominantTerm::Segmentation, bound(c)));
+        }
         terms
             .into_iter()
             .max_by(|a, b| a.1.total_cmp(&b.1))
@@ -388,6 +411,13 @@ impl SolveReport {
         self.mask_offset.map(|_| {
             uncertainty_of(&self.mask_bias_covariance, &self.camera_from_base).camera_centre_95_mm
         })
+    }
+
+    /// The 95% camera-centre bound of the segmentation term on its own, millimetres (when
+    /// measured).
+    pub fn undecided_bound_mm(&self) -> Option<f64> {
+        self.undecided_covariance
+            .map(|c| uncertainty_of(&c, &self.camera_from_base).camera_centre_95_mm)
     }
 
     /// The 95% camera-centre bound of the statistical term and of what the inter-view term
@@ -461,6 +491,7 @@ fn finish(
         statistical_covariance,
         mask_bias_covariance,
         disagreement: Disagreement::NotMeasured,
+        undecided_covariance: None,
         sampling_covariance,
         uncertainty,
         outline_noise_px2: sigma2 * opts.correlation_length_px,

@@ -34,11 +34,15 @@ use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
 use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
+use crate::pipeline::undecided::{undecided_term, SegmentedFrame};
 use crate::render::PosedRobot;
 use crate::run::rig::{write_result, JointCorrections, RunLayout, RunSummary};
 use crate::run::CameraEntry;
 use crate::run::ResultFile;
-use crate::solve::{solve, solve_with_shared_joints, CameraSolve, SolveOptions, SolveReport, View};
+use crate::solve::{
+    solve, solve_with_shared_joints, with_undecided_pixels, CameraSolve, SolveOptions, SolveReport,
+    View,
+};
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
 /// starting pose (a fixed camera: below [`POOR_FIT_IOU`]). A fixed camera sees the whole arm,
@@ -79,6 +83,52 @@ impl Track<'_> {
         self.report
             .as_ref()
             .expect("round 0 solved before any other step")
+    }
+
+    /// `report` with the segmentation term ([`crate::pipeline::undecided`]) when this
+    /// camera's masks were drawn from its live frames by a segmenter with per-pixel evidence.
+    /// A term that cannot be measured (a relabelled solve failed) is left out with a warning.
+    fn with_segmentation_term(
+        &self,
+        renderer: &dyn Backend,
+        report: SolveReport,
+        opts: &SolveOptions,
+    ) -> SolveReport {
+        let Some(live) = &self.live else {
+            return report;
+        };
+        if report.undecided_covariance.is_some() || live.frames.len() != self.views.len() {
+            return report;
+        }
+        let drawn: Vec<SegmentedFrame> = live
+            .frames
+            .iter()
+            .zip(&self.views)
+            .enumerate()
+            .map(|(i, (frame, view))| SegmentedFrame {
+                frame,
+                robot: view.robot.clone(),
+                view: Some(i),
+            })
+            .collect();
+        let band_px = live.final_band_px.min(live.min_band_px);
+        match undecided_term(
+            renderer,
+            &self.camera,
+            self.unit.segmenter,
+            &drawn,
+            &self.views,
+            &report,
+            band_px,
+            opts,
+        ) {
+            Ok(Some(term)) => with_undecided_pixels(report, term),
+            Ok(None) => report,
+            Err(e) => {
+                tracing::warn!("segmentation term not measured: {e}");
+                report
+            }
+        }
     }
 }
 

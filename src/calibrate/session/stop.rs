@@ -54,17 +54,17 @@ impl Session<'_> {
             })
     }
 
-    /// Widens every camera's covariance by what its views' disagreement shows (once per
-    /// solve: a report that has it keeps it).
+    /// Widens every camera's covariance by what its views' disagreement shows and, where a
+    /// segmenter drew its masks, by what the pixels it could not decide could move the pose
+    /// (each once per solve: a report that has a term keeps it).
     pub(super) fn measure_view_disagreement(&mut self) {
         let started = Instant::now();
         let renderer = self.renderer.as_ref();
         let opts = &self.solve_opts;
         self.tracks.par_iter_mut().for_each(|t| {
             if let Some(report) = t.report.take() {
-                t.report = Some(with_view_disagreement(
-                    renderer, &t.camera, &t.views, report, opts,
-                ));
+                let report = with_view_disagreement(renderer, &t.camera, &t.views, report, opts);
+                t.report = Some(t.with_segmentation_term(renderer, report, opts));
             }
         });
         self.solve_s += started.elapsed().as_secs_f64();

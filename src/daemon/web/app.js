@@ -392,6 +392,9 @@ function termsText(t) {
   if (t.mask_bias_centre_95_mm != null) {
     parts.push("mask bias " + t.mask_bias_centre_95_mm.toFixed(2) + " mm");
   }
+  if (t.segmentation_centre_95_mm != null) {
+    parts.push("segmentation " + t.segmentation_centre_95_mm.toFixed(2) + " mm");
+  }
   return t.dominant + " (" + parts.join(", ") + ")";
 }
 

@@ -29,7 +29,7 @@ use crate::solve::{
 
 mod segment;
 
-use segment::segment_run;
+use segment::{segment_run, SegmentedViews};
 
 /// What to solve and how (`easyhec solve`'s flags).
 #[derive(Clone, Debug)]
@@ -297,6 +297,8 @@ fn correct_shared_joints(
 /// One camera's judged solve, before its overlays and result.
 struct Fitted {
     run: LoadedRun,
+    /// Views whose masks a segmenter drew (indices into `run.views`).
+    segmented: Vec<usize>,
     pool: Vec<View>,
     order: Vec<usize>,
     report: SolveReport,
@@ -338,6 +340,12 @@ fn fit_loaded(
 ) -> Result<Fitted> {
     let mut timings = Timings::default();
     let mut settled = None;
+    let segmented: Vec<usize> = match &req.segmenter {
+        Some(_) => (0..run.views.len())
+            .filter(|&i| run.views[i].needs_mask)
+            .collect(),
+        None => Vec::new(),
+    };
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
         settled = segment_run(&mut run, config, renderer, masks_out, note)?;
@@ -389,6 +397,7 @@ fn fit_loaded(
 
     Ok(Fitted {
         run,
+        segmented,
         pool,
         order,
         report,
@@ -407,6 +416,7 @@ fn finish_fit(
 ) -> Result<Solved> {
     let Fitted {
         run,
+        segmented,
         pool,
         order,
         report,
@@ -417,6 +427,18 @@ fn finish_fit(
     let t = Instant::now();
     let used: Vec<View> = order.iter().map(|&i| pool[i].clone()).collect();
     let report = with_view_disagreement(renderer, &run.camera, &used, report, &solve_options(req));
+    // And, for masks a segmenter drew, what its undecided pixels could move the pose by.
+    let report = match &req.segmenter {
+        Some(config) => {
+            let drawn = SegmentedViews {
+                run: &run,
+                order: &order,
+                segmented: &segmented,
+            };
+            drawn.with_segmentation_term(config, renderer, &used, report, &solve_options(req))?
+        }
+        None => report,
+    };
     timings.solve_s += t.elapsed().as_secs_f64();
     if let Some(dir) = overlays {
         write_overlays(renderer, &run, &pool, &order, &report, dir)?;

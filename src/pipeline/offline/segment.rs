@@ -13,9 +13,10 @@ use crate::error::{Error, Result};
 use crate::init::change::initialise_from_change;
 use crate::init::{initialise, InitOptions};
 use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
+use crate::pipeline::undecided::{undecided_term, SegmentedFrame};
 use crate::render::PosedRobot;
 use crate::run::LoadedRun;
-use crate::solve::{SolveOptions, View};
+use crate::solve::{with_undecided_pixels, SolveOptions, SolveReport, View};
 
 /// Fills the masks of views that need one: segment → solve → re-segment over those views
 /// until the masks settle (`pipeline::segment_solve`). Returns the settled pose when it fits
@@ -37,21 +38,10 @@ pub(super) fn segment_run(
     if need.is_empty() {
         return Ok(None);
     }
-    let mut frames = Vec::with_capacity(need.len());
-    for &i in &need {
-        let path = run.views[i].image.clone().ok_or_else(|| {
-            Error::input(
-                run.dir.join("run.json"),
-                format!("views[{i}].image"),
-                "absent",
-            )
-        })?;
-        frames.push(crate::segment::read_frame(
-            &path,
-            run.camera.width,
-            run.camera.height,
-        )?);
-    }
+    let frames = need
+        .iter()
+        .map(|&i| frame_of(run, i))
+        .collect::<Result<Vec<_>>>()?;
     let robots: Vec<PosedRobot> = need
         .iter()
         .map(|&i| PosedRobot::new(&run.robot, &run.views[i].joints))
@@ -122,6 +112,77 @@ pub(super) fn segment_run(
         run.views[i].needs_mask = false;
     }
     Ok((settled.report.mean_iou() >= POOR_FIT_IOU).then_some(settled.report.camera_from_base))
+}
+
+/// View `i`'s colour frame, read for a segmenter.
+fn frame_of(run: &LoadedRun, i: usize) -> Result<easyhec_drivers::Frame> {
+    let path = run.views[i].image.as_ref().ok_or_else(|| {
+        Error::input(
+            run.dir.join("run.json"),
+            format!("views[{i}].image"),
+            "absent",
+        )
+    })?;
+    crate::segment::read_frame(path, run.camera.width, run.camera.height)
+}
+
+/// The views of a fitted run whose masks a segmenter drew.
+pub(super) struct SegmentedViews<'a> {
+    /// The run.
+    pub run: &'a LoadedRun,
+    /// The views used, in the report's order (indices into `run.views`).
+    pub order: &'a [usize],
+    /// The views whose masks the segmenter drew (indices into `run.views`).
+    pub segmented: &'a [usize],
+}
+
+impl SegmentedViews<'_> {
+    /// `report` with the segmentation term added ([`crate::pipeline::undecided`]) when a
+    /// segmenter with per-pixel evidence drew masks of the views used; as it was otherwise.
+    pub(super) fn with_segmentation_term(
+        &self,
+        config: &SegmenterConfig,
+        renderer: &dyn Backend,
+        used: &[View],
+        report: SolveReport,
+        opts: &SolveOptions,
+    ) -> Result<SolveReport> {
+        // Only the builtin segmenter has the evidence; building another would load its
+        // model again for nothing.
+        if !matches!(config, SegmenterConfig::Builtin { .. }) {
+            return Ok(report);
+        }
+        let segmenter = crate::segment::build(config, &self.run.dir.join("run.json"))?;
+        let frames = self
+            .segmented
+            .iter()
+            .map(|&i| frame_of(self.run, i))
+            .collect::<Result<Vec<_>>>()?;
+        let drawn: Vec<SegmentedFrame> = self
+            .segmented
+            .iter()
+            .zip(&frames)
+            .map(|(&i, frame)| SegmentedFrame {
+                frame,
+                robot: PosedRobot::new(&self.run.robot, &self.run.views[i].joints),
+                view: self.order.iter().position(|&o| o == i),
+            })
+            .collect();
+        let term = undecided_term(
+            renderer,
+            &self.run.camera,
+            segmenter.as_ref(),
+            &drawn,
+            used,
+            &report,
+            config.final_band_px(),
+            opts,
+        )?;
+        Ok(match term {
+            Some(term) => with_undecided_pixels(report, term),
+            None => report,
+        })
+    }
 }
 
 /// With no guess, a start from what changed between the views ([`initialise_from_change`]),
