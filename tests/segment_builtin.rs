@@ -251,7 +251,41 @@ fn assert_images_alone_land_on_the_truth_of(seed: u64, synth_args: &[&str]) -> S
         rot <= 0.08 && trans <= 2.0,
         "seed {seed}: {rot:.4} deg {trans:.3} mm\n{stderr}"
     );
+    // The builtin masks' result carries the segmentation term; its bound holds the truth.
+    let u = result.uncertainty.as_ref().unwrap();
+    assert!(
+        u.terms
+            .as_ref()
+            .unwrap()
+            .segmentation_centre_95_mm
+            .is_some(),
+        "{u:?}"
+    );
+    let centre_mm = easyhec::geometry::camera_centre_error_mm(&est, &truth);
+    assert!(
+        centre_mm <= u.camera_centre_95_mm.unwrap(),
+        "{centre_mm} mm: {u:?}"
+    );
     stderr
+}
+
+/// A run solved from the masks it records gets no segmentation term: there is no segmenter's
+/// evidence to measure it from, and those masks' errors are the view jackknife's to find.
+#[test]
+fn recorded_masks_carry_no_segmentation_term() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    common::synth_run(&run, "xarm6", &["--seed", "2"]);
+    let out = common::solve_run(&run, &["--renderer", "cpu"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let result = easyhec::run::ResultFile::read(&run.join("result.json")).unwrap();
+    let terms = result.uncertainty.unwrap().terms.unwrap();
+    assert!(terms.segmentation_centre_95_mm.is_none(), "{terms:?}");
+    assert_ne!(terms.dominant, "segmentation");
 }
 
 /// Seed 5: moving distractors pull a plate-only first solve 15° off a guess 4° / 23 mm away

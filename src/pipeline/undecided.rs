@@ -9,17 +9,18 @@
 //! camera-centre bound of 7 mm. Such pixels are the ones the images left undecided: the
 //! segmenter's evidence there (change against the background plate and colour, before
 //! smoothing and without the prior's pull) is near even odds, and the label came from the
-//! smoothing and the prior. So the pose is solved twice more from the reported one: once with
-//! every undecided pixel near the outline as background, once as robot. Each displacement is
-//! taken as a draw of the error: the term is the mean of their outer products. On the
-//! simulator's frames few pixels are undecided and the term stays small.
+//! smoothing and the prior. So the masks are drawn again under the reported pose and solved
+//! three times more: as drawn, with every undecided pixel near the outline as background,
+//! and as robot. Each of the last two displacements from the first is taken as a draw of the
+//! error: the term is the mean of their outer products. Where the smoothing and the prior
+//! labelled those pixels right, it is generous.
 
 use easyhec_drivers::Frame;
 use nalgebra::{Isometry3, Matrix6};
 
 use crate::backend::Backend;
 use crate::camera::{Intrinsics, LensWarp};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::geometry::log_se3;
 use crate::mask::Mask;
 use crate::pipeline::segment_solve::{bands_px, priors};
@@ -67,7 +68,8 @@ pub fn undecided_term(
     let pose = report.camera_from_base;
     let robots: Vec<PosedRobot> = drawn.iter().map(|d| d.robot.clone()).collect();
     let rendered = priors(renderer, camera, &robots, &pose);
-    // Bands from the report's mean fit: the frames are not in its order.
+    // Bands from the report's mean fit, as for views it did not solve: offline, the frames
+    // include views the result left out, in the run's order rather than the report's.
     let bands = bands_px(camera, report, &rendered, rendered.len(), band_px);
     let inputs: Vec<ViewInput> = drawn
         .iter()
@@ -82,26 +84,54 @@ pub fn undecided_term(
     let Some((masks, evidence)) = segmenter.segment_views_with_evidence(&inputs)? else {
         return Ok(None);
     };
+    if masks.len() != drawn.len()
+        || evidence.len() != drawn.len()
+        || masks
+            .iter()
+            .zip(&evidence)
+            .any(|(m, e)| m.data.len() != e.len())
+    {
+        return Err(Error::Solve(format!(
+            "segmenter '{}' gave {} masks and {} evidence maps for {} frames",
+            segmenter.name(),
+            masks.len(),
+            evidence.len(),
+            drawn.len()
+        )));
+    }
+    // Warm, never the wide search a poor fit would start: the term measures how far the
+    // undecided pixels pull, not another basin.
     let opts = SolveOptions {
         recover_below_iou: 0.0,
         ..opts.clone()
     };
-    let mut increments = Vec::with_capacity(2);
-    for undecided_is_robot in [false, true] {
-        let mut relabelled = views.to_vec();
+    // The views with their masks drawn again: `None` as drawn, else the undecided pixels
+    // all robot or all background.
+    let relabelled = |undecided_is_robot: Option<bool>| -> Vec<View> {
+        let mut out = views.to_vec();
         for (k, d) in drawn.iter().enumerate() {
             let Some(i) = d.view else { continue };
-            let mask = relabel(
-                &masks[k],
-                &evidence[k],
-                &rendered[k],
-                bands[k],
-                undecided_is_robot,
-            );
-            relabelled[i].observed = camera.undistort_mask(&mask);
+            let mask = match undecided_is_robot {
+                None => masks[k].clone(),
+                Some(robot) => relabel(&masks[k], &evidence[k], &rendered[k], bands[k], robot),
+            };
+            out[i].observed = camera.undistort_mask(&mask);
         }
-        let moved = solve(renderer, camera, &relabelled, &pose, &opts)?;
-        increments.push(increment(&pose, &moved.camera_from_base));
+        out
+    };
+    // Displacements are taken from the solve of the masks as drawn again, so that what
+    // drawing them again moves (a new render and band) does not count as undecided.
+    let base = solve(renderer, camera, &relabelled(None), &pose, &opts)?.camera_from_base;
+    let mut increments = Vec::with_capacity(2);
+    for undecided_is_robot in [false, true] {
+        let moved = solve(
+            renderer,
+            camera,
+            &relabelled(Some(undecided_is_robot)),
+            &base,
+            &opts,
+        )?;
+        increments.push(increment(&base, &moved.camera_from_base));
     }
     let term = increments
         .iter()

@@ -283,7 +283,9 @@ pub fn with_view_disagreement(
     };
     let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
     let widened = disagreement::with_excess(&report.statistical_covariance, &jackknife, dof);
-    report.covariance = widened + floor;
+    // A segmentation term already added stays in.
+    let undecided = report.undecided_covariance.unwrap_or_else(Matrix6::zeros);
+    report.covariance = widened + floor + undecided;
     report.uncertainty = uncertainty_of(&report.covariance, &pose);
     report.disagreement = Disagreement::Measured(Box::new(widened - report.statistical_covariance));
     report

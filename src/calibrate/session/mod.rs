@@ -97,7 +97,15 @@ impl Track<'_> {
         let Some(live) = &self.live else {
             return report;
         };
-        if report.undecided_covariance.is_some() || live.frames.len() != self.views.len() {
+        if report.undecided_covariance.is_some() {
+            return report;
+        }
+        if live.frames.len() != self.views.len() {
+            tracing::warn!(
+                "segmentation term not measured: {} frames for {} views",
+                live.frames.len(),
+                self.views.len()
+            );
             return report;
         }
         let drawn: Vec<SegmentedFrame> = live
@@ -111,7 +119,12 @@ impl Track<'_> {
                 view: Some(i),
             })
             .collect();
-        let band_px = live.final_band_px.min(live.min_band_px);
+        // The band the final masks were drawn with (`Session::resegment_final`).
+        let band_px = if report.mean_iou() >= POOR_FIT_IOU {
+            live.final_band_px.min(live.min_band_px)
+        } else {
+            live.min_band_px
+        };
         match undecided_term(
             renderer,
             &self.camera,
@@ -777,6 +790,7 @@ impl<'a> Session<'a> {
             self.resegment_final()?;
             self.correct_shared_joints();
             self.measure_view_disagreement();
+            self.measure_segmentation_terms();
             // rounds.json ends on the figures result.json reports.
             let cameras = self.camera_rounds();
             self.last_round().cameras = cameras;

@@ -18,13 +18,18 @@ impl Session<'_> {
     /// promise.
     ///
     /// The statistical bound is checked first; only when it passes does each camera's view
-    /// jackknife run (it costs about a solve), and the widened bound must pass too.
+    /// jackknife run (it costs about a solve), and the widened bound must pass too; then,
+    /// for masks a segmenter drew, the segmentation term (three solves) and the bound again.
     pub(super) fn precise_enough(&mut self) -> Option<StopReason> {
         let target = self.settings.stop_centre_95_mm?;
         if !self.bounds_within(target) {
             return None;
         }
         self.measure_view_disagreement();
+        if !self.bounds_within(target) {
+            return None;
+        }
+        self.measure_segmentation_terms();
         if !self.bounds_within(target) {
             return None;
         }
@@ -54,16 +59,30 @@ impl Session<'_> {
             })
     }
 
-    /// Widens every camera's covariance by what its views' disagreement shows and, where a
-    /// segmenter drew its masks, by what the pixels it could not decide could move the pose
-    /// (each once per solve: a report that has a term keeps it).
+    /// Widens every camera's covariance by what its views' disagreement shows (once per
+    /// solve: a report that has it keeps it).
     pub(super) fn measure_view_disagreement(&mut self) {
         let started = Instant::now();
         let renderer = self.renderer.as_ref();
         let opts = &self.solve_opts;
         self.tracks.par_iter_mut().for_each(|t| {
             if let Some(report) = t.report.take() {
-                let report = with_view_disagreement(renderer, &t.camera, &t.views, report, opts);
+                t.report = Some(with_view_disagreement(
+                    renderer, &t.camera, &t.views, report, opts,
+                ));
+            }
+        });
+        self.solve_s += started.elapsed().as_secs_f64();
+    }
+
+    /// Widens the covariance of every camera whose masks a segmenter drew by what the pixels
+    /// it could not decide could move the pose (once per solve, as the jackknife).
+    pub(super) fn measure_segmentation_terms(&mut self) {
+        let started = Instant::now();
+        let renderer = self.renderer.as_ref();
+        let opts = &self.solve_opts;
+        self.tracks.par_iter_mut().for_each(|t| {
+            if let Some(report) = t.report.take() {
                 t.report = Some(t.with_segmentation_term(renderer, report, opts));
             }
         });

@@ -168,6 +168,12 @@ impl SegmentedViews<'_> {
                 view: self.order.iter().position(|&o| o == i),
             })
             .collect();
+        // The band the final masks were drawn with (`segment_and_solve`'s last round).
+        let band_px = if report.mean_iou() >= POOR_FIT_IOU {
+            config.final_band_px().min(config.min_band_px())
+        } else {
+            config.min_band_px()
+        };
         let term = undecided_term(
             renderer,
             &self.run.camera,
@@ -175,7 +181,7 @@ impl SegmentedViews<'_> {
             &drawn,
             used,
             &report,
-            config.final_band_px(),
+            band_px,
             opts,
         )?;
         Ok(match term {
