@@ -8,8 +8,10 @@ use rayon::prelude::*;
 use crate::pipeline::segment_solve::POOR_FIT_IOU;
 use crate::solve::with_view_disagreement;
 
-use super::Session;
+use super::{Session, Track};
+use crate::backend::Backend;
 use crate::calibrate::StopReason;
+use crate::solve::{SolveOptions, SolveReport};
 
 impl Session<'_> {
     /// The uncertainty rule: enough views, every one fitting, and the reported 95% bound on
@@ -62,28 +64,31 @@ impl Session<'_> {
     /// Widens every camera's covariance by what its views' disagreement shows (once per
     /// solve: a report that has it keeps it).
     pub(super) fn measure_view_disagreement(&mut self) {
-        let started = Instant::now();
-        let renderer = self.renderer.as_ref();
-        let opts = &self.solve_opts;
-        self.tracks.par_iter_mut().for_each(|t| {
-            if let Some(report) = t.report.take() {
-                t.report = Some(with_view_disagreement(
-                    renderer, &t.camera, &t.views, report, opts,
-                ));
-            }
+        self.widen_reports(|t, renderer, report, opts| {
+            with_view_disagreement(renderer, &t.camera, &t.views, report, opts)
         });
-        self.solve_s += started.elapsed().as_secs_f64();
     }
 
     /// Widens the covariance of every camera whose masks a segmenter drew by what the pixels
     /// it could not decide could move the pose (once per solve, as the jackknife).
     pub(super) fn measure_segmentation_terms(&mut self) {
+        self.widen_reports(|t, renderer, report, opts| {
+            t.with_segmentation_term(renderer, report, opts)
+        });
+    }
+
+    /// Replaces every camera's report by `widen` of it, the cameras in parallel, timed as
+    /// solving.
+    fn widen_reports(
+        &mut self,
+        widen: impl Fn(&Track<'_>, &dyn Backend, SolveReport, &SolveOptions) -> SolveReport + Sync,
+    ) {
         let started = Instant::now();
         let renderer = self.renderer.as_ref();
         let opts = &self.solve_opts;
         self.tracks.par_iter_mut().for_each(|t| {
             if let Some(report) = t.report.take() {
-                t.report = Some(t.with_segmentation_term(renderer, report, opts));
+                t.report = Some(widen(t, renderer, report, opts));
             }
         });
         self.solve_s += started.elapsed().as_secs_f64();
