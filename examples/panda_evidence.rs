@@ -126,7 +126,9 @@ fn main() {
             band_px: 8.0,
         })
         .collect();
-    let (_, evidence) = segment_views_with_evidence(&inputs, &params).unwrap();
+    let evidence = segment_views_with_evidence(&inputs, &params)
+        .unwrap()
+        .log_odds;
     let positive: Vec<f64> = evidence
         .iter()
         .map(|e| e.iter().map(|&x| f64::from(x.max(0.0))).sum())
@@ -173,7 +175,7 @@ fn main() {
                 band_px,
             })
             .collect();
-        let (masks, _) = segment_views_with_evidence(&inputs, &params).unwrap();
+        let masks = segment_views_with_evidence(&inputs, &params).unwrap().masks;
         let ious: Vec<f64> = masks
             .iter()
             .zip(&run.views)

@@ -168,8 +168,10 @@ fn builtin_evidence_scores_the_true_silhouette_highest() {
     let (w, h) = (cell.scene.camera.width, cell.scene.camera.height);
     let inputs = without_prior(&frames);
     let params = easyhec::segment::BuiltinParams::default();
-    let (masks, evidence) =
-        easyhec::segment::builtin::segment_views_with_evidence(&inputs, &params).unwrap();
+    let easyhec::segment::Evidence {
+        masks,
+        log_odds: evidence,
+    } = easyhec::segment::builtin::segment_views_with_evidence(&inputs, &params).unwrap();
     assert_eq!(
         masks,
         easyhec::segment::builtin::segment_views(&inputs, &params).unwrap()

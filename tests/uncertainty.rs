@@ -224,3 +224,60 @@ fn noise_presets_are_named_in_configs() {
         "{err}"
     );
 }
+
+/// A segmentation term that could not be measured is reported as such, offline and in the
+/// loop alike: the result keeps the figures it has, says what they leave out, and a term
+/// measured later is not added twice.
+#[test]
+fn a_segmentation_term_that_failed_is_reported_not_dropped() {
+    use easyhec::run::UncertaintyEntry;
+    use easyhec::solve::{with_segmentation_term, SegmentationTerm};
+    let robot = common::load_robot("xarm6");
+    let synth = SynthOptions {
+        noise: NoiseModel::segmenter(),
+        ..Default::default()
+    };
+    let (scene, views, init) = seeded_scene(&robot, 1, 3, &synth).unwrap();
+    let opts = SolveOptions::default();
+    let report = solve(&CpuRenderer, &scene.camera, &views, &init, &opts).unwrap();
+    let before = report.uncertainty.camera_centre_95_mm;
+
+    let failed = with_segmentation_term(
+        report.clone(),
+        Err(easyhec::Error::Solve("the robot left view 2".into())),
+    );
+    assert!(
+        matches!(&failed.segmentation, SegmentationTerm::Unavailable(why) if why.contains("the robot left view 2")),
+        "{:?}",
+        failed.segmentation
+    );
+    assert_eq!(failed.covariance, report.covariance);
+    let terms = UncertaintyEntry::of_report(&failed, &opts)
+        .unwrap()
+        .terms
+        .unwrap();
+    assert!(terms.segmentation_centre_95_mm.is_none(), "{terms:?}");
+    assert!(
+        terms
+            .segmentation_not_measured
+            .as_deref()
+            .is_some_and(|why| why.contains("the robot left view 2")),
+        "{terms:?}"
+    );
+
+    let one_mm = nalgebra::Matrix6::from_diagonal_element(1e-6);
+    let measured = with_segmentation_term(report.clone(), Ok(Some(one_mm)));
+    assert_eq!(measured.covariance, report.covariance + one_mm);
+    assert!(measured.uncertainty.camera_centre_95_mm > before);
+    let terms = UncertaintyEntry::of_report(&measured, &opts)
+        .unwrap()
+        .terms
+        .unwrap();
+    assert!(terms.segmentation_centre_95_mm.is_some() && terms.segmentation_not_measured.is_none());
+    let again = with_segmentation_term(measured.clone(), Ok(Some(one_mm)));
+    assert_eq!(again.covariance, measured.covariance);
+
+    let no_evidence = with_segmentation_term(report.clone(), Ok(None));
+    assert_eq!(no_evidence.segmentation, SegmentationTerm::NotApplicable);
+    assert_eq!(no_evidence.covariance, report.covariance);
+}

@@ -360,7 +360,7 @@ pub fn images_only(
     };
     let promise = Promise {
         centre_95_mm: report.uncertainty.camera_centre_95_mm,
-        segmentation_centre_95_mm: report.undecided_bound_mm().unwrap_or(f64::NAN),
+        segmentation_centre_95_mm: report.segmentation_bound_mm().unwrap_or(f64::NAN),
         mask_pose_sigmas: largest(mask_pose),
         reference_sigmas: largest(&reference),
     };

@@ -163,12 +163,12 @@ fn report_one(outcome: &OfflineOutcome) -> anyhow::Result<()> {
         report.uncertainty.camera_centre_95_mm,
         outcome.out.display()
     );
-    let dominant = camera
+    let terms = camera
         .result
         .uncertainty
         .as_ref()
-        .and_then(|u| u.terms.as_ref())
-        .map(|t| t.dominant.as_str());
+        .and_then(|u| u.terms.as_ref());
+    let dominant = terms.map(|t| t.dominant.as_str());
     if dominant == Some(DominantTerm::InterView.name()) {
         // On real frames this is the usual case: say so, or a user compares the bound with
         // the simulator's figures.
@@ -178,6 +178,11 @@ fn report_one(outcome: &OfflineOutcome) -> anyhow::Result<()> {
     } else if dominant == Some(DominantTerm::Segmentation.name()) {
         outln!(
             "the uncertainty is set by the pixels the segmenter could not decide from the images (robot against a background of its own colour, or never uncovered): masks from a segmentation network, or a background that differs from the robot, tighten it"
+        );
+    }
+    if let Some(why) = terms.and_then(|t| t.segmentation_not_measured.as_deref()) {
+        outln!(
+            "the uncertainty leaves out the segmentation term ({why}): the masks' shared error is not in it, so read the bound as a lower one"
         );
     }
     if let Some((path, rot, trans)) = &camera.truth_error {

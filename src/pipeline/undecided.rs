@@ -26,7 +26,7 @@ use crate::mask::Mask;
 use crate::pipeline::segment_solve::{bands_px, priors};
 use crate::render::PosedRobot;
 use crate::segment::builtin::signed_distance;
-use crate::segment::{Segmenter, ViewInput};
+use crate::segment::{Evidence, Segmenter, ViewInput};
 use crate::solve::{solve, SolveOptions, SolveReport, View};
 
 /// A pixel is undecided when the images' log-odds for robot lie within this of zero: odds
@@ -81,7 +81,11 @@ pub fn undecided_term(
             band_px,
         })
         .collect();
-    let Some((masks, evidence)) = segmenter.segment_views_with_evidence(&inputs)? else {
+    let Some(Evidence {
+        masks,
+        log_odds: evidence,
+    }) = segmenter.segment_views_with_evidence(&inputs)?
+    else {
         return Ok(None);
     };
     if masks.len() != drawn.len()

@@ -62,6 +62,11 @@ pub struct UncertaintyTerms {
     /// segmenter without per-pixel evidence).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub segmentation_centre_95_mm: Option<f64>,
+    /// Why the segmentation term could not be measured, when the masks' segmenter has the
+    /// evidence for it but a relabelled solve failed: the figures then leave out how far its
+    /// undecided pixels could move the pose. Absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub segmentation_not_measured: Option<String>,
 }
 
 impl UncertaintyEntry {
@@ -93,7 +98,7 @@ impl UncertaintyEntry {
     ) -> Option<UncertaintyEntry> {
         let (statistical, inter_view) = report.term_bounds_mm();
         let mask_bias = report.mask_bias_bound_mm();
-        let segmentation = report.undecided_bound_mm();
+        let segmentation = report.segmentation_bound_mm();
         let mut entry = UncertaintyEntry::of(&report.uncertainty)?;
         let finite = statistical.is_finite()
             && inter_view.is_none_or(f64::is_finite)
@@ -106,6 +111,10 @@ impl UncertaintyEntry {
                 inter_view_centre_95_mm: inter_view,
                 mask_bias_centre_95_mm: mask_bias,
                 segmentation_centre_95_mm: segmentation,
+                segmentation_not_measured: match &report.segmentation {
+                    crate::solve::SegmentationTerm::Unavailable(why) => Some(why.clone()),
+                    _ => None,
+                },
             })
         });
         entry.mask_offset = report

@@ -84,8 +84,9 @@ pub fn segment_views(views: &[ViewInput<'_>], params: &BuiltinParams) -> Result<
 pub fn segment_views_with_evidence(
     views: &[ViewInput<'_>],
     params: &BuiltinParams,
-) -> Result<(Vec<Mask>, Vec<Vec<f32>>)> {
-    segment(views, params, true)
+) -> Result<super::Evidence> {
+    let (masks, log_odds) = segment(views, params, true)?;
+    Ok(super::Evidence { masks, log_odds })
 }
 
 /// A silhouette's region score: `evidence` (from [`segment_views_with_evidence`]) summed over

@@ -24,8 +24,15 @@ use crate::mask::Mask;
 #[cfg(feature = "onnx")]
 pub mod onnx;
 
-/// Masks with, per view, each pixel's log-odds for robot from the images alone.
-pub type Evidence = (Vec<Mask>, Vec<Vec<f32>>);
+/// A segmenter's masks with what the images alone said about each pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Evidence {
+    /// One mask per view, as [`Segmenter::segment_views`] draws them.
+    pub masks: Vec<Mask>,
+    /// Per view, each pixel's log-odds for robot before smoothing, the prior's own pull
+    /// left out: near zero where the images did not decide the label.
+    pub log_odds: Vec<Vec<f32>>,
+}
 
 /// Produces a robot mask from a frame.
 pub trait Segmenter: Send + Sync {
@@ -192,7 +199,7 @@ impl Segmenter for Builtin {
             })
             .collect();
         Ok(Some(
-            builtin::segment_views_with_evidence(&views, &self.params)?.1,
+            builtin::segment_views_with_evidence(&views, &self.params)?.log_odds,
         ))
     }
 }

@@ -181,9 +181,8 @@ pub struct SolveReport {
     /// What the views' disagreement showed (module `disagreement`).
     pub disagreement: Disagreement,
     /// What the pixels the segmenter left undecided could move the pose by
-    /// ([`with_undecided_pixels`]); `None` when not measured (masks given, or a segmenter
-    /// without per-pixel evidence).
-    pub undecided_covariance: Option<Matrix6<f64>>,
+    /// ([`with_segmentation_term`]).
+    pub segmentation: SegmentationTerm,
     /// The covariance the posterior refinement and exploration draw pose hypotheses from:
     /// the fit's curvature scaled by the outline noise. Their settings were tuned on it; it
     /// is no promise about the error.
@@ -225,6 +224,31 @@ pub enum Disagreement {
     /// Measured: what the view jackknife added to the statistical covariance (zero when the
     /// views disagree no more than chance allows).
     Measured(Box<Matrix6<f64>>),
+}
+
+/// The segmentation term of a report's covariance (module [`crate::pipeline::undecided`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum SegmentationTerm {
+    /// Not for these masks: given in the run, or drawn by a segmenter without per-pixel
+    /// evidence (their error is the jackknife's and a model floor's to show).
+    #[default]
+    NotApplicable,
+    /// The masks' segmenter has the evidence, but the term could not be measured (the
+    /// reason): the covariance leaves out how far its undecided pixels could move the pose,
+    /// and the result says so rather than failing or passing it over.
+    Unavailable(String),
+    /// Measured: what it added to the covariance.
+    Measured(Box<Matrix6<f64>>),
+}
+
+impl SegmentationTerm {
+    /// The covariance it added, when measured.
+    pub fn covariance(&self) -> Option<&Matrix6<f64>> {
+        match self {
+            SegmentationTerm::Measured(c) => Some(c),
+            _ => None,
+        }
+    }
 }
 
 /// Which term sets a reported covariance.
@@ -284,23 +308,42 @@ pub fn with_view_disagreement(
     let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
     let widened = disagreement::with_excess(&report.statistical_covariance, &jackknife, dof);
     // A segmentation term already added stays in.
-    let undecided = report.undecided_covariance.unwrap_or_else(Matrix6::zeros);
-    report.covariance = widened + floor + undecided;
+    let segmentation = report
+        .segmentation
+        .covariance()
+        .copied()
+        .unwrap_or_else(Matrix6::zeros);
+    report.covariance = widened + floor + segmentation;
     report.uncertainty = uncertainty_of(&report.covariance, &pose);
     report.disagreement = Disagreement::Measured(Box::new(widened - report.statistical_covariance));
     report
 }
 
-/// Adds the segmentation term `undecided` (module [`crate::pipeline::undecided`]) to
-/// `report`'s covariance: the views' disagreement cannot show a segmenter's error that every
-/// view shares, such as masks that run fat wherever the robot meets a wall of its own colour.
-pub fn with_undecided_pixels(mut report: SolveReport, undecided: Matrix6<f64>) -> SolveReport {
-    if report.undecided_covariance.is_some() {
+/// `report` with the segmentation term as measured (module [`crate::pipeline::undecided`]):
+/// the views' disagreement cannot show a segmenter's error that every view shares, such as
+/// masks that run fat wherever the robot meets a wall of its own colour. `Ok(Some(c))` adds
+/// `c` to the covariance, `Ok(None)` (no evidence to measure it from) leaves the report as it
+/// is, and an error is recorded as [`SegmentationTerm::Unavailable`]: offline and in the loop
+/// alike, the result is reported and says what it leaves out. A term already set stays.
+pub fn with_segmentation_term(
+    mut report: SolveReport,
+    measured: Result<Option<Matrix6<f64>>>,
+) -> SolveReport {
+    if report.segmentation != SegmentationTerm::NotApplicable {
         return report;
     }
-    report.covariance += undecided;
-    report.uncertainty = uncertainty_of(&report.covariance, &report.camera_from_base);
-    report.undecided_covariance = Some(undecided);
+    match measured {
+        Ok(None) => {}
+        Ok(Some(c)) => {
+            report.covariance += c;
+            report.uncertainty = uncertainty_of(&report.covariance, &report.camera_from_base);
+            report.segmentation = SegmentationTerm::Measured(Box::new(c));
+        }
+        Err(e) => {
+            tracing::warn!("segmentation term not measured: {e}");
+            report.segmentation = SegmentationTerm::Unavailable(e.to_string());
+        }
+    }
     report
 }
 
@@ -398,7 +441,7 @@ impl SolveReport {
         if let Disagreement::Measured(c) = &self.disagreement {
             terms.push((DominantTerm::InterView, bound(c)));
         }
-        if let Some(c) = &self.undecided_covariance {
+        if let Some(c) = self.segmentation.covariance() {
             terms.push((DominantTerm::Segmentation, bound(c)));
         }
         terms
@@ -417,9 +460,10 @@ impl SolveReport {
 
     /// The 95% camera-centre bound of the segmentation term on its own, millimetres (when
     /// measured).
-    pub fn undecided_bound_mm(&self) -> Option<f64> {
-        self.undecided_covariance
-            .map(|c| uncertainty_of(&c, &self.camera_from_base).camera_centre_95_mm)
+    pub fn segmentation_bound_mm(&self) -> Option<f64> {
+        self.segmentation
+            .covariance()
+            .map(|c| uncertainty_of(c, &self.camera_from_base).camera_centre_95_mm)
     }
 
     /// The 95% camera-centre bound of the statistical term and of what the inter-view term
@@ -493,7 +537,7 @@ fn finish(
         statistical_covariance,
         mask_bias_covariance,
         disagreement: Disagreement::NotMeasured,
-        undecided_covariance: None,
+        segmentation: SegmentationTerm::NotApplicable,
         sampling_covariance,
         uncertainty,
         outline_noise_px2: sigma2 * opts.correlation_length_px,

@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 
 use super::motion_cost::{self, MotionCost};
 use super::planner::{choose_reachable, rank_poses, PlanCamera, PlanRequest, Ranked};
@@ -40,8 +40,8 @@ use crate::run::rig::{write_result, JointCorrections, RunLayout, RunSummary};
 use crate::run::CameraEntry;
 use crate::run::ResultFile;
 use crate::solve::{
-    solve, solve_with_shared_joints, with_undecided_pixels, CameraSolve, SolveOptions, SolveReport,
-    View,
+    solve, solve_with_shared_joints, with_segmentation_term, CameraSolve, SegmentationTerm,
+    SolveOptions, SolveReport, View,
 };
 
 /// Mean IoU below which a camera on a link has a round's solve repeated from the run's own
@@ -87,7 +87,7 @@ impl Track<'_> {
 
     /// `report` with the segmentation term ([`crate::pipeline::undecided`]) when this
     /// camera's masks were drawn from its live frames by a segmenter with per-pixel evidence.
-    /// A term that cannot be measured (a relabelled solve failed) is left out with a warning.
+    /// A term that cannot be measured is recorded as such ([`with_segmentation_term`]).
     fn with_segmentation_term(
         &self,
         renderer: &dyn Backend,
@@ -97,16 +97,28 @@ impl Track<'_> {
         let Some(live) = &self.live else {
             return report;
         };
-        if report.undecided_covariance.is_some() {
+        if report.segmentation != SegmentationTerm::NotApplicable {
             return report;
         }
+        let measured = self.measure_segmentation_term(live, renderer, &report, opts);
+        with_segmentation_term(report, measured)
+    }
+
+    /// The segmentation term's covariance for `report` from the live frames (see
+    /// [`undecided_term`]).
+    fn measure_segmentation_term(
+        &self,
+        live: &LiveFrames,
+        renderer: &dyn Backend,
+        report: &SolveReport,
+        opts: &SolveOptions,
+    ) -> Result<Option<Matrix6<f64>>> {
         if live.frames.len() != self.views.len() {
-            tracing::warn!(
-                "segmentation term not measured: {} frames for {} views",
+            return Err(Error::Solve(format!(
+                "{} frames kept for {} views",
                 live.frames.len(),
                 self.views.len()
-            );
-            return report;
+            )));
         }
         let drawn: Vec<SegmentedFrame> = live
             .frames
@@ -125,23 +137,16 @@ impl Track<'_> {
         } else {
             live.min_band_px
         };
-        match undecided_term(
+        undecided_term(
             renderer,
             &self.camera,
             self.unit.segmenter,
             &drawn,
             &self.views,
-            &report,
+            report,
             band_px,
             opts,
-        ) {
-            Ok(Some(term)) => with_undecided_pixels(report, term),
-            Ok(None) => report,
-            Err(e) => {
-                tracing::warn!("segmentation term not measured: {e}");
-                report
-            }
-        }
+        )
     }
 }
 

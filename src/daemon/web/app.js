@@ -395,6 +395,9 @@ function termsText(t) {
   if (t.segmentation_centre_95_mm != null) {
     parts.push("segmentation " + t.segmentation_centre_95_mm.toFixed(2) + " mm");
   }
+  if (t.segmentation_not_measured != null) {
+    parts.push("segmentation not measured: " + t.segmentation_not_measured);
+  }
   return t.dominant + " (" + parts.join(", ") + ")";
 }
 

@@ -435,7 +435,7 @@ fn finish_fit(
                 order: &order,
                 segmented: &segmented,
             };
-            drawn.with_segmentation_term(config, renderer, &used, report, &solve_options(req))?
+            drawn.with_segmentation_term(config, renderer, &used, report, &solve_options(req))
         }
         None => report,
     };

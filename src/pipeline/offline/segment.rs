@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 
 use crate::backend::Backend;
 use crate::camera::LensWarp;
@@ -16,7 +16,7 @@ use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
 use crate::pipeline::undecided::{undecided_term, SegmentedFrame};
 use crate::render::PosedRobot;
 use crate::run::LoadedRun;
-use crate::solve::{with_undecided_pixels, SolveOptions, SolveReport, View};
+use crate::solve::{self, SolveOptions, SolveReport, View};
 
 /// Fills the masks of views that need one: segment → solve → re-segment over those views
 /// until the masks settle (`pipeline::segment_solve`). Returns the settled pose when it fits
@@ -137,8 +137,9 @@ pub(super) struct SegmentedViews<'a> {
 }
 
 impl SegmentedViews<'_> {
-    /// `report` with the segmentation term added ([`crate::pipeline::undecided`]) when a
-    /// segmenter with per-pixel evidence drew masks of the views used; as it was otherwise.
+    /// `report` with the segmentation term ([`crate::pipeline::undecided`]) when a segmenter
+    /// with per-pixel evidence drew masks of the views used; as it was otherwise. A term that
+    /// cannot be measured is recorded as such ([`solve::with_segmentation_term`]).
     pub(super) fn with_segmentation_term(
         &self,
         config: &SegmenterConfig,
@@ -146,12 +147,25 @@ impl SegmentedViews<'_> {
         used: &[View],
         report: SolveReport,
         opts: &SolveOptions,
-    ) -> Result<SolveReport> {
+    ) -> SolveReport {
         // Only the builtin segmenter has the evidence; building another would load its
         // model again for nothing.
         if !matches!(config, SegmenterConfig::Builtin { .. }) {
-            return Ok(report);
+            return report;
         }
+        let measured = self.measure_segmentation_term(config, renderer, used, &report, opts);
+        solve::with_segmentation_term(report, measured)
+    }
+
+    /// The segmentation term's covariance for `report` (see [`undecided_term`]).
+    fn measure_segmentation_term(
+        &self,
+        config: &SegmenterConfig,
+        renderer: &dyn Backend,
+        used: &[View],
+        report: &SolveReport,
+        opts: &SolveOptions,
+    ) -> Result<Option<Matrix6<f64>>> {
         let segmenter = crate::segment::build(config, &self.run.dir.join("run.json"))?;
         let frames = self
             .segmented
@@ -174,20 +188,16 @@ impl SegmentedViews<'_> {
         } else {
             config.min_band_px()
         };
-        let term = undecided_term(
+        undecided_term(
             renderer,
             &self.run.camera,
             segmenter.as_ref(),
             &drawn,
             used,
-            &report,
+            report,
             band_px,
             opts,
-        )?;
-        Ok(match term {
-            Some(term) => with_undecided_pixels(report, term),
-            None => report,
-        })
+        )
     }
 }
 
