@@ -143,4 +143,10 @@ fn images_only_uncertainty_holds_the_mask_pose() {
     assert!(promise.segmentation_centre_95_mm > 0.0, "{i:?}");
     assert!(promise.centre_95_mm >= from_masks[2], "{i:?}");
     assert!(promise.mask_pose_sigmas <= 3.0, "{i:?}");
+    // A bump check takes the segmentation term out: the same segmenter repeats its error at
+    // the check, so it explains no outline motion, and left in (about 2-3 px here) it would
+    // hide a knock as large as the default threshold.
+    let [(_, checked_most), (with_term_least, _)] = promise.bump_allowance_px;
+    assert!(checked_most < 1.5, "{i:?}");
+    assert!(with_term_least > checked_most, "{i:?}");
 }

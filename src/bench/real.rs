@@ -24,11 +24,12 @@ use crate::geometry::{
 };
 use crate::mask::Mask;
 use crate::pipeline::offline::{solve_run, OfflineSolve};
-use crate::render::PosedRobot;
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::run::{load_run, read_pose_file};
 use crate::solve::Optimizer;
 use crate::solve::{
-    solve, uncertainty_of, with_view_disagreement, SolveOptions, SolveReport, Uncertainty, View,
+    predicted_outline_motion_px, solve, uncertainty_of, with_view_disagreement, SolveOptions,
+    SolveReport, Uncertainty, View,
 };
 
 /// A recorded real run against its reference pose.
@@ -82,6 +83,10 @@ pub struct Promise {
     pub mask_pose_sigmas: f64,
     /// The reference's largest offset on any axis, in reported σ.
     pub reference_sigmas: f64,
+    /// Outline motion (px, least and most over the recorded views) that a bump check at
+    /// those views puts down to the calibration's own uncertainty: with the segmentation term
+    /// taken out, as the check does, and with it left in.
+    pub bump_allowance_px: [(f64, f64); 2],
 }
 
 /// What `bench real` measured.
@@ -353,6 +358,8 @@ pub fn images_only(
     let report = &outcome.first().report;
     let est = report.camera_from_base;
     let reference = read_pose_file(&dir.join("reference.json"))?;
+    let run = load_run(dir)?;
+    let k = views.unwrap_or(usize::MAX).min(run.views.len());
     let largest = |other: &Isometry3<f64>| {
         super::coverage::errors_in_sigmas(&est, other, &report.uncertainty)
             .iter()
@@ -363,6 +370,8 @@ pub fn images_only(
         segmentation_centre_95_mm: report.segmentation_bound_mm().unwrap_or(f64::NAN),
         mask_pose_sigmas: largest(mask_pose),
         reference_sigmas: largest(&reference),
+        bump_allowance_px: [false, true]
+            .map(|with_segmentation| bump_allowance_px(&run, k, report, with_segmentation)),
     };
     let apart = |other: &Isometry3<f64>| {
         [
@@ -371,11 +380,10 @@ pub fn images_only(
             camera_centre_error_mm(&est, other),
         ]
     };
-    let run = load_run(dir)?;
     let mask_iou = run
         .views
         .iter()
-        .take(views.unwrap_or(usize::MAX))
+        .take(k)
         .enumerate()
         .map(|(position, v)| {
             let made = Mask::load(&masks_dir.join(crate::run::mask_file_name(position)))?;
@@ -391,6 +399,34 @@ pub fn images_only(
     })
 }
 
+/// The least and most, over the first `k` recorded views, of the outline motion that
+/// `report`'s covariance predicts at its pose (the daemon's bump allowance,
+/// [`predicted_outline_motion_px`]), with the segmentation term taken out unless
+/// `with_segmentation`.
+fn bump_allowance_px(
+    run: &crate::run::LoadedRun,
+    k: usize,
+    report: &SolveReport,
+    with_segmentation: bool,
+) -> (f64, f64) {
+    let mut covariance = report.uncertainty.covariance;
+    if let (false, Some(term)) = (with_segmentation, report.segmentation.covariance()) {
+        covariance -= term;
+    }
+    let pinhole = run.camera.undistorted();
+    run.views[..k]
+        .iter()
+        .map(|v| {
+            let posed = PosedRobot::new(&run.robot, &v.joints);
+            let rendered =
+                CpuRenderer.render(&posed, &pinhole, &report.camera_from_base, Some(1.0));
+            predicted_outline_motion_px(&rendered, &pinhole, &covariance)
+        })
+        .fold((f64::INFINITY, 0.0), |(lo, hi), px| {
+            (lo.min(px), hi.max(px))
+        })
+}
+
 /// One line per images-only solve.
 fn images_line(i: &ImagesOnly) -> String {
     let (m, r) = match &i.apart {
@@ -404,8 +440,9 @@ fn images_line(i: &ImagesOnly) -> String {
     };
     let promised = i.promise.map_or(String::new(), |p| {
         format!(
-            "; reported 95% centre bound {:.2} mm (segmentation term {:.2} mm), the mask pose at most {:.2}σ and the reference at most {:.2}σ away on any axis",
-            p.centre_95_mm, p.segmentation_centre_95_mm, p.mask_pose_sigmas, p.reference_sigmas
+            "; reported 95% centre bound {:.2} mm (segmentation term {:.2} mm), the mask pose at most {:.2}σ and the reference at most {:.2}σ away on any axis; a bump check at the recorded views allows {:.2}–{:.2} px for it ({:.2}–{:.2} px were the segmentation term left in)",
+            p.centre_95_mm, p.segmentation_centre_95_mm, p.mask_pose_sigmas, p.reference_sigmas,
+            p.bump_allowance_px[0].0, p.bump_allowance_px[0].1, p.bump_allowance_px[1].0, p.bump_allowance_px[1].1
         )
     });
     format!(

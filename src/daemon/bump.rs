@@ -17,7 +17,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use easyhec_drivers::{ArmStatus, Frame};
-use nalgebra::{Isometry3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix6};
 
 use super::store::CheckRecord;
 use super::{now, ActivePose, Busy, Daemon, Refusal, StartOptions, WarmStart};
@@ -25,9 +25,10 @@ use crate::camera::{Intrinsics, LensWarp};
 use crate::cell::{CameraRef, Cell};
 use crate::error::{Error, Result};
 use crate::mask::{Mask, SignedDistance};
-use crate::render::{CpuRenderer, PosedRobot, Silhouette, SilhouetteRenderer};
+use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::run::rig::RunLayout;
 use crate::run::RunFile;
+use crate::solve::predicted_outline_motion_px;
 
 /// Agreement of an observed mask with a rendered one, once the segmenter's own outline
 /// offset is taken out.
@@ -305,8 +306,7 @@ async fn measure(
             .store()
             .active_of(camera.as_deref())
             .and_then(|a| a.result.uncertainty)
-            .and_then(|u| u.covariance)
-            .map(|rows| without_model_floor(&cell, Matrix6::from_fn(|r, c| rows[r][c])));
+            .and_then(|u| u.moving_between_checks(&model_floor_of(&cell)));
         let job = CameraCheck {
             daemon: daemon.clone(),
             id: id.clone(),
@@ -420,9 +420,9 @@ impl CameraCheck {
         let pinhole = camera.undistorted();
         let posed = PosedRobot::new(unit.seen, &self.joints);
         let rendered = CpuRenderer.render(&posed, &pinhole, &self.pose, Some(1.0));
-        let explained = self
-            .covariance
-            .map_or(0.0, |c| explained_px(&rendered, &pinhole, &c));
+        let explained = self.covariance.map_or(0.0, |c| {
+            predicted_outline_motion_px(&rendered, &pinhole, &c)
+        });
         let max_offset_px = self.daemon.settings().bump_max_mask_offset_px;
         Ok((
             agreement(&observed, &rendered.mask, max_offset_px),
@@ -431,35 +431,13 @@ impl CameraCheck {
     }
 }
 
-/// `covariance` less the cell's model-error floor: a URDF or intrinsics error is the same at
-/// the calibration and at the check, so it explains no outline motion between them, and a
-/// floor left in would hide real bumps. Negative variances this leaves (a floor raised after
-/// the calibration) are clamped per outline sample in [`explained_px`].
-fn without_model_floor(cell: &Cell, covariance: Matrix6<f64>) -> Matrix6<f64> {
+/// The cell's model-error floor as a covariance.
+fn model_floor_of(cell: &Cell) -> Matrix6<f64> {
     let settings = &cell.config.calibration;
-    covariance
-        - crate::solve::model_floor(
-            settings.model_floor_rotation_deg,
-            settings.model_floor_translation_mm,
-        )
-}
-
-/// Outline distance (pixels) the calibration's own uncertainty explains at this view: twice
-/// the RMS, over the rendered outline, of each sample's 1-sigma displacement along its normal
-/// under `covariance` (of the left increment of `camera_from_base`).
-pub fn explained_px(rendered: &Silhouette, camera: &Intrinsics, covariance: &Matrix6<f64>) -> f64 {
-    let (mut sum, mut length) = (0.0, 0.0);
-    for s in &rendered.boundary {
-        let jp = s.pixel_jacobian(camera);
-        let j: Vector6<f64> = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
-        sum += (j.transpose() * covariance * j)[(0, 0)].max(0.0) * s.length_px;
-        length += s.length_px;
-    }
-    if length > 0.0 && sum.is_finite() {
-        2.0 * (sum / length).sqrt()
-    } else {
-        0.0
-    }
+    crate::solve::model_floor(
+        settings.model_floor_rotation_deg,
+        settings.model_floor_translation_mm,
+    )
 }
 
 /// Scheduled checks every `interval` while the daemon runs; skipped while the arm is leased
@@ -492,6 +470,7 @@ mod tests {
 
     use super::*;
     use crate::geometry::look_at_camera_from_base;
+    use crate::render::Silhouette;
     use crate::robot::RobotModel;
 
     /// The posed xArm6, the camera and the pose it is seen from, about 1.5 m away.
@@ -568,21 +547,72 @@ mod tests {
     }
 
     #[test]
+    fn the_floor_and_the_segmentation_term_explain_no_outline_motion() {
+        let (sil, camera) = seen();
+        let rows = |m: &Matrix6<f64>| -> Box<[[f64; 6]; 6]> {
+            Box::new(std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
+        };
+        // 1 mm sideways from the outlines' own scatter, 5 mm sideways from the pixels the
+        // segmenter could not decide, 2 mm from the model floor.
+        let mut own = Matrix6::zeros();
+        own[(0, 0)] = 1e-6;
+        let segmentation = own * 25.0;
+        let floor = crate::solve::model_floor(0.0, 2.0);
+        let mut u = crate::run::UncertaintyEntry {
+            rotation_deg: [0.1; 3],
+            translation_mm: [5.0; 3],
+            camera_centre_95_mm: Some(15.0),
+            covariance: Some(rows(&(own + segmentation + floor))),
+            terms: None,
+            mask_offset: None,
+        };
+        let explained = |u: &crate::run::UncertaintyEntry| {
+            predicted_outline_motion_px(&sil, &camera, &u.moving_between_checks(&floor).unwrap())
+        };
+        let expected = predicted_outline_motion_px(&sil, &camera, &own);
+        // A result that does not split the segmentation term out keeps it in.
+        assert!(
+            explained(&u) > 4.0 * expected,
+            "{} vs {expected}",
+            explained(&u)
+        );
+        u.terms = Some(Box::new(crate::run::UncertaintyTerms {
+            dominant: "segmentation".into(),
+            statistical_centre_95_mm: 2.0,
+            inter_view_centre_95_mm: None,
+            mask_bias_centre_95_mm: None,
+            segmentation_centre_95_mm: Some(14.0),
+            segmentation_not_measured: None,
+            segmentation_covariance: Some(rows(&segmentation)),
+        }));
+        assert!(
+            (explained(&u) - expected).abs() < 1e-9,
+            "{} vs {expected}",
+            explained(&u)
+        );
+        u.covariance = None;
+        assert!(u.moving_between_checks(&floor).is_none());
+    }
+
+    #[test]
     fn explained_distance_is_twice_the_predicted_outline_sigma() {
         let (sil, camera) = seen();
-        assert_eq!(explained_px(&sil, &camera, &Matrix6::zeros()), 0.0);
+        assert_eq!(
+            predicted_outline_motion_px(&sil, &camera, &Matrix6::zeros()),
+            0.0
+        );
         // 1 mm of sideways translation at about 1.5 m moves an outline by at most 0.4 px, by
         // about half that on average over its directions.
         let mut sideways = Matrix6::zeros();
         sideways[(0, 0)] = 1e-6;
-        let one_mm = explained_px(&sil, &camera, &sideways);
+        let one_mm = predicted_outline_motion_px(&sil, &camera, &sideways);
         assert!((0.1..=0.8).contains(&one_mm), "{one_mm} px for 1 mm");
         // The same in depth moves the outline far less: only by scaling the image.
         let mut depth = Matrix6::zeros();
         depth[(2, 2)] = 1e-6;
-        assert!(explained_px(&sil, &camera, &depth) < 0.5 * one_mm);
+        assert!(predicted_outline_motion_px(&sil, &camera, &depth) < 0.5 * one_mm);
         // Standard deviations scale with the square root of the covariance.
-        let four = explained_px(&sil, &camera, &(sideways * 4.0));
+        let four = predicted_outline_motion_px(&sil, &camera, &(sideways * 4.0));
         assert!((four - 2.0 * one_mm).abs() < 1e-9 * one_mm.max(1.0));
     }
 }

@@ -1,6 +1,7 @@
 //! `result.json`'s `uncertainty`: the reported figures, the terms they are made of and the
 //! segmenter's outline offset, as a solve's report gives them.
 
+use nalgebra::Matrix6;
 use serde::{Deserialize, Serialize};
 
 /// `uncertainty`.
@@ -67,6 +68,11 @@ pub struct UncertaintyTerms {
     /// undecided pixels could move the pose. Absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub segmentation_not_measured: Option<String>,
+    /// The segmentation term's own covariance, in `covariance`'s frame and units (when
+    /// measured): a bump check takes it out, since the same segmenter on the same scene
+    /// repeats the error it stands for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub segmentation_covariance: Option<Box<[[f64; 6]; 6]>>,
 }
 
 impl UncertaintyEntry {
@@ -115,6 +121,10 @@ impl UncertaintyEntry {
                     crate::solve::SegmentationTerm::Unavailable(why) => Some(why.clone()),
                     _ => None,
                 },
+                segmentation_covariance: report
+                    .segmentation
+                    .covariance()
+                    .map(|c| Box::new(std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])))),
             })
         });
         entry.mask_offset = report
@@ -125,6 +135,24 @@ impl UncertaintyEntry {
                 sigma_px: m.sigma_px,
             });
         Some(entry)
+    }
+
+    /// The part of this covariance that can move the outline between the calibration and a
+    /// later check of it: `covariance` less the cell's model-error `floor` and less the
+    /// segmentation term. A URDF or intrinsics error is the same at the calibration and at
+    /// the check, and so is the error of the pixels the segmenter could not decide (the same
+    /// segmenter on the same scene), so neither explains outline motion between them, and
+    /// either left in would hide real bumps. Negative variances this leaves (a floor raised
+    /// after the calibration) count as none in
+    /// [`crate::solve::predicted_outline_motion_px`]. `None` without a covariance.
+    pub fn moving_between_checks(&self, floor: &Matrix6<f64>) -> Option<Matrix6<f64>> {
+        let matrix = |rows: &[[f64; 6]; 6]| Matrix6::from_fn(|r, c| rows[r][c]);
+        let segmentation = self
+            .terms
+            .as_ref()
+            .and_then(|t| t.segmentation_covariance.as_deref())
+            .map_or_else(Matrix6::zeros, matrix);
+        Some(matrix(self.covariance.as_deref()?) - floor - segmentation)
     }
 
     /// The first value that no solve could have written, as `(field path, problem)`: every
@@ -156,23 +184,40 @@ impl UncertaintyEntry {
                 ));
             }
         }
-        let c = self.covariance.as_ref()?;
-        for r in 0..6 {
-            for k in 0..6 {
-                let v = c[r][k];
-                let bad = !v.is_finite()
-                    || (r == k && v < 0.0)
-                    || (v - c[k][r]).abs() > 1e-9 * (c[r][r].abs() + c[k][k].abs()).max(1e-30);
-                if bad {
-                    return Some((
-                        format!("uncertainty.covariance[{r}][{k}]"),
-                        format!("is {v}; allowed: finite, symmetric, diagonal >= 0"),
-                    ));
-                }
+        let segmentation = self
+            .terms
+            .as_ref()
+            .and_then(|t| t.segmentation_covariance.as_deref())
+            .map(|c| ("uncertainty.terms.segmentation_covariance", c));
+        let covariance = self
+            .covariance
+            .as_deref()
+            .map(|c| ("uncertainty.covariance", c));
+        covariance
+            .into_iter()
+            .chain(segmentation)
+            .find_map(|(field, c)| covariance_problem(field, c))
+    }
+}
+
+/// The first entry of `c` that is not finite, breaks its symmetry or is a negative variance,
+/// as `(field path, problem)`.
+fn covariance_problem(field: &str, c: &[[f64; 6]; 6]) -> Option<(String, String)> {
+    for r in 0..6 {
+        for k in 0..6 {
+            let v = c[r][k];
+            let bad = !v.is_finite()
+                || (r == k && v < 0.0)
+                || (v - c[k][r]).abs() > 1e-9 * (c[r][r].abs() + c[k][k].abs()).max(1e-30);
+            if bad {
+                return Some((
+                    format!("{field}[{r}][{k}]"),
+                    format!("is {v}; allowed: finite, symmetric, diagonal >= 0"),
+                ));
             }
         }
-        None
     }
+    None
 }
 
 #[cfg(test)]
@@ -215,5 +260,34 @@ mod tests {
         }));
         let (field, _) = broken.problem().expect("a NaN sigma is refused");
         assert_eq!(field, "uncertainty.mask_offset");
+    }
+
+    #[test]
+    fn a_broken_segmentation_covariance_is_named() {
+        let terms = |c: [[f64; 6]; 6]| UncertaintyTerms {
+            dominant: "segmentation".into(),
+            statistical_centre_95_mm: 1.0,
+            inter_view_centre_95_mm: None,
+            mask_bias_centre_95_mm: None,
+            segmentation_centre_95_mm: Some(3.0),
+            segmentation_not_measured: None,
+            segmentation_covariance: Some(Box::new(c)),
+        };
+        let mut good = entry(None);
+        let mut c = [[0.0; 6]; 6];
+        c[2][2] = 1e-5;
+        good.terms = Some(Box::new(terms(c)));
+        assert_eq!(good.problem(), None);
+        let json = serde_json::to_string(&good).unwrap();
+        assert_eq!(
+            serde_json::from_str::<UncertaintyEntry>(&json).unwrap(),
+            good
+        );
+        c[0][1] = 1e-6;
+        let mut broken = entry(None);
+        broken.terms = Some(Box::new(terms(c)));
+        let (field, problem) = broken.problem().expect("an asymmetric term is refused");
+        assert_eq!(field, "uncertainty.terms.segmentation_covariance[0][1]");
+        assert!(problem.contains("symmetric"), "{problem}");
     }
 }

@@ -44,7 +44,9 @@ pub use shared_joints::{
     refine_with_joint_corrections, solve_with_shared_joints, CameraSolve, SharedCamera,
     SharedRefinement, SharedSolve,
 };
-pub use uncertainty::{translation_covariance, uncertainty_of, Uncertainty};
+pub use uncertainty::{
+    predicted_outline_motion_px, translation_covariance, uncertainty_of, Uncertainty,
+};
 
 use adam::solve_adam;
 use boundary::{accumulate_keeping, Level};

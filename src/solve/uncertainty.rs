@@ -3,11 +3,13 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3, Vector6};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
+use crate::camera::Intrinsics;
 use crate::geometry::skew;
+use crate::render::Silhouette;
 
 /// 1-sigma uncertainty about the camera axes, and the 95% camera-centre bound.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -21,6 +23,30 @@ pub struct Uncertainty {
     pub camera_centre_95_mm: f64,
     /// The covariance of the left increment `(rho, phi)` these figures summarise.
     pub covariance: Matrix6<f64>,
+}
+
+/// How far `covariance` (of the left increment of `camera_from_base`) predicts the outline of
+/// `rendered` to move, pixels: twice the RMS, over the outline, of each sample's 1-sigma
+/// displacement along its normal. A bump check allows this much outline distance for the
+/// calibration's own uncertainty; negative variances along a sample (a covariance with terms
+/// taken out) count as none.
+pub fn predicted_outline_motion_px(
+    rendered: &Silhouette,
+    camera: &Intrinsics,
+    covariance: &Matrix6<f64>,
+) -> f64 {
+    let (mut sum, mut length) = (0.0, 0.0);
+    for s in &rendered.boundary {
+        let jp = s.pixel_jacobian(camera);
+        let j: Vector6<f64> = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
+        sum += (j.transpose() * covariance * j)[(0, 0)].max(0.0) * s.length_px;
+        length += s.length_px;
+    }
+    if length > 0.0 && sum.is_finite() {
+        2.0 * (sum / length).sqrt()
+    } else {
+        0.0
+    }
 }
 
 /// Covariance of the translation `camera_from_base` reports, from the covariance of its left
