@@ -25,7 +25,7 @@ use crate::geometry::{
 use crate::mask::Mask;
 use crate::pipeline::offline::{solve_run, OfflineSolve};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
-use crate::run::{load_run, read_pose_file};
+use crate::run::{load_run, read_pose_file, ResultFile, UncertaintyEntry};
 use crate::solve::Optimizer;
 use crate::solve::{
     predicted_outline_motion_px, solve, uncertainty_of, with_view_disagreement, SolveOptions,
@@ -358,6 +358,7 @@ pub fn images_only(
     let report = &outcome.first().report;
     let est = report.camera_from_base;
     let reference = read_pose_file(&dir.join("reference.json"))?;
+    let written = ResultFile::read(&scratch.path().join("result.json"))?;
     let run = load_run(dir)?;
     let k = views.unwrap_or(usize::MAX).min(run.views.len());
     let largest = |other: &Isometry3<f64>| {
@@ -371,7 +372,7 @@ pub fn images_only(
         mask_pose_sigmas: largest(mask_pose),
         reference_sigmas: largest(&reference),
         bump_allowance_px: [false, true]
-            .map(|with_segmentation| bump_allowance_px(&run, k, report, with_segmentation)),
+            .map(|with_segmentation| bump_allowance_px(&run, k, &written, with_segmentation)),
     };
     let apart = |other: &Isometry3<f64>| {
         [
@@ -399,27 +400,37 @@ pub fn images_only(
     })
 }
 
-/// The least and most, over the first `k` recorded views, of the outline motion that
-/// `report`'s covariance predicts at its pose (the daemon's bump allowance,
-/// [`predicted_outline_motion_px`]), with the segmentation term taken out unless
-/// `with_segmentation`.
+/// The least and most, over the first `k` recorded views, of the outline motion that the
+/// written result's uncertainty predicts at its pose: what a bump check there allows
+/// ([`UncertaintyEntry::moving_between_checks`] with this solve's zero model floor, then
+/// [`predicted_outline_motion_px`]), or with the whole covariance when `with_segmentation`.
 fn bump_allowance_px(
     run: &crate::run::LoadedRun,
     k: usize,
-    report: &SolveReport,
+    result: &ResultFile,
     with_segmentation: bool,
 ) -> (f64, f64) {
-    let mut covariance = report.uncertainty.covariance;
-    if let (false, Some(term)) = (with_segmentation, report.segmentation.covariance()) {
-        covariance -= term;
-    }
+    let whole = |u: &UncertaintyEntry| {
+        let rows = u.covariance.as_deref()?;
+        Some(Matrix6::from_fn(|r, c| rows[r][c]))
+    };
+    let covariance = result
+        .uncertainty
+        .as_ref()
+        .and_then(|u| match with_segmentation {
+            true => whole(u),
+            false => u.moving_between_checks(&Matrix6::zeros()),
+        });
+    let Some(covariance) = covariance else {
+        return (f64::NAN, f64::NAN);
+    };
+    let pose = result.camera_from_base();
     let pinhole = run.camera.undistorted();
     run.views[..k]
         .iter()
         .map(|v| {
             let posed = PosedRobot::new(&run.robot, &v.joints);
-            let rendered =
-                CpuRenderer.render(&posed, &pinhole, &report.camera_from_base, Some(1.0));
+            let rendered = CpuRenderer.render(&posed, &pinhole, &pose, Some(1.0));
             predicted_outline_motion_px(&rendered, &pinhole, &covariance)
         })
         .fold((f64::INFINITY, 0.0), |(lo, hi), px| {

@@ -17,7 +17,7 @@
 use std::fmt::Display;
 use std::path::PathBuf;
 
-use super::reconcile::check_result_pose;
+use super::reconcile::check_result;
 use super::store::{ActiveFile, CalibrationRecord, State, Store};
 use super::validate::{inside, resolved_inside};
 use super::{now, Daemon, Refusal};
@@ -78,7 +78,7 @@ pub fn activatable(
                 format!("{name:?} is no camera of this cell; allowed: {names:?}"),
             ));
         }
-        check_result_pose(&cam.result)
+        check_result(&cam.result)
             .map_err(|(f, m)| refuse(r, &format!("result.json {}", results.key(k, &f)), m))?;
         check_views(store, r, &cam.result, cam.name.as_deref())?;
         out.push((cam.name.clone(), cam.result.clone()));

@@ -515,7 +515,7 @@ impl Daemon {
         }
         let mut results = Vec::new();
         for c in &o.cameras {
-            if let Err((field, m)) = reconcile::check_result_pose(&c.result) {
+            if let Err((field, m)) = reconcile::check_result(&c.result) {
                 tracing::warn!(
                     "easyhec daemon: {id}: camera '{}': result {field}: {m}; not activated",
                     c.name
@@ -530,15 +530,15 @@ impl Daemon {
         }
     }
 
-    /// Activates one camera's result, unless its pose is not rigid (logged: a solver bug
-    /// must not reach the robot controllers).
+    /// Activates one camera's result, unless [`reconcile::check_result`] refuses it (logged:
+    /// a solver bug must not reach the robot controllers or the bump checks).
     pub(super) fn activate_new(
         &self,
         id: &str,
         camera: Option<&str>,
         result: &crate::run::ResultFile,
     ) {
-        if let Err((field, m)) = reconcile::check_result_pose(result) {
+        if let Err((field, m)) = reconcile::check_result(result) {
             tracing::warn!("easyhec daemon: {id}: result {field}: {m}; not activated");
             return;
         }

@@ -371,12 +371,12 @@ fn check_active(v: Value) -> std::result::Result<ActiveFile, Problem> {
     check_active_entry(a)
 }
 
-/// One active entry: a well-formed id and a rigid pose both ways.
+/// One active entry: a well-formed id and a result [`check_result`] accepts.
 fn check_active_entry(a: ActiveFile) -> std::result::Result<ActiveFile, Problem> {
     if id_number(&a.id).is_none() {
         return Err(Problem::new("id", id_problem(&a.id)));
     }
-    check_result_pose(&a.result).map_err(|(f, m)| Problem::new(format!("result.{f}"), m))?;
+    check_result(&a.result).map_err(|(f, m)| Problem::new(format!("result.{f}"), m))?;
     Ok(a)
 }
 
@@ -419,11 +419,16 @@ fn check_rig_active(v: Value) -> std::result::Result<Vec<ActiveFile>, Problem> {
     Ok(out)
 }
 
-/// A result's `camera_from_base` is rigid and `base_from_camera` is its inverse.
-pub(super) fn check_result_pose(r: &ResultFile) -> std::result::Result<(), (String, String)> {
+/// A result the daemon can stand behind: `camera_from_base` rigid, `base_from_camera` its
+/// inverse, and an uncertainty a solve could have written (a bump check reads its covariance).
+pub(super) fn check_result(r: &ResultFile) -> std::result::Result<(), (String, String)> {
     check_rigid(&r.camera_from_base).map_err(|m| ("camera_from_base".to_string(), m))?;
     check_inverse(&r.camera_from_base, &r.base_from_camera)
-        .map_err(|m| ("base_from_camera".to_string(), m))
+        .map_err(|m| ("base_from_camera".to_string(), m))?;
+    match r.uncertainty.as_ref().and_then(|u| u.problem()) {
+        Some(problem) => Err(problem),
+        None => Ok(()),
+    }
 }
 
 /// Names of the folders under `DATA/runs/`, sorted.
@@ -448,7 +453,7 @@ fn rebuilt_record(dir: &Path, id: &str, now: &str) -> CalibrationRecord {
     let views = RunFile::read(&abs.join("run.json")).map_or(0, |r| r.views.len());
     let result = ResultFile::read(&abs.join("result.json"))
         .ok()
-        .filter(|r| check_result_pose(r).is_ok());
+        .filter(|r| check_result(r).is_ok());
     CalibrationRecord {
         id: id.to_string(),
         state: State::Interrupted,
@@ -500,4 +505,42 @@ fn mark_interrupted(dir: &Path, records: &mut [CalibrationRecord], now: &str) ->
         recovery.interrupted.push(r.id.clone());
     }
     recovery
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Isometry3;
+    use serde_json::json;
+
+    use super::*;
+    use crate::run::UncertaintyEntry;
+
+    /// The bump check reads the active result's covariance, so a broken one is refused when
+    /// `active.json` is read, with the field named.
+    #[test]
+    fn an_active_result_with_a_broken_covariance_is_refused() {
+        let active = |variance: f64| {
+            let mut result = ResultFile::new(&Isometry3::identity(), "link_base");
+            let mut covariance = [[0.0; 6]; 6];
+            (0..6).for_each(|r| covariance[r][r] = variance);
+            result.uncertainty = Some(UncertaintyEntry {
+                rotation_deg: [0.1; 3],
+                translation_mm: [0.5; 3],
+                camera_centre_95_mm: Some(2.0),
+                covariance: Some(Box::new(covariance)),
+                terms: None,
+                mask_offset: None,
+            });
+            json!({
+                "format": ACTIVE_FORMAT,
+                "id": "cal-0001",
+                "activated_at": "2026-11-25T10:00:00Z",
+                "stale": false,
+                "result": result,
+            })
+        };
+        assert!(check_active(active(1e-6)).is_ok());
+        let problem = check_active(active(-1e-6)).unwrap_err();
+        assert_eq!(problem.field, "result.uncertainty.covariance[0][0]");
+    }
 }

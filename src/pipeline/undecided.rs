@@ -49,7 +49,7 @@ pub struct SegmentedFrame<'a> {
 /// segmenter drew; they are drawn again by `segmenter` under the report's render, with bands
 /// of at least `band_px`, and the ones the result used are relabelled in `views` (the others
 /// keep their masks). The result is the covariance of the left increment `(rho, phi)`, as
-/// [`crate::solve::with_undecided_pixels`] adds it; `None` when no used view was segmented or
+/// [`crate::solve::with_segmentation_term`] adds it; `None` when no used view was segmented or
 /// the segmenter has no per-pixel evidence.
 #[allow(clippy::too_many_arguments)]
 pub fn undecided_term(

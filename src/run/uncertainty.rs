@@ -156,8 +156,8 @@ impl UncertaintyEntry {
     }
 
     /// The first value that no solve could have written, as `(field path, problem)`: every
-    /// figure finite and not negative, the mask offset finite, the covariance symmetric with a
-    /// non-negative diagonal.
+    /// figure finite and not negative, the mask offset finite, each covariance symmetric with a
+    /// non-negative diagonal, and the segmentation term's only beside a covariance it fits in.
     pub fn problem(&self) -> Option<(String, String)> {
         let figures = self
             .rotation_deg
@@ -184,20 +184,51 @@ impl UncertaintyEntry {
                 ));
             }
         }
-        let segmentation = self
-            .terms
-            .as_ref()
-            .and_then(|t| t.segmentation_covariance.as_deref())
-            .map(|c| ("uncertainty.terms.segmentation_covariance", c));
-        let covariance = self
-            .covariance
-            .as_deref()
-            .map(|c| ("uncertainty.covariance", c));
-        covariance
-            .into_iter()
-            .chain(segmentation)
-            .find_map(|(field, c)| covariance_problem(field, c))
+        let covariance = self.covariance.as_deref();
+        if let Some(p) = covariance.and_then(|c| covariance_problem("uncertainty.covariance", c)) {
+            return Some(p);
+        }
+        let terms = self.terms.as_deref()?;
+        let segmentation = terms.segmentation_covariance.as_deref()?;
+        let field = "uncertainty.terms.segmentation_covariance";
+        if let Some(p) = covariance_problem(field, segmentation) {
+            return Some(p);
+        }
+        let Some(covariance) = covariance else {
+            return Some((
+                field.into(),
+                "is present without uncertainty.covariance; allowed: only as a part of it".into(),
+            ));
+        };
+        if terms.segmentation_not_measured.is_some() {
+            return Some((
+                field.into(),
+                "is present beside segmentation_not_measured; allowed: one or the other".into(),
+            ));
+        }
+        part_problem(field, segmentation, covariance)
     }
+}
+
+/// A variance of the term `part` above the covariance it is part of, as `(field path,
+/// problem)`: a term taken out of `whole` must leave a covariance.
+fn part_problem(
+    field: &str,
+    part: &[[f64; 6]; 6],
+    whole: &[[f64; 6]; 6],
+) -> Option<(String, String)> {
+    (0..6)
+        .find(|&r| part[r][r] > whole[r][r] * (1.0 + 1e-9))
+        .map(|r| {
+            (
+                format!("{field}[{r}][{r}]"),
+                format!(
+                    "is {}, above uncertainty.covariance[{r}][{r}] = {}; allowed: at most the \
+                     variance it is part of",
+                    part[r][r], whole[r][r]
+                ),
+            )
+        })
 }
 
 /// The first entry of `c` that is not finite, breaks its symmetry or is a negative variance,
@@ -263,31 +294,46 @@ mod tests {
     }
 
     #[test]
-    fn a_broken_segmentation_covariance_is_named() {
-        let terms = |c: [[f64; 6]; 6]| UncertaintyTerms {
-            dominant: "segmentation".into(),
-            statistical_centre_95_mm: 1.0,
-            inter_view_centre_95_mm: None,
-            mask_bias_centre_95_mm: None,
-            segmentation_centre_95_mm: Some(3.0),
-            segmentation_not_measured: None,
-            segmentation_covariance: Some(Box::new(c)),
+    fn a_segmentation_covariance_must_be_a_symmetric_part_of_the_covariance() {
+        let with_term = |total: Option<f64>, c: [[f64; 6]; 6], not_measured: bool| {
+            let mut e = entry(None);
+            e.covariance = total.map(|v| {
+                let mut t = [[0.0; 6]; 6];
+                (0..6).for_each(|r| t[r][r] = v);
+                Box::new(t)
+            });
+            e.terms = Some(Box::new(UncertaintyTerms {
+                dominant: "segmentation".into(),
+                statistical_centre_95_mm: 1.0,
+                inter_view_centre_95_mm: None,
+                mask_bias_centre_95_mm: None,
+                segmentation_centre_95_mm: Some(3.0),
+                segmentation_not_measured: not_measured.then(|| "a solve failed".into()),
+                segmentation_covariance: Some(Box::new(c)),
+            }));
+            e
         };
-        let mut good = entry(None);
+        let field_of = |e: &UncertaintyEntry| e.problem().map(|(field, _)| field);
         let mut c = [[0.0; 6]; 6];
         c[2][2] = 1e-5;
-        good.terms = Some(Box::new(terms(c)));
+        let good = with_term(Some(2e-5), c, false);
         assert_eq!(good.problem(), None);
         let json = serde_json::to_string(&good).unwrap();
         assert_eq!(
             serde_json::from_str::<UncertaintyEntry>(&json).unwrap(),
             good
         );
+        let field = "uncertainty.terms.segmentation_covariance";
+        assert_eq!(field_of(&with_term(None, c, false)).as_deref(), Some(field));
+        assert_eq!(
+            field_of(&with_term(Some(2e-5), c, true)).as_deref(),
+            Some(field)
+        );
+        let larger = format!("{field}[2][2]");
+        assert_eq!(field_of(&with_term(Some(5e-6), c, false)), Some(larger));
         c[0][1] = 1e-6;
-        let mut broken = entry(None);
-        broken.terms = Some(Box::new(terms(c)));
-        let (field, problem) = broken.problem().expect("an asymmetric term is refused");
-        assert_eq!(field, "uncertainty.terms.segmentation_covariance[0][1]");
+        let (asymmetric, problem) = with_term(Some(2e-5), c, false).problem().unwrap();
+        assert_eq!(asymmetric, format!("{field}[0][1]"));
         assert!(problem.contains("symmetric"), "{problem}");
     }
 }
