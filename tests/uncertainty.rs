@@ -281,3 +281,41 @@ fn a_segmentation_term_that_failed_is_reported_not_dropped() {
     assert_eq!(no_evidence.segmentation, SegmentationTerm::NotApplicable);
     assert_eq!(no_evidence.covariance, report.covariance);
 }
+
+/// A result written with a segmentation term, in either order with the view jackknife, reads
+/// back valid, and a bump check gets exactly the rest of its covariance: the check subtracts
+/// the stored term, so the term must be a part of what was written.
+#[test]
+fn a_written_segmentation_term_reads_back_as_a_part_of_the_covariance() {
+    use easyhec::run::UncertaintyEntry;
+    use easyhec::solve::with_segmentation_term;
+    use nalgebra::Matrix6;
+    let robot = common::load_robot("xarm6");
+    let synth = SynthOptions {
+        noise: NoiseModel::segmenter(),
+        ..Default::default()
+    };
+    let (scene, views, init) = seeded_scene(&robot, 2, 3, &synth).unwrap();
+    let opts = SolveOptions::default();
+    let report = solve(&CpuRenderer, &scene.camera, &views, &init, &opts).unwrap();
+    // Large in depth, as the real set's term is, and tiny across it.
+    let mut term = Matrix6::from_diagonal_element(1e-14);
+    term[(2, 2)] = 4e-5;
+    let jackknife = |r| with_view_disagreement(&CpuRenderer, &scene.camera, &views, r, &opts);
+    let orders = [
+        jackknife(with_segmentation_term(report.clone(), Ok(Some(term)))),
+        with_segmentation_term(jackknife(report.clone()), Ok(Some(term))),
+    ];
+    for widened in orders {
+        let entry = UncertaintyEntry::of_report(&widened, &opts).unwrap();
+        let read: UncertaintyEntry =
+            serde_json::from_str(&serde_json::to_string(&entry).unwrap()).unwrap();
+        assert_eq!(read.problem(), None);
+        let rest = read.moving_between_checks(&Matrix6::zeros()).unwrap();
+        let expected = widened.covariance - term;
+        assert!(
+            (rest - expected).abs().max() <= 1e-12 * expected.abs().max(),
+            "{rest} vs {expected}"
+        );
+    }
+}

@@ -364,7 +364,7 @@ fn log_quarantined(path: &Path, p: &Problem, dest: &Path) {
     );
 }
 
-/// `active.json`'s content: it parses, names a well-formed id, and its pose is rigid both ways.
+/// `active.json`'s content: it parses and holds one entry [`check_active_entry`] accepts.
 fn check_active(v: Value) -> std::result::Result<ActiveFile, Problem> {
     let a: ActiveFile =
         serde_json::from_value(v).map_err(|e| Problem::new("(content)", e.to_string()))?;
@@ -446,7 +446,7 @@ fn run_dir_names(dir: &Path) -> Vec<String> {
 }
 
 /// A record for run directory `runs/ID` that the index lost: `interrupted`, with the views
-/// its `run.json` lists and the pose of its `result.json` when that is rigid.
+/// its `run.json` lists and the pose of its `result.json` when [`check_result`] accepts it.
 fn rebuilt_record(dir: &Path, id: &str, now: &str) -> CalibrationRecord {
     let run_dir = format!("runs/{id}");
     let abs = dir.join(&run_dir);

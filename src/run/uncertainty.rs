@@ -64,8 +64,9 @@ pub struct UncertaintyTerms {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub segmentation_centre_95_mm: Option<f64>,
     /// Why the segmentation term could not be measured, when the masks' segmenter has the
-    /// evidence for it but a relabelled solve failed: the figures then leave out how far its
-    /// undecided pixels could move the pose. Absent otherwise.
+    /// evidence for it but the measurement failed (the segmenter, a frame read again, a
+    /// relabelled solve, or the loop's frames and views not matching): the figures then leave
+    /// out how far its undecided pixels could move the pose. Absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub segmentation_not_measured: Option<String>,
     /// The segmentation term's own covariance, in `covariance`'s frame and units (when
@@ -318,6 +319,8 @@ mod tests {
         c[2][2] = 1e-5;
         let good = with_term(Some(2e-5), c, false);
         assert_eq!(good.problem(), None);
+        // A term may be all of a variance (nothing else in that direction).
+        assert_eq!(with_term(Some(1e-5), c, false).problem(), None);
         let json = serde_json::to_string(&good).unwrap();
         assert_eq!(
             serde_json::from_str::<UncertaintyEntry>(&json).unwrap(),
