@@ -17,6 +17,26 @@ use easyhec::solve::{solve, with_view_disagreement, SolveOptions};
 use easyhec::synth::SynthOptions;
 use rand::SeedableRng;
 
+/// Scene `seed` drawn with 3 views under the `segmenter` noise preset, and its solve
+/// (without the view jackknife).
+fn solved_segmenter_scene(
+    robot: &easyhec::robot::RobotModel,
+    seed: u64,
+    opts: &SolveOptions,
+) -> (
+    easyhec::synth::Scene,
+    Vec<easyhec::solve::View>,
+    easyhec::solve::SolveReport,
+) {
+    let synth = SynthOptions {
+        noise: NoiseModel::segmenter(),
+        ..Default::default()
+    };
+    let (scene, views, init) = seeded_scene(robot, seed, 3, &synth).unwrap();
+    let report = solve(&CpuRenderer, &scene.camera, &views, &init, opts).unwrap();
+    (scene, views, report)
+}
+
 /// Per-axis |error| / reported sigma (rotation x y z, translation x y z), and whether the
 /// centre lies within its 95% bound, for a 3-view solve of scene `seed` with its view
 /// jackknife, as a result reports it.
@@ -25,12 +45,7 @@ fn solve_scene(
     seed: u64,
     opts: &SolveOptions,
 ) -> ([f64; 6], bool) {
-    let synth = SynthOptions {
-        noise: NoiseModel::segmenter(),
-        ..Default::default()
-    };
-    let (scene, views, init) = seeded_scene(robot, seed, 3, &synth).unwrap();
-    let report = solve(&CpuRenderer, &scene.camera, &views, &init, opts).unwrap();
+    let (scene, views, report) = solved_segmenter_scene(robot, seed, opts);
     let report = with_view_disagreement(&CpuRenderer, &scene.camera, &views, report, opts);
     let (est, truth) = (report.camera_from_base, scene.camera_from_base);
     let inside = camera_centre_error_mm(&est, &truth) <= report.uncertainty.camera_centre_95_mm;
@@ -233,13 +248,8 @@ fn a_segmentation_term_that_failed_is_reported_not_dropped() {
     use easyhec::run::UncertaintyEntry;
     use easyhec::solve::{with_segmentation_term, SegmentationTerm};
     let robot = common::load_robot("xarm6");
-    let synth = SynthOptions {
-        noise: NoiseModel::segmenter(),
-        ..Default::default()
-    };
-    let (scene, views, init) = seeded_scene(&robot, 1, 3, &synth).unwrap();
     let opts = SolveOptions::default();
-    let report = solve(&CpuRenderer, &scene.camera, &views, &init, &opts).unwrap();
+    let (_, _, report) = solved_segmenter_scene(&robot, 1, &opts);
     let before = report.uncertainty.camera_centre_95_mm;
 
     let failed = with_segmentation_term(
@@ -291,13 +301,8 @@ fn a_written_segmentation_term_reads_back_as_a_part_of_the_covariance() {
     use easyhec::solve::with_segmentation_term;
     use nalgebra::Matrix6;
     let robot = common::load_robot("xarm6");
-    let synth = SynthOptions {
-        noise: NoiseModel::segmenter(),
-        ..Default::default()
-    };
-    let (scene, views, init) = seeded_scene(&robot, 2, 3, &synth).unwrap();
     let opts = SolveOptions::default();
-    let report = solve(&CpuRenderer, &scene.camera, &views, &init, &opts).unwrap();
+    let (scene, views, report) = solved_segmenter_scene(&robot, 2, &opts);
     // Large in depth, as the real set's term is, and tiny across it.
     let mut term = Matrix6::from_diagonal_element(1e-14);
     term[(2, 2)] = 4e-5;

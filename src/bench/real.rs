@@ -25,7 +25,7 @@ use crate::geometry::{
 use crate::mask::Mask;
 use crate::pipeline::offline::{solve_run, OfflineSolve};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
-use crate::run::{load_run, read_pose_file, ResultFile, UncertaintyEntry};
+use crate::run::{load_run, read_pose_file, ResultFile};
 use crate::solve::Optimizer;
 use crate::solve::{
     predicted_outline_motion_px, solve, uncertainty_of, with_view_disagreement, SolveOptions,
@@ -402,7 +402,7 @@ pub fn images_only(
 
 /// The least and most, over the first `k` recorded views, of the outline motion that the
 /// written result's uncertainty predicts at its pose: what a bump check there allows
-/// ([`UncertaintyEntry::moving_between_checks`] with this solve's zero model floor, then
+/// ([`crate::run::UncertaintyEntry::moving_between_checks`] with this solve's zero model floor, then
 /// [`predicted_outline_motion_px`]), or with the whole covariance when `with_segmentation`.
 fn bump_allowance_px(
     run: &crate::run::LoadedRun,
@@ -410,15 +410,11 @@ fn bump_allowance_px(
     result: &ResultFile,
     with_segmentation: bool,
 ) -> (f64, f64) {
-    let whole = |u: &UncertaintyEntry| {
-        let rows = u.covariance.as_deref()?;
-        Some(Matrix6::from_fn(|r, c| rows[r][c]))
-    };
     let covariance = result
         .uncertainty
         .as_ref()
         .and_then(|u| match with_segmentation {
-            true => whole(u),
+            true => u.covariance_matrix(),
             false => u.moving_between_checks(&Matrix6::zeros()),
         });
     let Some(covariance) = covariance else {

@@ -80,8 +80,7 @@ impl UncertaintyEntry {
     /// The entry for `u`, or `None` for a degenerate fit (no meaningful curvature): the
     /// field is then left out rather than written as nulls.
     pub fn of(u: &crate::solve::Uncertainty) -> Option<UncertaintyEntry> {
-        let covariance: [[f64; 6]; 6] =
-            std::array::from_fn(|r| std::array::from_fn(|c| u.covariance[(r, c)]));
+        let covariance = rows_of(&u.covariance);
         u.rotation_deg
             .iter()
             .chain(&u.translation_mm)
@@ -125,7 +124,7 @@ impl UncertaintyEntry {
                 segmentation_covariance: report
                     .segmentation
                     .covariance()
-                    .map(|c| Box::new(std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])))),
+                    .map(|c| Box::new(rows_of(c))),
             })
         });
         entry.mask_offset = report
@@ -147,13 +146,17 @@ impl UncertaintyEntry {
     /// after the calibration) count as none in
     /// [`crate::solve::predicted_outline_motion_px`]. `None` without a covariance.
     pub fn moving_between_checks(&self, floor: &Matrix6<f64>) -> Option<Matrix6<f64>> {
-        let matrix = |rows: &[[f64; 6]; 6]| Matrix6::from_fn(|r, c| rows[r][c]);
         let segmentation = self
             .terms
             .as_ref()
             .and_then(|t| t.segmentation_covariance.as_deref())
-            .map_or_else(Matrix6::zeros, matrix);
-        Some(matrix(self.covariance.as_deref()?) - floor - segmentation)
+            .map_or_else(Matrix6::zeros, matrix_of);
+        Some(self.covariance_matrix()? - floor - segmentation)
+    }
+
+    /// `covariance` as a matrix, when written.
+    pub fn covariance_matrix(&self) -> Option<Matrix6<f64>> {
+        self.covariance.as_deref().map(matrix_of)
     }
 
     /// The first value that no solve could have written, as `(field path, problem)`: every
@@ -209,6 +212,16 @@ impl UncertaintyEntry {
         }
         part_problem(field, segmentation, covariance)
     }
+}
+
+/// A covariance as `result.json` writes it: row-major rows.
+fn rows_of(m: &Matrix6<f64>) -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+}
+
+/// The matrix of rows [`rows_of`] wrote.
+fn matrix_of(rows: &[[f64; 6]; 6]) -> Matrix6<f64> {
+    Matrix6::from_fn(|r, c| rows[r][c])
 }
 
 /// A variance of the term `part` above the covariance it is part of, as `(field path,
