@@ -79,17 +79,24 @@ fn bench_real_compares_the_reported_sigma_with_the_views_jackknife() {
 fn images_only_of_four_views(
     start: easyhec::bench::real::Start,
 ) -> easyhec::bench::real::ImagesOnly {
-    use easyhec::bench::real::{images_only, real_figures};
+    use easyhec::bench::real::{images_only, real_figures, FitChoices};
     use easyhec::config::RendererChoice;
     let dir = common::repo_root().join("../shared/datasets/xarm7_realsense_roboreg");
-    let figures = real_figures(&dir, RendererChoice::Cpu, Some(4), false, &mut |_| {}).unwrap();
+    let figures = real_figures(
+        &dir,
+        RendererChoice::Cpu,
+        Some(4),
+        FitChoices::default(),
+        &mut |_| {},
+    )
+    .unwrap();
     images_only(
         &dir,
         RendererChoice::Cpu,
         Some(4),
         start,
         &figures.mask_pose,
-        false,
+        FitChoices::default(),
     )
     .unwrap()
 }
@@ -125,17 +132,24 @@ fn images_only_with_no_guess_starts_from_what_changed_between_the_views() {
 /// Without it the 95% centre bound was 7.2 mm with the mask pose's centre 10.8 mm away.
 #[test]
 fn images_only_uncertainty_holds_the_mask_pose() {
-    use easyhec::bench::real::{images_only, real_figures, Start};
+    use easyhec::bench::real::{images_only, real_figures, FitChoices, Start};
     use easyhec::config::RendererChoice;
     let dir = common::repo_root().join("../shared/datasets/xarm7_realsense_roboreg");
-    let figures = real_figures(&dir, RendererChoice::Cpu, None, false, &mut |_| {}).unwrap();
+    let figures = real_figures(
+        &dir,
+        RendererChoice::Cpu,
+        None,
+        FitChoices::default(),
+        &mut |_| {},
+    )
+    .unwrap();
     let i = images_only(
         &dir,
         RendererChoice::Cpu,
         None,
         Start::RoughGuess,
         &figures.mask_pose,
-        false,
+        FitChoices::default(),
     )
     .unwrap();
     let (from_masks, _) = i.apart.clone().unwrap_or_else(|e| panic!("{e}"));

@@ -52,6 +52,19 @@ pub struct RealBench {
     /// --estimate-mask-offset` does.
     #[arg(long)]
     pub mask_offset: bool,
+    /// Leave the robot's mount contact out of every fit, as `easyhec solve
+    /// --leave-out-mount-contact` does.
+    #[arg(long)]
+    pub leave_out_mount_contact: bool,
+}
+
+/// The fit settings a real-frame benchmark can change from the defaults.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FitChoices {
+    /// Estimate the masks' outline offset ([`SolveOptions::estimate_mask_offset`]).
+    pub mask_offset: bool,
+    /// Leave the mount contact out ([`SolveOptions::leave_out_mount_contact`]).
+    pub leave_out_mount_contact: bool,
 }
 
 /// An images-only calibration of the run against the pose its provided masks give.
@@ -117,19 +130,16 @@ pub struct RealFigures {
 impl RealBench {
     /// Runs the benchmark; per-solve lines go to `log`.
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
-        let f = real_figures(&self.run, self.renderer, self.views, self.mask_offset, log)?;
+        let fit = FitChoices {
+            mask_offset: self.mask_offset,
+            leave_out_mount_contact: self.leave_out_mount_contact,
+        };
+        let f = real_figures(&self.run, self.renderer, self.views, fit, log)?;
         let mut report = report_of(&self.run, &f);
         if self.images {
             let views = Some(f.per_view_iou.len());
             for start in [Start::RoughGuess, Start::Automatic] {
-                let i = images_only(
-                    &self.run,
-                    self.renderer,
-                    views,
-                    start,
-                    &f.mask_pose,
-                    self.mask_offset,
-                )?;
+                let i = images_only(&self.run, self.renderer, views, start, &f.mask_pose, fit)?;
                 report.line(images_line(&i));
             }
         }
@@ -142,11 +152,12 @@ pub fn real_figures(
     dir: &Path,
     renderer: RendererChoice,
     views: Option<usize>,
-    mask_offset: bool,
+    fit: FitChoices,
     log: &mut dyn FnMut(&str),
 ) -> Result<RealFigures> {
     let opts = SolveOptions {
-        estimate_mask_offset: mask_offset,
+        estimate_mask_offset: fit.mask_offset,
+        leave_out_mount_contact: fit.leave_out_mount_contact,
         ..SolveOptions::default()
     };
     let reference = read_pose_file(&dir.join("reference.json"))?;
@@ -313,7 +324,7 @@ pub fn images_only(
     views: Option<usize>,
     start: Start,
     mask_pose: &Isometry3<f64>,
-    mask_offset: bool,
+    fit: FitChoices,
 ) -> Result<ImagesOnly> {
     let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
     let masks_dir = scratch.path().join("masks");
@@ -334,7 +345,8 @@ pub fn images_only(
         allow_poor_fit: true,
         joint_noise_rad: 5e-4,
         model_floor: (0.0, 0.0),
-        estimate_mask_offset: mask_offset,
+        estimate_mask_offset: fit.mask_offset,
+        leave_out_mount_contact: fit.leave_out_mount_contact,
     };
     let t = Instant::now();
     let solved = solve_run(&request, &mut |_| {});

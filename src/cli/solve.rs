@@ -74,6 +74,11 @@ pub struct SolveArgs {
     /// pose, and report it with its sigma in result.json (docs/uncertainty.md).
     #[arg(long)]
     pub estimate_mask_offset: bool,
+    /// Leave out of the fit the outline where the robot stands on its mount (its fixed base's
+    /// lowest 15 mm): for a base on a plate or pedestal of its own colour, which masks cannot
+    /// separate from it (docs/method.md §6).
+    #[arg(long)]
+    pub leave_out_mount_contact: bool,
 }
 
 /// `--select`: how a solve picks its views.
@@ -132,6 +137,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         joint_noise_rad: a.joint_noise_rad,
         model_floor: (a.model_floor_rotation_deg, a.model_floor_translation_mm),
         estimate_mask_offset: a.estimate_mask_offset,
+        leave_out_mount_contact: a.leave_out_mount_contact,
     };
     let activity = super::progress::Activity::start("solve");
     let outcome = solve_run(&request, &mut |line| activity.note(line))?;

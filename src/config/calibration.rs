@@ -86,6 +86,10 @@ pub struct CalibrationSettings {
     /// and report it with its sigma: for a segmenter known to draw masks fat or thin.
     #[serde(default)]
     pub estimate_mask_offset: bool,
+    /// Leave out of every fit the outline where the robot stands on its mount: for a base on
+    /// a plate or pedestal of its own colour, which masks cannot separate from it.
+    #[serde(default)]
+    pub leave_out_mount_contact: bool,
     /// Rank poses by information per second (the move plus each view's other work) instead
     /// of by information alone. Only arms whose moves take time are affected: the simulated
     /// arm arrives at once unless `[arm] speedup` slows it.

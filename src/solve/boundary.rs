@@ -301,20 +301,26 @@ pub(super) fn accumulate_keeping(
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    let normal = view_normals(&silhouettes, level, offset_px).reduce(Normal::zero, Normal::merge);
+    let normal = view_normals(&silhouettes, robots, level, offset_px, opts)
+        .reduce(Normal::zero, Normal::merge);
     (normal, silhouettes)
 }
 
 /// Each of `silhouettes`' normal equations against its observation in `level`.
 fn view_normals<'a>(
     silhouettes: &'a [Silhouette],
+    robots: &'a [&PosedRobot],
     level: &'a Level,
     offset_px: f64,
+    opts: &'a SolveOptions,
 ) -> impl IndexedParallelIterator<Item = Normal> + 'a {
     silhouettes
         .par_iter()
         .zip(&level.views)
-        .map(move |(sil, obs)| view_normal(sil, obs, level, offset_px))
+        .zip(robots)
+        .map(move |((sil, obs), robot)| {
+            view_normal(sil, obs, level, offset_px, left_out_vertices(robot, opts))
+        })
 }
 
 /// Each view's normal equations at `pose`, apart: summed over some of the views
@@ -329,7 +335,7 @@ pub(super) fn per_view_normals(
 ) -> Vec<Normal> {
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    view_normals(&silhouettes, level, offset_px).collect()
+    view_normals(&silhouettes, robots, level, offset_px, opts).collect()
 }
 
 /// The normal equations of the views at `kept`, from [`per_view_normals`].
@@ -341,11 +347,17 @@ pub(super) fn sum_over(normals: &[Normal], kept: &[usize]) -> Normal {
 
 /// One view's Cauchy-weighted normal equations, with the observed outline lying
 /// `offset_px` (full-resolution pixels) outward of the rendered one.
-fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level, offset_px: f64) -> Normal {
+fn view_normal(
+    sil: &Silhouette,
+    obs: &ObservedLevel,
+    level: &Level,
+    offset_px: f64,
+    left_out: &[bool],
+) -> Normal {
     let c = level.robust_scale_px;
     let per_level_px = 1.0 / f64::from(level.factor);
     let mut n = Normal::zero();
-    view_residuals(sil, obs, &level.camera, |res| match res.r {
+    view_residuals(sil, obs, &level.camera, left_out, |res| match res.r {
         Some(r) => {
             let j_offset = res.offset_sign * per_level_px;
             n.add(r + j_offset * offset_px, &res.j, j_offset, res.ds, c)
@@ -353,6 +365,16 @@ fn view_normal(sil: &Silhouette, obs: &ObservedLevel, level: &Level, offset_px: 
         None => n.add_outlier(res.cap, res.ds, c),
     });
     n
+}
+
+/// The vertices of `robot` whose outline the fit leaves out under `opts`: where the robot
+/// stands on its mount when [`SolveOptions::leave_out_mount_contact`] is set, else none.
+pub(super) fn left_out_vertices<'a>(robot: &'a PosedRobot, opts: &SolveOptions) -> &'a [bool] {
+    if opts.leave_out_mount_contact {
+        robot.at_mount()
+    } else {
+        &[]
+    }
 }
 
 /// One outline residual of a view: where it sits, what it is and how it moves with the pose.
@@ -379,12 +401,23 @@ pub(super) struct Residual {
 /// Every outline residual of one view, both ways: rendered outline -> observed outline along
 /// the same pixel row (or column), then observed outline -> nearest rendered sample's tangent.
 /// The normal equations and the covariance read the same residuals from here.
+///
+/// Samples on a vertex that `left_out` flags (empty: none), and observed crossings whose
+/// nearest sample is one, give no residual ([`left_out_vertices`]).
 pub(super) fn view_residuals(
     sil: &Silhouette,
     obs: &ObservedLevel,
     camera: &Intrinsics,
+    left_out: &[bool],
     mut sink: impl FnMut(Residual),
 ) {
+    let is_left_out = |i: usize| {
+        sil.boundary
+            .get(i)
+            .and_then(|s| left_out.get(s.vertex as usize))
+            .copied()
+            .unwrap_or(false)
+    };
     let mut jacobians = Vec::with_capacity(sil.boundary.len());
     // The observed transition of the same sense nearest the rendered crossing. Both sit on the
     // same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).
@@ -392,6 +425,9 @@ pub(super) fn view_residuals(
         let jp = s.pixel_jacobian(camera);
         let jn: Twist = (jp.row(0) * s.normal[0] + jp.row(1) * s.normal[1]).transpose();
         jacobians.push(jn);
+        if is_left_out(i) {
+            continue;
+        }
         sink(Residual {
             r: scanline_residual(&obs.mask, s, SCAN_REACH_PX),
             cap: SCAN_REACH_PX as f64,
@@ -411,6 +447,9 @@ pub(super) fn view_residuals(
             let s = &sil.boundary[i];
             s.normal[0] * (y[0] - s.pixel[0]) + s.normal[1] * (y[1] - s.pixel[1])
         });
+        if nearest.is_some_and(is_left_out) {
+            continue;
+        }
         let i = nearest.unwrap_or(0);
         sink(Residual {
             r,

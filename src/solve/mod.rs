@@ -133,6 +133,13 @@ pub struct SolveOptions {
     /// with the pose (LM): the pose then no longer moves along the optical axis to make up
     /// for it, and the covariance carries what not knowing it costs.
     pub estimate_mask_offset: bool,
+    /// Leave out of the fit the outline where the robot stands on its mount (within
+    /// [`crate::render::MOUNT_CONTACT_HEIGHT_M`] of its fixed base's foot, and the observed
+    /// outline matched to it): where the base stands on a plate of its own colour, a mask's
+    /// outline there is a guess (the `builtin` segmenter never sees that plate uncovered)
+    /// that pulls the camera along its axis. Off by default: where the masks are right there,
+    /// the foot's outline holds the depth (docs/method.md §6).
+    pub leave_out_mount_contact: bool,
 }
 
 impl Default for SolveOptions {
@@ -158,6 +165,7 @@ impl Default for SolveOptions {
             refine_inflation: 4.0,
             coarse_cell_fraction: 0.3,
             estimate_mask_offset: false,
+            leave_out_mount_contact: false,
         }
     }
 }

@@ -69,6 +69,9 @@ pub struct OfflineSolve {
     pub model_floor: (f64, f64),
     /// Estimate the masks' outline offset with the pose ([`SolveOptions::estimate_mask_offset`]).
     pub estimate_mask_offset: bool,
+    /// Leave the robot's mount contact out of every fit
+    /// ([`SolveOptions::leave_out_mount_contact`]).
+    pub leave_out_mount_contact: bool,
 }
 
 /// What an offline solve produced: every camera's solve, in the run's order (one for an
@@ -314,6 +317,7 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
         floor_rotation_deg: req.model_floor.0,
         floor_translation_mm: req.model_floor.1,
         estimate_mask_offset: req.estimate_mask_offset,
+        leave_out_mount_contact: req.leave_out_mount_contact,
         ..SolveOptions::default()
     }
 }
@@ -348,7 +352,11 @@ fn fit_loaded(
     };
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
-        settled = segment_run(&mut run, config, renderer, masks_out, note)?;
+        let fit = SolveOptions {
+            leave_out_mount_contact: req.leave_out_mount_contact,
+            ..SolveOptions::default()
+        };
+        settled = segment_run(&mut run, config, &fit, renderer, masks_out, note)?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).

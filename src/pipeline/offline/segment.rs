@@ -22,10 +22,12 @@ use crate::solve::{self, SolveOptions, SolveReport, View};
 /// until the masks settle (`pipeline::segment_solve`). Returns the settled pose when it fits
 /// (mean IoU ≥ 0.8): the solve that follows starts there, since masks drawn near that pose's
 /// render are what it must fit, and a start back at the guess can stop in another basin (hard
-/// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose).
+/// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose). Every fit in
+/// the rounds and the searches takes `opts`.
 pub(super) fn segment_run(
     run: &mut LoadedRun,
     config: &SegmenterConfig,
+    opts: &SolveOptions,
     renderer: &dyn Backend,
     masks_out: Option<&Path>,
     note: &mut dyn FnMut(&str),
@@ -62,7 +64,7 @@ pub(super) fn segment_run(
                 renderer,
                 &camera,
                 &views[..views.len().min(3)],
-                &SolveOptions::default(),
+                opts,
                 &InitOptions::default(),
             )?
             .camera_from_base),
@@ -78,7 +80,7 @@ pub(super) fn segment_run(
         guess.as_ref().map(|g| (g, segment_solve::GUESS_BAND_PX)),
         config.min_band_px(),
         config.final_band_px(),
-        &SolveOptions::default(),
+        opts,
         4,
     )?;
     note(&format!(
@@ -96,6 +98,7 @@ pub(super) fn segment_run(
             frames: &frame_refs,
             joints: &joints,
             need: &need,
+            opts,
         };
         scene.search(settled, &name, note)?
     } else {
@@ -245,6 +248,7 @@ struct PairScene<'a> {
     frames: &'a [&'a easyhec_drivers::Frame],
     joints: &'a [Vec<f64>],
     need: &'a [usize],
+    opts: &'a SolveOptions,
 }
 
 impl PairScene<'_> {
@@ -266,7 +270,7 @@ impl PairScene<'_> {
             &self.run.robot,
             self.joints,
             &settled.report.camera_from_base,
-            &SolveOptions::default(),
+            self.opts,
             &PairSearchOptions::default(),
         )?;
         let Some(found) = found else {
