@@ -37,15 +37,37 @@ pub struct PosedRobot {
     /// Each actuated joint's axis at this pose and the links it moves (empty when unknown):
     /// how an error in a reported joint moves the outline, for the covariance.
     pub joint_motions: Arc<Vec<JointMotion>>,
-    /// [`PosedRobot::at_mount`], worked out on first use and shared by the clones.
-    pub(crate) at_mount_cache: Arc<OnceLock<Vec<bool>>>,
+    /// [`PosedRobot::mount`], worked out on first use and shared by the clones (which
+    /// must not change the vertices, links or joint motions after that).
+    pub(crate) mount_cache: Arc<OnceLock<Option<Mount>>>,
 }
 
-/// How far above the lowest point of the robot's fixed base the outline counts as where the
+/// How far above the lowest point of the robot's fixed links the outline counts as where the
 /// robot stands on its mount (metres): about a mount plate's thickness with its bolt heads,
 /// and as measured on the real xArm7 set, where the plate is the base's colour
 /// (docs/benchmarks.md, "Real frames").
 pub const MOUNT_CONTACT_HEIGHT_M: f64 = 0.015;
+
+/// Where a robot stands on its mount: the vertices of the links no actuated joint moves, and
+/// the height of their lowest point.
+#[derive(Clone, Debug)]
+pub struct Mount {
+    /// Per vertex: whether its link is fixed.
+    fixed: Vec<bool>,
+    /// Base-frame z of the lowest fixed vertex, metres (z points away from the mount).
+    floor_z: f64,
+}
+
+impl Mount {
+    /// Whether outline sample `s` (rendered with `base_from_camera`'s inverse) lies at the
+    /// mount contact: on a fixed link, and its own point less than
+    /// [`MOUNT_CONTACT_HEIGHT_M`] above the floor. The sample's point decides, not its
+    /// edge's vertex: an edge can run from the foot far up the base's side.
+    pub fn holds(&self, s: &BoundarySample, base_from_camera: &Isometry3<f64>) -> bool {
+        self.fixed.get(s.vertex as usize).copied().unwrap_or(false)
+            && (base_from_camera * s.point_camera).z < self.floor_z + MOUNT_CONTACT_HEIGHT_M
+    }
+}
 
 impl PosedRobot {
     /// Poses `robot` at actuated joint positions `q`.
@@ -55,42 +77,37 @@ impl PosedRobot {
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
             joint_motions: Arc::new(robot.joint_motions(q)),
-            at_mount_cache: Arc::default(),
+            mount_cache: Arc::default(),
         }
     }
 
-    /// For each vertex, whether it lies where the robot stands on its mount: on a link that
-    /// no actuated joint moves, less than [`MOUNT_CONTACT_HEIGHT_M`] above the lowest vertex
-    /// of those links (base frame z, which points away from the mount). Empty when no link
-    /// is known to stay put: the joints' motions are unknown, or, for a camera on a link,
-    /// every link moves relative to it.
-    pub fn at_mount(&self) -> &[bool] {
-        self.at_mount_cache.get_or_init(|| {
-            let moved = |link: u32| {
-                self.joint_motions
+    /// Where this robot stands on its mount; `None` when no link is known to stay put: the
+    /// joints' motions are unknown, or, for a camera on a link, every drawn link moves
+    /// relative to it.
+    pub fn mount(&self) -> Option<&Mount> {
+        self.mount_cache
+            .get_or_init(|| {
+                if self.joint_motions.is_empty()
+                    || self.vertex_link.len() != self.vertices_base.len()
+                {
+                    return None;
+                }
+                let moved = |link: u32| {
+                    self.joint_motions
+                        .iter()
+                        .any(|m| m.moves_link.get(link as usize).copied().unwrap_or(true))
+                };
+                let fixed: Vec<bool> = self.vertex_link.iter().map(|&l| !moved(l)).collect();
+                let floor_z = self
+                    .vertices_base
                     .iter()
-                    .any(|m| m.moves_link.get(link as usize).copied().unwrap_or(true))
-            };
-            if self.joint_motions.is_empty() || self.vertex_link.len() != self.vertices_base.len() {
-                return Vec::new();
-            }
-            let fixed: Vec<bool> = self.vertex_link.iter().map(|&l| !moved(l)).collect();
-            let floor = self
-                .vertices_base
-                .iter()
-                .zip(&fixed)
-                .filter(|(_, &f)| f)
-                .map(|(p, _)| p.z)
-                .fold(f64::INFINITY, f64::min);
-            if !floor.is_finite() {
-                return Vec::new();
-            }
-            self.vertices_base
-                .iter()
-                .zip(&fixed)
-                .map(|(p, &f)| f && p.z < floor + MOUNT_CONTACT_HEIGHT_M)
-                .collect()
-        })
+                    .zip(&fixed)
+                    .filter(|(_, &f)| f)
+                    .map(|(p, _)| p.z)
+                    .fold(f64::INFINITY, f64::min);
+                floor_z.is_finite().then_some(Mount { fixed, floor_z })
+            })
+            .as_ref()
     }
 
     /// A coarse copy by vertex clustering on a `cell_m` grid, link by link (a vertex never
@@ -146,7 +163,7 @@ impl PosedRobot {
             topology: Arc::new(topology),
             vertex_link: Arc::new(vertex_link),
             joint_motions: self.joint_motions.clone(),
-            at_mount_cache: Arc::default(),
+            mount_cache: Arc::default(),
         }
     }
 }
@@ -172,7 +189,7 @@ impl CoarseRobot {
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
             joint_motions: Arc::new(Vec::new()),
-            at_mount_cache: Arc::default(),
+            mount_cache: Arc::default(),
         }
         .decimated(cell_m);
         CoarseRobot {
@@ -197,7 +214,7 @@ impl CoarseRobot {
             // Coarse poses are only scored, never solved from: no covariance reads their
             // joints, and thousands are posed per round.
             joint_motions: Arc::new(Vec::new()),
-            at_mount_cache: Arc::default(),
+            mount_cache: Arc::default(),
         }
     }
 }

@@ -10,7 +10,9 @@ use super::{SolveOptions, View};
 use crate::camera::Intrinsics;
 use crate::geometry::Twist;
 use crate::mask::Mask;
-use crate::render::{BoundarySample, PosedRobot, Silhouette, SilhouetteRenderer, ROW_CROSSING};
+use crate::render::{
+    BoundarySample, Mount, PosedRobot, Silhouette, SilhouetteRenderer, ROW_CROSSING,
+};
 
 /// One pyramid level: the downsampled camera and observations, and the Cauchy scale there.
 pub(super) struct Level {
@@ -301,7 +303,7 @@ pub(super) fn accumulate_keeping(
     // One call for all views: a GPU backend draws them in one submission.
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    let normal = view_normals(&silhouettes, robots, level, offset_px, opts)
+    let normal = view_normals(&silhouettes, robots, level, pose, offset_px, opts)
         .reduce(Normal::zero, Normal::merge);
     (normal, silhouettes)
 }
@@ -311,6 +313,7 @@ fn view_normals<'a>(
     silhouettes: &'a [Silhouette],
     robots: &'a [&PosedRobot],
     level: &'a Level,
+    pose: &'a Isometry3<f64>,
     offset_px: f64,
     opts: &'a SolveOptions,
 ) -> impl IndexedParallelIterator<Item = Normal> + 'a {
@@ -319,7 +322,7 @@ fn view_normals<'a>(
         .zip(&level.views)
         .zip(robots)
         .map(move |((sil, obs), robot)| {
-            view_normal(sil, obs, level, offset_px, left_out_vertices(robot, opts))
+            view_normal(sil, obs, level, offset_px, &LeftOut::of(robot, opts, pose))
         })
 }
 
@@ -335,7 +338,7 @@ pub(super) fn per_view_normals(
 ) -> Vec<Normal> {
     let silhouettes =
         renderer.render_many(robots, &level.camera, pose, Some(opts.boundary_step_px));
-    view_normals(&silhouettes, robots, level, offset_px, opts).collect()
+    view_normals(&silhouettes, robots, level, pose, offset_px, opts).collect()
 }
 
 /// The normal equations of the views at `kept`, from [`per_view_normals`].
@@ -352,7 +355,7 @@ fn view_normal(
     obs: &ObservedLevel,
     level: &Level,
     offset_px: f64,
-    left_out: &[bool],
+    left_out: &LeftOut<'_>,
 ) -> Normal {
     let c = level.robust_scale_px;
     let per_level_px = 1.0 / f64::from(level.factor);
@@ -367,13 +370,32 @@ fn view_normal(
     n
 }
 
-/// The vertices of `robot` whose outline the fit leaves out under `opts`: where the robot
-/// stands on its mount when [`SolveOptions::leave_out_mount_contact`] is set, else none.
-pub(super) fn left_out_vertices<'a>(robot: &'a PosedRobot, opts: &SolveOptions) -> &'a [bool] {
-    if opts.leave_out_mount_contact {
-        robot.at_mount()
-    } else {
-        &[]
+/// The rendered outline samples a fit leaves out: those at the robot's mount contact when
+/// [`SolveOptions::leave_out_mount_contact`] is set ([`Mount::holds`]), else none.
+pub(super) struct LeftOut<'a> {
+    mount: Option<&'a Mount>,
+    base_from_camera: Isometry3<f64>,
+}
+
+impl<'a> LeftOut<'a> {
+    /// What `opts` leaves out of `robot`'s outline rendered at `camera_from_base`.
+    pub(super) fn of(
+        robot: &'a PosedRobot,
+        opts: &SolveOptions,
+        camera_from_base: &Isometry3<f64>,
+    ) -> LeftOut<'a> {
+        LeftOut {
+            mount: opts
+                .leave_out_mount_contact
+                .then(|| robot.mount())
+                .flatten(),
+            base_from_camera: camera_from_base.inverse(),
+        }
+    }
+
+    fn sample(&self, s: &BoundarySample) -> bool {
+        self.mount
+            .is_some_and(|m| m.holds(s, &self.base_from_camera))
     }
 }
 
@@ -402,22 +424,16 @@ pub(super) struct Residual {
 /// the same pixel row (or column), then observed outline -> nearest rendered sample's tangent.
 /// The normal equations and the covariance read the same residuals from here.
 ///
-/// Samples on a vertex that `left_out` flags (empty: none), and observed crossings whose
-/// nearest sample is one, give no residual ([`left_out_vertices`]).
+/// Samples that `left_out` holds, and observed crossings whose nearest sample is one, give no
+/// residual.
 pub(super) fn view_residuals(
     sil: &Silhouette,
     obs: &ObservedLevel,
     camera: &Intrinsics,
-    left_out: &[bool],
+    left_out: &LeftOut<'_>,
     mut sink: impl FnMut(Residual),
 ) {
-    let is_left_out = |i: usize| {
-        sil.boundary
-            .get(i)
-            .and_then(|s| left_out.get(s.vertex as usize))
-            .copied()
-            .unwrap_or(false)
-    };
+    let is_left_out = |i: usize| sil.boundary.get(i).is_some_and(|s| left_out.sample(s));
     let mut jacobians = Vec::with_capacity(sil.boundary.len());
     // The observed transition of the same sense nearest the rendered crossing. Both sit on the
     // same grid, so the residual is unbiased (uniform in +-0.5 px at the truth).

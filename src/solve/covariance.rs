@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Matrix6, SMatrix, SVector};
 use rayon::prelude::*;
 
-use super::boundary::{left_out_vertices, view_residuals, Level};
+use super::boundary::{view_residuals, LeftOut, Level};
 use super::SolveOptions;
 use crate::geometry::Twist;
 use crate::render::{PosedRobot, Silhouette};
@@ -173,8 +173,8 @@ fn view_part(
     let mut h = Mat7::zeros();
     let mut h_weight = Mat7::zeros();
     let mut tiles: BTreeMap<(i64, i64), Tile> = BTreeMap::new();
-    let left_out = left_out_vertices(robot, opts);
-    view_residuals(sil, obs, &level.camera, left_out, |res| {
+    let left_out = LeftOut::of(robot, opts, pose);
+    view_residuals(sil, obs, &level.camera, &left_out, |res| {
         let Some(r) = res.r else { return };
         let j_offset = res.offset_sign * per_level_px;
         let r = r + j_offset * offset_px;

@@ -17,7 +17,7 @@
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix6};
 use rayon::prelude::*;
 
-use super::boundary::{left_out_vertices, view_residuals, ObservedLevel};
+use super::boundary::{view_residuals, LeftOut, ObservedLevel};
 use super::{uncertainty_of, SolveOptions, SolveReport, View};
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
@@ -443,8 +443,8 @@ impl Problem<'_> {
             cost: 0.0,
         };
         let mut jac = DVector::<f64>::zeros(6 + nq);
-        let left_out = left_out_vertices(&robot, self.opts);
-        view_residuals(&sil, &self.levels[c][v], cam.camera, left_out, |res| {
+        let left_out = LeftOut::of(&robot, self.opts, &pose);
+        view_residuals(&sil, &self.levels[c][v], cam.camera, &left_out, |res| {
             let r = res.r.unwrap_or(res.cap);
             let u = (r / robust) * (r / robust);
             out.cost += scale * res.ds * 0.5 * robust * robust * (1.0 + u).ln();

@@ -322,6 +322,15 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
     }
 }
 
+/// The options of the solves that find a starting pose or draw masks: the defaults, with
+/// what the request leaves out of every fit.
+fn starting_options(req: &OfflineSolve) -> SolveOptions {
+    SolveOptions {
+        leave_out_mount_contact: req.leave_out_mount_contact,
+        ..SolveOptions::default()
+    }
+}
+
 /// One camera's judged solve, not yet written.
 struct Solved {
     result: ResultFile,
@@ -352,11 +361,8 @@ fn fit_loaded(
     };
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
-        let fit = SolveOptions {
-            leave_out_mount_contact: req.leave_out_mount_contact,
-            ..SolveOptions::default()
-        };
-        settled = segment_run(&mut run, config, &fit, renderer, masks_out, note)?;
+        let opts = starting_options(req);
+        settled = segment_run(&mut run, config, &opts, renderer, masks_out, note)?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
@@ -374,7 +380,7 @@ fn fit_loaded(
         .collect();
     let initial = match settled.or(run.initial_guess) {
         Some(start) => start,
-        None => auto_initial(renderer, &run, &pool, note)?,
+        None => auto_initial(renderer, &run, &pool, &starting_options(req), note)?,
     };
     let solve_opts = solve_options(req);
     let explore_opts = ExploreOptions {
@@ -608,22 +614,17 @@ fn auto_initial(
     renderer: &dyn Backend,
     run: &LoadedRun,
     pool: &[View],
+    opts: &SolveOptions,
     note: &mut dyn FnMut(&str),
 ) -> Result<Isometry3<f64>> {
     let first = &pool[..pool.len().min(3)];
-    let found = initialise(
-        renderer,
-        &run.camera,
-        first,
-        &SolveOptions::default(),
-        &InitOptions::default(),
-    )
-    .map_err(|e| {
-        Error::Solve(format!(
-            "{}: initial_guess is absent: {e}",
-            run.dir.join("run.json").display()
-        ))
-    })?;
+    let found =
+        initialise(renderer, &run.camera, first, opts, &InitOptions::default()).map_err(|e| {
+            Error::Solve(format!(
+                "{}: initial_guess is absent: {e}",
+                run.dir.join("run.json").display()
+            ))
+        })?;
     note(&format!(
         "no initial_guess: automatic initialisation found a pose with mean IoU {:.3} over {} views",
         found.mean_iou(),
