@@ -37,8 +37,11 @@ pub struct PosedRobot {
     /// Each actuated joint's axis at this pose and the links it moves (empty when unknown):
     /// how an error in a reported joint moves the outline, for the covariance.
     pub joint_motions: Arc<Vec<JointMotion>>,
+    /// Per link: joined to the base link by fixed joints only (empty when unknown). A camera
+    /// on a link has those links taken out of what it sees, so for it none is left.
+    pub fixed_links: Arc<Vec<bool>>,
     /// [`PosedRobot::mount`], worked out on first use and shared by the clones (which
-    /// must not change the vertices, links or joint motions after that).
+    /// must not change the vertices, links or fixed links after that).
     pub(crate) mount_cache: Arc<OnceLock<Option<Mount>>>,
 }
 
@@ -56,6 +59,15 @@ pub struct Mount {
     fixed: Vec<bool>,
     /// Base-frame z of the lowest fixed vertex, metres (z points away from the mount).
     floor_z: f64,
+}
+
+/// Per link of `robot`: joined to its base link by fixed joints only.
+fn fixed_links(robot: &RobotModel) -> Vec<bool> {
+    let mut fixed = vec![false; robot.links.len()];
+    for l in robot.links_fixed_to(robot.base) {
+        fixed[l] = true;
+    }
+    fixed
 }
 
 impl Mount {
@@ -77,27 +89,25 @@ impl PosedRobot {
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
             joint_motions: Arc::new(robot.joint_motions(q)),
+            fixed_links: Arc::new(fixed_links(robot)),
             mount_cache: Arc::default(),
         }
     }
 
-    /// Where this robot stands on its mount; `None` when no link is known to stay put: the
-    /// joints' motions are unknown, or, for a camera on a link, every drawn link moves
-    /// relative to it.
+    /// Where this robot stands on its mount: its links joined to the base by fixed joints
+    /// only. `None` when they have no vertex: for a camera on a link (whose own rigid links
+    /// are not drawn), or when the links are unknown.
     pub fn mount(&self) -> Option<&Mount> {
         self.mount_cache
             .get_or_init(|| {
-                if self.joint_motions.is_empty()
-                    || self.vertex_link.len() != self.vertices_base.len()
-                {
+                if self.vertex_link.len() != self.vertices_base.len() {
                     return None;
                 }
-                let moved = |link: u32| {
-                    self.joint_motions
-                        .iter()
-                        .any(|m| m.moves_link.get(link as usize).copied().unwrap_or(true))
-                };
-                let fixed: Vec<bool> = self.vertex_link.iter().map(|&l| !moved(l)).collect();
+                let fixed: Vec<bool> = self
+                    .vertex_link
+                    .iter()
+                    .map(|&l| self.fixed_links.get(l as usize).copied().unwrap_or(false))
+                    .collect();
                 let floor_z = self
                     .vertices_base
                     .iter()
@@ -163,6 +173,7 @@ impl PosedRobot {
             topology: Arc::new(topology),
             vertex_link: Arc::new(vertex_link),
             joint_motions: self.joint_motions.clone(),
+            fixed_links: self.fixed_links.clone(),
             mount_cache: Arc::default(),
         }
     }
@@ -189,6 +200,7 @@ impl CoarseRobot {
             topology: robot.visual.clone(),
             vertex_link: robot.vertex_link.clone(),
             joint_motions: Arc::new(Vec::new()),
+            fixed_links: Arc::default(),
             mount_cache: Arc::default(),
         }
         .decimated(cell_m);
@@ -214,6 +226,7 @@ impl CoarseRobot {
             // Coarse poses are only scored, never solved from: no covariance reads their
             // joints, and thousands are posed per round.
             joint_motions: Arc::new(Vec::new()),
+            fixed_links: Arc::default(),
             mount_cache: Arc::default(),
         }
     }

@@ -60,31 +60,38 @@ fn only_the_outline_at_the_foot_of_the_fixed_base_counts_as_the_mount() {
     }
 }
 
-/// Without the joints' motions nothing is known to stay put.
+/// Without its links' joints nothing is known to stay put.
 #[test]
-fn a_robot_whose_joints_are_unknown_has_no_mount() {
+fn a_robot_whose_links_are_unknown_has_no_mount() {
     let robot = common::load_robot("xarm6");
     let mut posed = PosedRobot::new(&robot, &Q);
-    posed.joint_motions = std::sync::Arc::new(Vec::new());
+    posed.fixed_links = std::sync::Arc::new(Vec::new());
     assert!(posed.mount().is_none());
 }
 
-/// A camera on a link sees every link move, so nothing of the robot stays put for it; from
-/// the base, the same robot has its mount.
+/// A camera on a link sees every drawn link move, so nothing of the robot stays put for it,
+/// not even a finger that only a mimic joint moves; from the base, the same robot has its
+/// mount.
 #[test]
 fn a_camera_on_a_link_sees_no_mount() {
-    let robot = common::load_robot("xarm6");
-    let seen = robot
-        .seen_from_link(
-            "link6",
-            std::path::Path::new("cell.toml"),
-            "camera.mount.link",
-        )
-        .unwrap();
-    assert!(PosedRobot::new(&robot, &Q).mount().is_some());
-    let posed = PosedRobot::new(&seen, &Q);
-    assert!(!posed.vertices_base.is_empty());
-    assert!(posed.mount().is_none());
+    for (name, link, q) in [
+        ("xarm6", "link6", Q.to_vec()),
+        (
+            "panda",
+            "panda_hand",
+            vec![0.1, -0.3, 0.2, -2.0, 0.1, 1.8, 0.6, 0.02],
+        ),
+    ] {
+        let robot = common::load_robot(name);
+        let q = &q[..robot.actuated.len()];
+        let seen = robot
+            .seen_from_link(link, std::path::Path::new("cell.toml"), "camera.mount.link")
+            .unwrap();
+        assert!(PosedRobot::new(&robot, q).mount().is_some(), "{name}");
+        let posed = PosedRobot::new(&seen, q);
+        assert!(!posed.vertices_base.is_empty(), "{name}");
+        assert!(posed.mount().is_none(), "{name} seen from {link}");
+    }
 }
 
 /// Each view's mask with a plate around the base's foot: every pixel within `reach_px` of a

@@ -645,6 +645,7 @@ mod tests {
             topology: std::sync::Arc::new(crate::mesh::TriMesh::default()),
             vertex_link: std::sync::Arc::new(Vec::new()),
             joint_motions: std::sync::Arc::new(Vec::new()),
+            fixed_links: Default::default(),
             mount_cache: Default::default(),
         }
     }

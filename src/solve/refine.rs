@@ -171,6 +171,7 @@ impl Band {
             }),
             vertex_link: std::sync::Arc::new(vertex_link),
             joint_motions: view.robot.joint_motions.clone(),
+            fixed_links: Default::default(),
             mount_cache: Default::default(),
         };
         Band {
