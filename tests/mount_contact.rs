@@ -28,15 +28,20 @@ fn base_floor(robot: &RobotModel, posed: &PosedRobot) -> (u32, f64) {
     (base, floor)
 }
 
+/// Scenes with exact masks: what the tests paint on them is the only error.
+fn noiseless() -> SynthOptions {
+    SynthOptions {
+        noise: NoiseModel::none(),
+        ..Default::default()
+    }
+}
+
 /// Of the rendered outline, only samples on the fixed base whose own point lies within the
 /// contact height of its foot count as the mount; the base's outline above stays.
 #[test]
 fn only_the_outline_at_the_foot_of_the_fixed_base_counts_as_the_mount() {
     let robot = common::load_robot("xarm6");
-    let synth = SynthOptions {
-        noise: NoiseModel::none(),
-        ..Default::default()
-    };
+    let synth = noiseless();
     let (scene, views, _) = seeded_scene(&robot, 1, 1, &synth).unwrap();
     let camera = scene.camera.undistorted();
     for posed in [views[0].robot.clone(), views[0].robot.decimated(0.005)] {
@@ -156,10 +161,7 @@ fn with_plate(
 #[test]
 fn a_plate_taken_for_the_robot_moves_the_camera_unless_the_mount_is_left_out() {
     let robot = common::load_robot("xarm6");
-    let synth = SynthOptions {
-        noise: NoiseModel::none(),
-        ..Default::default()
-    };
+    let synth = noiseless();
     let (mut read, mut left_out) = (0.0, 0.0);
     for seed in 1u64..=4 {
         let (scene, views, init) = seeded_scene(&robot, seed, 3, &synth).unwrap();

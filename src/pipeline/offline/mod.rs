@@ -317,8 +317,7 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
         floor_rotation_deg: req.model_floor.0,
         floor_translation_mm: req.model_floor.1,
         estimate_mask_offset: req.estimate_mask_offset,
-        leave_out_mount_contact: req.leave_out_mount_contact,
-        ..SolveOptions::default()
+        ..starting_options(req)
     }
 }
 
