@@ -113,11 +113,25 @@ fn js(session: &str, script: &str) -> Value {
     )
 }
 
+/// Whether JavaScript would count `v` as true. Scripts end in `a && b && value`, which
+/// yields the first false operand, so an empty text or a zero must mean "not yet" as
+/// `null` and `false` do; otherwise a wait returns while the page is still filling in.
+fn is_truthy(v: &Value) -> bool {
+    match v {
+        Value::Null | Value::Bool(false) => false,
+        Value::String(s) => !s.is_empty(),
+        Value::Number(n) => n.as_f64().is_some_and(|x| x != 0.0 && !x.is_nan()),
+        _ => true,
+    }
+}
+
+/// Polls `script` until it yields a value JavaScript counts as true, panicking with the
+/// page's text after `timeout`.
 fn wait_js(session: &str, script: &str, timeout: Duration, what: &str) -> Value {
     let t = Instant::now();
     loop {
         let v = js(session, script);
-        if v != Value::Null && v != Value::Bool(false) {
+        if is_truthy(&v) {
             return v;
         }
         if t.elapsed() > timeout {
