@@ -185,7 +185,7 @@ fn a_plate_taken_for_the_robot_moves_the_camera_unless_the_mount_is_left_out() {
 }
 
 /// `easyhec solve --leave-out-mount-contact` reaches the fit: the same run solves to another
-/// pose, and both land on the camera.
+/// pose, both land on the camera, and each result says whether the mount was left out.
 #[test]
 fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
     use easyhec::run::ResultFile;
@@ -210,11 +210,38 @@ fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
             "{}",
             String::from_utf8_lossy(&solved.stderr)
         );
-        let pose = ResultFile::read(&out).unwrap().camera_from_base();
+        let result = ResultFile::read(&out).unwrap();
+        assert_eq!(result.leave_out_mount_contact, extra.is_some(), "{name}");
+        let written = std::fs::read_to_string(&out).unwrap();
+        assert_eq!(
+            written.contains("\"leave_out_mount_contact\": true"),
+            extra.is_some(),
+            "{name}: {written}"
+        );
+        let pose = result.camera_from_base();
         let error = camera_centre_error_mm(&pose, &truth);
         assert!(error < 2.0, "{name}: camera centre {error:.2} mm off");
         poses.push(pose);
     }
     let apart = camera_centre_error_mm(&poses[0], &poses[1]);
     assert!(apart > 0.01, "the flag moved the camera centre {apart} mm");
+}
+
+/// The closed loop honours `[calibration] leave_out_mount_contact` and records it in its
+/// result, so a result says how it was fitted.
+#[test]
+fn the_loop_records_that_it_left_the_mount_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("cell.toml");
+    let text = common::shipped_config_text("sim-xarm6.toml").replacen(
+        "[calibration]",
+        "[calibration]\nleave_out_mount_contact = true",
+        1,
+    );
+    std::fs::write(&config, text).unwrap();
+    let cell = easyhec::cell::Cell::open(&config).unwrap();
+    let out = dir.path().join("run");
+    common::run_loop(&cell, &out);
+    let result = easyhec::run::ResultFile::read(&out.join("result.json")).unwrap();
+    assert!(result.leave_out_mount_contact);
 }

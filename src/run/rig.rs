@@ -204,6 +204,9 @@ pub struct CameraResult {
     /// Why this camera stopped asking for views.
     #[serde(default)]
     pub stop_reason: String,
+    /// As `easyhec-result/1`'s: the fit left out the mount contact.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub leave_out_mount_contact: bool,
 }
 
 /// `easyhec-result/2`.
@@ -352,6 +355,7 @@ impl CameraResult {
             per_view: r.per_view.clone(),
             uncertainty: r.uncertainty.clone(),
             stop_reason: r.stop_reason.clone(),
+            leave_out_mount_contact: r.leave_out_mount_contact,
         }
     }
 
@@ -367,6 +371,7 @@ impl CameraResult {
             uncertainty: self.uncertainty.clone(),
             stop_reason: self.stop_reason.clone(),
             timings_s: timings_s.clone(),
+            leave_out_mount_contact: self.leave_out_mount_contact,
         }
     }
 }

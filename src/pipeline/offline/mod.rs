@@ -558,7 +558,9 @@ fn result_file(
         .zip(&report.per_view_iou)
         .map(|(&v, &iou)| PerView { view: v, iou })
         .collect();
-    result.uncertainty = UncertaintyEntry::of_report(report, &solve_options(req));
+    let opts = solve_options(req);
+    result.uncertainty = UncertaintyEntry::of_report(report, &opts);
+    result.leave_out_mount_contact = opts.leave_out_mount_contact;
     result.stop_reason = match req.optimizer {
         Optimizer::Lm => stop_reason,
         Optimizer::Adam => format!(
