@@ -953,6 +953,7 @@ fn calibrate_cases() -> Vec<Case> {
         case("model floor above the stop target", CAL, &[c, "calibration.model_floor_translation_mm", "stop_centre_95_mm"], cell_line("calibration", "model_floor_translation_mm = 0.5")),
         case("model floor negative", CAL, &[c, "calibration.model_floor_rotation_deg"], cell_line("calibration", "model_floor_rotation_deg = -1.0")),
         case("check interval beyond a timer", CAL, &[c, "check_interval_s"], cell_line("daemon", "check_interval_s = 1e20")),
+        case("mount contact unknown", CAL, &[c, "line", "calibration.mount_contact", "`auto`, `fit`, `leave-out`"], cell_line("calibration", "mount_contact = \"sometimes\"")),
         case("bump mask offset negative", CAL, &[c, "bump_max_mask_offset_px"], cell_line("daemon", "bump_max_mask_offset_px = -1.0")),
         case("table extent NaN", CAL, &[c, "camera.scene.table_extent_m"], cell_line("camera", "scene = { seed = 1, table_extent_m = [nan, 1.0, -0.8, 0.8] }")),
         case("floor above the table", CAL, &[c, "camera.scene.floor_height_m"], cell_line("camera", "scene = { seed = 1, floor_height_m = 0.5 }")),

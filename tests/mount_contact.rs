@@ -1,6 +1,7 @@
 //! Where the robot stands on its mount, masks can run fat round the base's foot (a plate of
-//! the base's colour that no view uncovers), and a fit that reads that outline pulls the
-//! camera along its axis. `leave_out_mount_contact` leaves that outline out (docs/method.md
+//! the base's colour that no view uncovers) or thin (a flange the masks leave out), and a fit
+//! that reads that outline pulls the camera along its axis. `mount_contact` leaves that
+//! outline out, always or where the masks disagree with the render there (docs/method.md
 //! §6).
 
 mod common;
@@ -12,7 +13,7 @@ use easyhec::render::{
     project_vertices, CpuRenderer, PosedRobot, SilhouetteRenderer, MOUNT_CONTACT_HEIGHT_M,
 };
 use easyhec::robot::RobotModel;
-use easyhec::solve::{solve, SolveOptions, View};
+use easyhec::solve::{mount_contact_disagrees, solve, MountContact, SolveOptions, View};
 use easyhec::synth::SynthOptions;
 
 const Q: [f64; 6] = [0.3, -0.4, -0.6, 0.2, 0.5, -0.1];
@@ -109,6 +110,19 @@ fn with_plate(
     camera: &easyhec::camera::Intrinsics,
     reach_px: f64,
 ) -> Vec<View> {
+    painted_at_foot(robot, views, camera_from_base, camera, reach_px, true)
+}
+
+/// Each view's mask with the pixels within `reach_px` of the foot's projected vertices set to
+/// `robot` (true: a plate taken for the robot; false: a flange the masks leave out).
+fn painted_at_foot(
+    robot: &RobotModel,
+    views: &[View],
+    camera_from_base: &nalgebra::Isometry3<f64>,
+    camera: &easyhec::camera::Intrinsics,
+    reach_px: f64,
+    robot_there: bool,
+) -> Vec<View> {
     views
         .iter()
         .map(|v| {
@@ -139,7 +153,7 @@ fn with_plate(
                     x = x0;
                     while x <= x1 {
                         if (p[0] - x).hypot(p[1] - y) <= reach_px {
-                            observed.set(x as u32, y as u32, true);
+                            observed.set(x as u32, y as u32, robot_there);
                         }
                         x += 1.0;
                     }
@@ -169,7 +183,11 @@ fn a_plate_taken_for_the_robot_moves_the_camera_unless_the_mount_is_left_out() {
         let plated = with_plate(&robot, &views, &scene.camera_from_base, &camera, 2.0);
         let error = |leave_out: bool| {
             let opts = SolveOptions {
-                leave_out_mount_contact: leave_out,
+                mount_contact: if leave_out {
+                    MountContact::LeaveOut
+                } else {
+                    MountContact::Fit
+                },
                 ..SolveOptions::default()
             };
             let report = solve(&CpuRenderer, &scene.camera, &plated, &init, &opts).unwrap();
@@ -184,8 +202,9 @@ fn a_plate_taken_for_the_robot_moves_the_camera_unless_the_mount_is_left_out() {
     );
 }
 
-/// `easyhec solve --leave-out-mount-contact` reaches the fit: the same run solves to another
-/// pose, both land on the camera, and each result says whether the mount was left out.
+/// `easyhec solve --mount-contact` reaches the fit: told to leave the mount out, the same run
+/// solves to another pose; left to decide, it fits the masks the run gives; every pose lands
+/// on the camera, and each result says whether the mount was left out.
 #[test]
 fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
     use easyhec::run::ResultFile;
@@ -197,13 +216,16 @@ fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
     let rows: [[f64; 4]; 4] = serde_json::from_value(doc["camera_from_base"].clone()).unwrap();
     let truth = easyhec::geometry::from_rows(&rows).unwrap();
     let mut poses = Vec::new();
-    for (name, extra) in [
-        ("plain.json", None),
-        ("left_out.json", Some("--leave-out-mount-contact")),
+    for (name, choice, left_out) in [
+        ("fit.json", Some("fit"), false),
+        ("left_out.json", Some("leave-out"), true),
+        ("auto.json", None, false),
     ] {
         let out = dir.path().join(name);
         let mut args = vec!["--renderer", "cpu", "--out", out.to_str().unwrap()];
-        args.extend(extra);
+        if let Some(c) = choice {
+            args.extend(["--mount-contact", c]);
+        }
         let solved = common::solve_run(&run, &args);
         assert!(
             solved.status.success(),
@@ -211,11 +233,11 @@ fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
             String::from_utf8_lossy(&solved.stderr)
         );
         let result = ResultFile::read(&out).unwrap();
-        assert_eq!(result.leave_out_mount_contact, extra.is_some(), "{name}");
+        assert_eq!(result.mount_contact_left_out, left_out, "{name}");
         let written = std::fs::read_to_string(&out).unwrap();
         assert_eq!(
-            written.contains("\"leave_out_mount_contact\": true"),
-            extra.is_some(),
+            written.contains("\"mount_contact_left_out\": true"),
+            left_out,
             "{name}: {written}"
         );
         let pose = result.camera_from_base();
@@ -224,18 +246,104 @@ fn the_solve_flag_leaves_the_mount_out_of_the_fit() {
         poses.push(pose);
     }
     let apart = camera_centre_error_mm(&poses[0], &poses[1]);
-    assert!(apart > 0.01, "the flag moved the camera centre {apart} mm");
+    assert!(
+        apart > 0.01,
+        "leaving the mount out moved the camera centre {apart} mm"
+    );
+    let auto = camera_centre_error_mm(&poses[0], &poses[2]);
+    assert!(
+        auto < 1e-9,
+        "deciding moved the camera centre {auto} mm from fitting"
+    );
 }
 
-/// The closed loop honours `[calibration] leave_out_mount_contact` and records it in its
-/// result, so a result says how it was fitted.
+/// `auto` decides from the masks: exact ones agree with the render at the foot; a 4 px plate
+/// taken for the robot, or the foot's outline left out of the masks as hand-made masks leave
+/// out a flange, disagree. A solve left to decide then lands where one told to leave the mount
+/// out does, and says so.
+#[test]
+fn auto_leaves_the_mount_out_where_the_masks_disagree_there() {
+    let robot = common::load_robot("xarm6");
+    let synth = noiseless();
+    let (scene, views, init) = seeded_scene(&robot, 2, 4, &synth).unwrap();
+    let camera = scene.camera.undistorted();
+    let truth = scene.camera_from_base;
+    let opts = SolveOptions::default();
+    assert!(!mount_contact_disagrees(
+        &CpuRenderer,
+        &camera,
+        &views,
+        &truth,
+        &opts
+    ));
+    let plated = painted_at_foot(&robot, &views, &truth, &camera, 4.0, true);
+    assert!(mount_contact_disagrees(
+        &CpuRenderer,
+        &camera,
+        &plated,
+        &truth,
+        &opts
+    ));
+    let thin = painted_at_foot(&robot, &views, &truth, &camera, 4.0, false);
+    assert!(mount_contact_disagrees(
+        &CpuRenderer,
+        &camera,
+        &thin,
+        &truth,
+        &opts
+    ));
+    let auto = solve(&CpuRenderer, &scene.camera, &plated, &init, &opts).unwrap();
+    assert!(auto.mount_contact_left_out);
+    let told = SolveOptions {
+        mount_contact: MountContact::LeaveOut,
+        ..SolveOptions::default()
+    };
+    let left_out = solve(&CpuRenderer, &scene.camera, &plated, &init, &told).unwrap();
+    let apart = camera_centre_error_mm(&auto.camera_from_base, &left_out.camera_from_base);
+    assert!(
+        apart < 0.05,
+        "auto lands {apart:.3} mm from leaving the mount out"
+    );
+    let clean = solve(&CpuRenderer, &scene.camera, &views, &init, &opts).unwrap();
+    assert!(!clean.mount_contact_left_out);
+}
+
+/// Views that do not fit (here: rendered at other joints than their masks show) take no
+/// part in the decision, so a plate seen only in them decides nothing.
+#[test]
+fn views_that_do_not_fit_take_no_part_in_the_decision() {
+    let robot = common::load_robot("xarm6");
+    let synth = noiseless();
+    let (scene, views, _) = seeded_scene(&robot, 2, 4, &synth).unwrap();
+    let camera = scene.camera.undistorted();
+    let truth = scene.camera_from_base;
+    let plated = painted_at_foot(&robot, &views, &truth, &camera, 4.0, true);
+    let wrong: Vec<View> = plated
+        .iter()
+        .map(|v| View {
+            robot: PosedRobot::new(&robot, &[0.9, 0.3, -1.2, 0.8, -0.4, 0.6]),
+            observed: v.observed.clone(),
+        })
+        .collect();
+    let opts = SolveOptions::default();
+    assert!(!mount_contact_disagrees(
+        &CpuRenderer,
+        &camera,
+        &wrong,
+        &truth,
+        &opts
+    ));
+}
+
+/// The closed loop honours `[calibration] mount_contact` and records in its result that it
+/// left the mount out, so a result says how it was fitted.
 #[test]
 fn the_loop_records_that_it_left_the_mount_out() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("cell.toml");
     let text = common::shipped_config_text("sim-xarm6.toml").replacen(
         "[calibration]",
-        "[calibration]\nleave_out_mount_contact = true",
+        "[calibration]\nmount_contact = \"leave-out\"",
         1,
     );
     std::fs::write(&config, text).unwrap();
@@ -243,5 +351,5 @@ fn the_loop_records_that_it_left_the_mount_out() {
     let out = dir.path().join("run");
     common::run_loop(&cell, &out);
     let result = easyhec::run::ResultFile::read(&out.join("result.json")).unwrap();
-    assert!(result.leave_out_mount_contact);
+    assert!(result.mount_contact_left_out);
 }

@@ -26,11 +26,11 @@ use crate::mask::Mask;
 use crate::pipeline::offline::{solve_run, OfflineSolve};
 use crate::render::{CpuRenderer, PosedRobot, SilhouetteRenderer};
 use crate::run::{load_run, read_pose_file, ResultFile};
-use crate::solve::Optimizer;
 use crate::solve::{
     predicted_outline_motion_px, solve, uncertainty_of, with_view_disagreement, SolveOptions,
     SolveReport, Uncertainty, View,
 };
+use crate::solve::{MountContact, Optimizer};
 
 /// A recorded real run against its reference pose.
 #[derive(clap::Args, Clone, Debug)]
@@ -52,10 +52,9 @@ pub struct RealBench {
     /// --estimate-mask-offset` does.
     #[arg(long)]
     pub mask_offset: bool,
-    /// Leave the robot's mount contact out of every fit, as `easyhec solve
-    /// --leave-out-mount-contact` does.
-    #[arg(long)]
-    pub leave_out_mount_contact: bool,
+    /// How every fit treats the robot's mount contact, as `easyhec solve --mount-contact`.
+    #[arg(long, value_enum, default_value_t = MountContact::Auto)]
+    pub mount_contact: MountContact,
 }
 
 /// The fit settings a real-frame benchmark can change from the defaults.
@@ -63,8 +62,8 @@ pub struct RealBench {
 pub struct FitChoices {
     /// Estimate the masks' outline offset ([`SolveOptions::estimate_mask_offset`]).
     pub mask_offset: bool,
-    /// Leave the mount contact out ([`SolveOptions::leave_out_mount_contact`]).
-    pub leave_out_mount_contact: bool,
+    /// How fits treat the mount contact ([`SolveOptions::mount_contact`]).
+    pub mount_contact: MountContact,
 }
 
 /// An images-only calibration of the run against the pose its provided masks give.
@@ -132,7 +131,7 @@ impl RealBench {
     pub fn run(&self, log: &mut dyn FnMut(&str)) -> Result<Report> {
         let fit = FitChoices {
             mask_offset: self.mask_offset,
-            leave_out_mount_contact: self.leave_out_mount_contact,
+            mount_contact: self.mount_contact,
         };
         let f = real_figures(&self.run, self.renderer, self.views, fit, log)?;
         let mut report = report_of(&self.run, &f);
@@ -155,9 +154,10 @@ pub fn real_figures(
     fit: FitChoices,
     log: &mut dyn FnMut(&str),
 ) -> Result<RealFigures> {
+    // The run's masks are given, so `auto` fits their mount contact, as `easyhec solve` does.
     let opts = SolveOptions {
         estimate_mask_offset: fit.mask_offset,
-        leave_out_mount_contact: fit.leave_out_mount_contact,
+        mount_contact: fit.mount_contact.for_given_masks(),
         ..SolveOptions::default()
     };
     let reference = read_pose_file(&dir.join("reference.json"))?;
@@ -178,9 +178,10 @@ pub fn real_figures(
     let full = with_view_disagreement(backend.as_ref(), &run.camera, &all, full, &opts);
     let solve_s = t.elapsed().as_secs_f64();
     log(&format!(
-        "all {k} views: {solve_s:.1} s ({fit_s:.1} s fit, {:.1} s view jackknife), mean IoU {:.4}",
+        "all {k} views: {solve_s:.1} s ({fit_s:.1} s fit, {:.1} s view jackknife), mean IoU {:.4}, mount contact {}",
         solve_s - fit_s,
-        full.mean_iou()
+        full.mean_iou(),
+        if full.mount_contact_left_out { "left out" } else { "fitted" }
     ));
     let jackknife = view_jackknife(backend.as_ref(), &run.camera, &all, &full, &opts, log)?;
     let est = full.camera_from_base;
@@ -220,9 +221,10 @@ fn view_jackknife(
     opts: &SolveOptions,
     log: &mut dyn FnMut(&str),
 ) -> Result<Uncertainty> {
+    // On the outline the all-view fit used: its mount-contact decision, not one per subset.
     let opts = SolveOptions {
         refine_samples: 0,
-        ..opts.clone()
+        ..opts.as_fitted(full)
     };
     let centre = solve(backend, camera, views, &full.camera_from_base, &opts)?.camera_from_base;
     let n = views.len();
@@ -346,7 +348,7 @@ pub fn images_only(
         joint_noise_rad: 5e-4,
         model_floor: (0.0, 0.0),
         estimate_mask_offset: fit.mask_offset,
-        leave_out_mount_contact: fit.leave_out_mount_contact,
+        mount_contact: fit.mount_contact,
     };
     let t = Instant::now();
     let solved = solve_run(&request, &mut |_| {});

@@ -203,7 +203,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         joint_noise_rad: SolveOptions::default().joint_noise_rad,
         model_floor: (0.0, 0.0),
         estimate_mask_offset: false,
-        leave_out_mount_contact: false,
+        mount_contact: crate::solve::MountContact::Auto,
     };
     let quiet = &mut |_: &str| {};
     let reference = solve_run(&request("recorded.json", None), quiet)?;

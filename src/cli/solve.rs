@@ -9,7 +9,7 @@ use easyhec::config::{RendererChoice, SegmenterConfig};
 use easyhec::explore::Selection;
 use easyhec::pipeline::offline::{solve_run, OfflineOutcome, OfflineSolve};
 use easyhec::run::rig::RunLayout;
-use easyhec::solve::{DominantTerm, Optimizer};
+use easyhec::solve::{DominantTerm, MountContact, Optimizer};
 
 #[derive(Args)]
 pub struct SolveArgs {
@@ -74,11 +74,12 @@ pub struct SolveArgs {
     /// pose, and report it with its sigma in result.json (docs/uncertainty.md).
     #[arg(long)]
     pub estimate_mask_offset: bool,
-    /// Leave out of the fit the outline where the robot stands on its mount (its fixed base's
-    /// lowest 15 mm): for a base on a plate or pedestal of its own colour, which masks cannot
-    /// separate from it (docs/method.md §6).
-    #[arg(long)]
-    pub leave_out_mount_contact: bool,
+    /// The outline where the robot stands on its mount (its fixed base's lowest 15 mm):
+    /// `auto` leaves it out where the masks disagree with the rendered robot there (a plate
+    /// of the base's colour, a flange the masks leave out), `fit` always reads it,
+    /// `leave-out` never does (docs/method.md §6).
+    #[arg(long, value_enum, default_value_t = MountContact::Auto)]
+    pub mount_contact: MountContact,
 }
 
 /// `--select`: how a solve picks its views.
@@ -137,7 +138,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         joint_noise_rad: a.joint_noise_rad,
         model_floor: (a.model_floor_rotation_deg, a.model_floor_translation_mm),
         estimate_mask_offset: a.estimate_mask_offset,
-        leave_out_mount_contact: a.leave_out_mount_contact,
+        mount_contact: a.mount_contact,
     };
     let activity = super::progress::Activity::start("solve");
     let outcome = solve_run(&request, &mut |line| activity.note(line))?;

@@ -86,10 +86,11 @@ pub struct CalibrationSettings {
     /// and report it with its sigma: for a segmenter known to draw masks fat or thin.
     #[serde(default)]
     pub estimate_mask_offset: bool,
-    /// Leave out of every fit the outline where the robot stands on its mount: for a base on
-    /// a plate or pedestal of its own colour, which masks cannot separate from it.
+    /// How every fit treats the outline where the robot stands on its mount: `auto` leaves
+    /// it out where the masks disagree with the rendered robot there (a plate of the base's
+    /// colour, a flange the masks leave out), `fit` always reads it, `leave-out` never does.
     #[serde(default)]
-    pub leave_out_mount_contact: bool,
+    pub mount_contact: crate::solve::MountContact,
     /// Rank poses by information per second (the move plus each view's other work) instead
     /// of by information alone. Only arms whose moves take time are affected: the simulated
     /// arm arrives at once unless `[arm] speedup` slows it.

@@ -125,6 +125,39 @@ pub fn parse_config(text: &str, path: &Path) -> Result<CellConfig> {
             .span()
             .map(|s| text.get(..s.start).unwrap_or(text).lines().count().max(1))
             .unwrap_or(0);
-        Error::input(path, format!("line {line}"), e.message().replace('\n', " "))
+        let field = match key_at_line(text, line) {
+            Some(key) => format!("line {line} ({key})"),
+            None => format!("line {line}"),
+        };
+        Error::input(path, field, e.message().replace('\n', " "))
+    })
+}
+
+/// The dotted key a `key = value` line sets (`table.key`, under the nearest table header
+/// above it), so a value the parser refuses (a misspelt choice) names its field as well as
+/// its line; `None` for any other line.
+fn key_at_line(text: &str, line: usize) -> Option<String> {
+    let lines: Vec<&str> = text.lines().collect();
+    let here = lines.get(line.checked_sub(1)?)?;
+    let (key, _) = here.split_once('=')?;
+    let key = key.trim();
+    let plain = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+    };
+    if !plain(key) {
+        return None;
+    }
+    let table = lines[..line - 1].iter().rev().find_map(|l| {
+        let l = l.trim();
+        l.strip_prefix("[[")
+            .and_then(|t| t.strip_suffix("]]"))
+            .or_else(|| l.strip_prefix('[').and_then(|t| t.strip_suffix(']')))
+            .map(str::trim)
+    });
+    Some(match table {
+        Some(t) if plain(t) => format!("{t}.{key}"),
+        _ => key.to_string(),
     })
 }

@@ -107,7 +107,7 @@ pub fn undecided_term(
     // undecided pixels pull, not another basin.
     let opts = SolveOptions {
         recover_below_iou: 0.0,
-        ..opts.clone()
+        ..opts.as_fitted(report)
     };
     // The views with their masks drawn again: `None` as drawn, else the undecided pixels
     // all robot or all background.

@@ -634,11 +634,11 @@ pub struct ResultFile {
     pub stop_reason: String,
     /// Wall-clock timings, seconds.
     pub timings_s: BTreeMap<String, f64>,
-    /// The fit was told to leave out the robot's outline where its base meets the mount
-    /// (`[calibration] leave_out_mount_contact`): recorded because it moves the pose, so two
-    /// results are only comparable when they agree on it. Absent when it was not.
+    /// The fit left out the robot's outline where its base meets the mount (decided by
+    /// `[calibration] mount_contact`): recorded because it moves the pose, so two results are
+    /// only comparable when they agree on it. Absent when it did not.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub leave_out_mount_contact: bool,
+    pub mount_contact_left_out: bool,
 }
 
 /// `per_view[i]`.
@@ -663,7 +663,7 @@ impl ResultFile {
             uncertainty: None,
             stop_reason: String::new(),
             timings_s: BTreeMap::new(),
-            leave_out_mount_contact: false,
+            mount_contact_left_out: false,
         }
     }
 

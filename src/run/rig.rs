@@ -206,7 +206,7 @@ pub struct CameraResult {
     pub stop_reason: String,
     /// As `easyhec-result/1`'s: the fit left out the mount contact.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub leave_out_mount_contact: bool,
+    pub mount_contact_left_out: bool,
 }
 
 /// `easyhec-result/2`.
@@ -355,7 +355,7 @@ impl CameraResult {
             per_view: r.per_view.clone(),
             uncertainty: r.uncertainty.clone(),
             stop_reason: r.stop_reason.clone(),
-            leave_out_mount_contact: r.leave_out_mount_contact,
+            mount_contact_left_out: r.mount_contact_left_out,
         }
     }
 
@@ -371,7 +371,7 @@ impl CameraResult {
             uncertainty: self.uncertainty.clone(),
             stop_reason: self.stop_reason.clone(),
             timings_s: timings_s.clone(),
-            leave_out_mount_contact: self.leave_out_mount_contact,
+            mount_contact_left_out: self.mount_contact_left_out,
         }
     }
 }

@@ -19,12 +19,7 @@ pub(super) fn solve_lm(
     initial: &Isometry3<f64>,
     opts: &SolveOptions,
 ) -> Result<Walk> {
-    let mut walk = Walk {
-        pose: *initial,
-        offset_px: 0.0,
-        iterations: 0,
-        trajectory: vec![*initial],
-    };
+    let mut walk = Walk::at(initial);
     for &factor in &opts.pyramid {
         let level = Level::new(camera, views, factor, robust_scale_at(factor, opts));
         // Coarse levels see the robot through big pixels: a mesh clustered to a fraction of a
@@ -83,6 +78,16 @@ pub(super) struct Walk {
 }
 
 impl Walk {
+    /// A walk that has not yet moved from `pose`.
+    pub(super) fn at(pose: &Isometry3<f64>) -> Walk {
+        Walk {
+            pose: *pose,
+            offset_px: 0.0,
+            iterations: 0,
+            trajectory: vec![*pose],
+        }
+    }
+
     /// At most `cap` LM iterations on `level`, whose observations belong to `robots`;
     /// `start`, when given, is the normal equations at the walk's pose (saving a render).
     #[allow(clippy::too_many_arguments)]

@@ -39,6 +39,9 @@ pub struct SharedCamera<'a> {
     pub camera_from_base: Isometry3<f64>,
     /// Variance of one pixel of outline, px² (the solve report's `outline_noise_px2`).
     pub outline_noise_px2: f64,
+    /// Whether the camera's own solve left the mount contact out (its report's
+    /// `mount_contact_left_out`): the shared fit reads the same outline.
+    pub mount_contact_left_out: bool,
 }
 
 /// What the refinement found: each camera's pose, each view's joint correction.
@@ -149,6 +152,7 @@ pub fn solve_with_shared_joints(
                 observed: c.views.iter().map(|v| &v.observed).collect(),
                 camera_from_base: c.report.camera_from_base,
                 outline_noise_px2: c.report.outline_noise_px2,
+                mount_contact_left_out: c.report.mount_contact_left_out,
             })
             .collect();
         let refined =
@@ -181,8 +185,8 @@ pub fn solve_with_shared_joints(
                         observed: v.observed.clone(),
                     })
                     .collect();
-                let mut report =
-                    super::solve(renderer, c.camera, &views, start, &resolve_opts).ok()?;
+                let opts = resolve_opts.as_fitted(&c.report);
+                let mut report = super::solve(renderer, c.camera, &views, start, &opts).ok()?;
                 if let Some(left) = &refined.left_joint_covariance {
                     // Statistical too: the inter-view term widens that one, and a joint offset
                     // common to every view shows in no view's disagreement.
@@ -443,7 +447,7 @@ impl Problem<'_> {
             cost: 0.0,
         };
         let mut jac = DVector::<f64>::zeros(6 + nq);
-        let left_out = LeftOut::of(&robot, self.opts, &pose);
+        let left_out = LeftOut::mount_if(&robot, cam.mount_contact_left_out, &pose);
         view_residuals(&sil, &self.levels[c][v], cam.camera, &left_out, |res| {
             let r = res.r.unwrap_or(res.cap);
             let u = (r / robust) * (r / robust);
@@ -543,6 +547,7 @@ mod tests {
                 observed: m.iter().collect(),
                 camera_from_base: *pose,
                 outline_noise_px2: 0.1,
+                mount_contact_left_out: false,
             })
             .collect();
         let opts = SolveOptions::default();

@@ -230,7 +230,7 @@ impl<'a> Session<'a> {
             floor_rotation_deg: settings.model_floor_rotation_deg,
             floor_translation_mm: settings.model_floor_translation_mm,
             estimate_mask_offset: settings.estimate_mask_offset,
-            leave_out_mount_contact: settings.leave_out_mount_contact,
+            mount_contact: settings.mount_contact,
             ..SolveOptions::default()
         };
         Ok(Session {

@@ -33,7 +33,7 @@ pub(super) fn camera_result(
         .map(|(i, &iou)| PerView { view: i, iou })
         .collect();
     result.uncertainty = UncertaintyEntry::of_report(report, opts);
-    result.leave_out_mount_contact = opts.leave_out_mount_contact;
+    result.mount_contact_left_out = report.mount_contact_left_out;
     result.stop_reason = stop_reason;
     result.timings_s = timings_s.clone();
     result

@@ -23,8 +23,8 @@ use crate::run::{
     load_run_with, GroundTruth, LoadedRun, MaskSource, PerView, ResultFile, UncertaintyEntry,
 };
 use crate::solve::{
-    solve_with_shared_joints, with_view_disagreement, CameraSolve, Optimizer, SolveOptions,
-    SolveReport, View,
+    mount_contact_disagrees, solve_with_shared_joints, with_view_disagreement, CameraSolve,
+    MountContact, Optimizer, SolveOptions, SolveReport, View,
 };
 
 mod segment;
@@ -69,9 +69,8 @@ pub struct OfflineSolve {
     pub model_floor: (f64, f64),
     /// Estimate the masks' outline offset with the pose ([`SolveOptions::estimate_mask_offset`]).
     pub estimate_mask_offset: bool,
-    /// Leave the robot's mount contact out of every fit
-    /// ([`SolveOptions::leave_out_mount_contact`]).
-    pub leave_out_mount_contact: bool,
+    /// How every fit treats the robot's mount contact ([`SolveOptions::mount_contact`]).
+    pub mount_contact: MountContact,
 }
 
 /// What an offline solve produced: every camera's solve, in the run's order (one for an
@@ -325,10 +324,13 @@ fn solve_options(req: &OfflineSolve) -> SolveOptions {
 /// what the request leaves out of every fit.
 fn starting_options(req: &OfflineSolve) -> SolveOptions {
     SolveOptions {
-        leave_out_mount_contact: req.leave_out_mount_contact,
+        mount_contact: req.mount_contact,
         ..SolveOptions::default()
     }
 }
+
+/// What `easyhec solve` says when given masks disagree with the render at the mount contact.
+pub const MOUNT_CONTACT_DISAGREES: &str = "the masks' outline where the robot stands on its mount lies more than 2 px from the rendered robot's, beyond the rest of the outline, in most views: a flange or plate that the masks and the mesh disagree on; --mount-contact leave-out (or [calibration] mount_contact = \"leave-out\") leaves it out of the fit (docs/method.md §6)";
 
 /// One camera's judged solve, not yet written.
 struct Solved {
@@ -358,6 +360,14 @@ fn fit_loaded(
             .collect(),
         None => Vec::new(),
     };
+    // Masks the run gives are the user's: `auto` fits their mount contact and says when it
+    // disagrees with the render, rather than deciding for them.
+    let asked = req.mount_contact;
+    let given = &OfflineSolve {
+        mount_contact: asked.for_given_masks(),
+        ..req.clone()
+    };
+    let req = if segmented.is_empty() { given } else { req };
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
         let opts = starting_options(req);
@@ -406,6 +416,14 @@ fn fit_loaded(
     check_finite(&report)?;
     if !req.allow_poor_fit {
         judge_fit(&order, &report, k)?;
+    }
+    if segmented.is_empty() && asked == MountContact::Auto {
+        let used: Vec<View> = order.iter().map(|&i| pool[i].clone()).collect();
+        let camera = run.camera.undistorted();
+        let pose = &report.camera_from_base;
+        if mount_contact_disagrees(renderer, &camera, &used, pose, &solve_opts) {
+            note(MOUNT_CONTACT_DISAGREES);
+        }
     }
 
     Ok(Fitted {
@@ -558,9 +576,8 @@ fn result_file(
         .zip(&report.per_view_iou)
         .map(|(&v, &iou)| PerView { view: v, iou })
         .collect();
-    let opts = solve_options(req);
-    result.uncertainty = UncertaintyEntry::of_report(report, &opts);
-    result.leave_out_mount_contact = opts.leave_out_mount_contact;
+    result.uncertainty = UncertaintyEntry::of_report(report, &solve_options(req));
+    result.mount_contact_left_out = report.mount_contact_left_out;
     result.stop_reason = match req.optimizer {
         Optimizer::Lm => stop_reason,
         Optimizer::Adam => format!(
