@@ -165,4 +165,7 @@ fn images_only_uncertainty_holds_the_mask_pose() {
         promise.bump_allowance_px;
     assert!(with_term_least > checked_least, "{i:?}");
     assert!(with_term_most > checked_most, "{i:?}");
+    // What the check allows for the calibration's own uncertainty stays near the default
+    // threshold (1.5 px; measured at most 1.95 px here), so a knock of that size still shows.
+    assert!(checked_most < 2.5, "{i:?}");
 }

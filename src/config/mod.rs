@@ -121,11 +121,13 @@ pub fn read_config(path: &Path) -> Result<CellConfig> {
 /// checks the values.
 pub fn parse_config(text: &str, path: &Path) -> Result<CellConfig> {
     toml::from_str(text).map_err(|e| {
-        let line = e
-            .span()
-            .map(|s| text.get(..s.start).unwrap_or(text).lines().count().max(1))
-            .unwrap_or(0);
-        let field = match key_at_line(text, line) {
+        let start = e.span().map(|s| s.start.min(text.len()));
+        // Lines counted by the newlines before the span, so a span at a line's first column
+        // names that line, not the one above.
+        let line = start
+            .and_then(|s| text.get(..s))
+            .map_or(0, |t| t.matches('\n').count() + 1);
+        let field = match start.and_then(|s| key_of_value_at(text, s)) {
             Some(key) => format!("line {line} ({key})"),
             None => format!("line {line}"),
         };
@@ -133,31 +135,58 @@ pub fn parse_config(text: &str, path: &Path) -> Result<CellConfig> {
     })
 }
 
-/// The dotted key a `key = value` line sets (`table.key`, under the nearest table header
-/// above it), so a value the parser refuses (a misspelt choice) names its field as well as
-/// its line; `None` for any other line.
-fn key_at_line(text: &str, line: usize) -> Option<String> {
-    let lines: Vec<&str> = text.lines().collect();
-    let here = lines.get(line.checked_sub(1)?)?;
-    let (key, _) = here.split_once('=')?;
-    let key = key.trim();
+/// The dotted key (`table.key`, under the nearest table header above) whose value the byte
+/// offset `at` lies in, on a `key = value` line: so a value the parser refuses (a misspelt
+/// choice) names its field as well as its line. `None` when `at` is not past a line's `=`
+/// (an unknown key, a missing one, a broken header), where the parser's message names it.
+fn key_of_value_at(text: &str, at: usize) -> Option<String> {
+    let line_start = text.get(..at)?.rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].split('\n').next().unwrap_or("");
+    let eq = line.find('=')?;
+    if at <= line_start + eq {
+        return None;
+    }
     let plain = |k: &str| {
         !k.is_empty()
             && k.chars()
                 .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
     };
+    let key = line[..eq].trim();
     if !plain(key) {
         return None;
     }
-    let table = lines[..line - 1].iter().rev().find_map(|l| {
-        let l = l.trim();
-        l.strip_prefix("[[")
+    let table = text[..line_start].lines().rev().find_map(|l| {
+        let l = l.split('#').next().unwrap_or("").trim();
+        let name = l
+            .strip_prefix("[[")
             .and_then(|t| t.strip_suffix("]]"))
-            .or_else(|| l.strip_prefix('[').and_then(|t| t.strip_suffix(']')))
-            .map(str::trim)
+            .or_else(|| l.strip_prefix('[').and_then(|t| t.strip_suffix(']')))?
+            .trim();
+        plain(name).then_some(name)
     });
     Some(match table {
-        Some(t) if plain(t) => format!("{t}.{key}"),
-        _ => key.to_string(),
+        Some(t) => format!("{t}.{key}"),
+        None => key.to_string(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::key_of_value_at;
+
+    #[test]
+    fn a_refused_value_names_its_key_under_its_table() {
+        let text = "[robot]\nurdf = \"x\"\n\n[calibration] # the loop\nm = [[1, 0],\n  [0, 1]]\nmount_contact = \"sometimes\"\n";
+        let value = text.find("\"sometimes").unwrap();
+        assert_eq!(
+            key_of_value_at(text, value).as_deref(),
+            Some("calibration.mount_contact")
+        );
+        // An unknown or missing key is the parser's to name: the offset is not in a value.
+        assert_eq!(
+            key_of_value_at(text, text.find("mount_contact").unwrap()),
+            None
+        );
+        assert_eq!(key_of_value_at(text, text.find("[robot]").unwrap()), None);
+    }
 }

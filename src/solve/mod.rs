@@ -430,7 +430,7 @@ pub fn with_segmentation_term(
 
 /// Solves for `camera_from_base` from `views`, starting at `initial`. With
 /// [`MountContact::Auto`], a fit whose masks disagree with the rendered robot at its mount
-/// contact goes on with that outline left out ([`settle_mount_contact`]).
+/// contact goes on with that outline left out ([`walk_settling_mount_contact`]).
 pub fn solve(
     renderer: &dyn Backend,
     camera: &Intrinsics,
@@ -453,6 +453,7 @@ pub fn solve(
     } else {
         opts
     };
+    let asked = opts;
     let (first, settled) = match opts.optimizer {
         Optimizer::Lm => walk_settling_mount_contact(renderer, &camera, views, initial, opts)?,
         Optimizer::Adam => {
@@ -479,15 +480,25 @@ pub fn solve(
     // The fast path landed in a poor local minimum (or the guess was rough): search a wide
     // neighbourhood of the guess at low resolution, then refine from the best candidate.
     let start = coarse_search(renderer, &camera, views, initial, opts);
-    let mut second = solve_lm(renderer, &camera, views, &start, opts)?;
+    // From the new start the masks may fit well enough to decide on the mount contact.
+    let (mut second, retry_opts) = match asked.mount_contact {
+        MountContact::Auto if !report.mount_contact_left_out => {
+            walk_settling_mount_contact(renderer, &camera, views, &start, asked)?
+        }
+        _ => (
+            solve_lm(renderer, &camera, views, &start, opts)?,
+            opts.clone(),
+        ),
+    };
     second.iterations += iterations;
-    let retry = finish(renderer, &camera, views, second, opts)?;
+    let retry = finish(renderer, &camera, views, second, &retry_opts)?;
     let best = if retry.mean_iou() > report.mean_iou() {
         retry
     } else {
         report
     };
-    refine(renderer, &camera, views, best, opts)
+    let opts = asked.as_fitted(&best);
+    refine(renderer, &camera, views, best, &opts)
 }
 
 /// LM over the pyramid, and the options the rest of the solve uses. With
@@ -666,6 +677,9 @@ fn finish(
         loss,
         iterations,
         trajectory,
-        mount_contact_left_out: opts.mount_contact == MountContact::LeaveOut,
+        // Only what was left out: a camera on a link has no mount, and Adam counts pixels.
+        mount_contact_left_out: opts.mount_contact == MountContact::LeaveOut
+            && opts.optimizer == Optimizer::Lm
+            && views.iter().any(|v| v.robot.mount().is_some()),
     })
 }
