@@ -90,7 +90,7 @@ pub struct CalibrationSettings {
     /// it out where the masks disagree with the rendered robot there (a plate of the base's
     /// colour, a flange the masks leave out), `fit` always reads it, `leave-out` never does.
     #[serde(default)]
-    pub mount_contact: crate::solve::MountContact,
+    pub mount_contact: MountContact,
     /// Rank poses by information per second (the move plus each view's other work) instead
     /// of by information alone. Only arms whose moves take time are affected: the simulated
     /// arm arrives at once unless `[arm] speedup` slows it.
@@ -184,6 +184,48 @@ impl InitialGuess {
             InitialGuess::Matrix { camera_from_base } => {
                 crate::geometry::from_rows(camera_from_base)
             }
+        }
+    }
+}
+
+/// How a fit treats the robot's outline at its mount contact (docs/method.md §6). A base on a
+/// plate of its own colour gives masks that run fat there (the `builtin` segmenter never sees
+/// the plate uncovered), and hand-made masks can leave out a flange the mesh has: either
+/// pulls the camera along its axis. Where the masks are right there, the foot's outline holds
+/// the depth, so it is left out only when it disagrees.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Deserialize,
+    serde::Serialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum MountContact {
+    /// Fit it, then leave it out and solve again when the masks' outline there lies more
+    /// than 2 px (`solve::MOUNT_DISAGREEMENT_PX`) from the rendered one, beyond how far the rest of the
+    /// outline lies, in most views (`solve::mount_contact_disagrees`). Meant for masks a
+    /// segmenter draws; the offline solve fits masks a run gives
+    /// ([`MountContact::for_given_masks`]).
+    #[default]
+    Auto,
+    /// Always fit it.
+    Fit,
+    /// Always leave it out.
+    LeaveOut,
+}
+
+impl MountContact {
+    /// What it means for masks the run gives (hand-made, or another tool's): `auto` fits
+    /// them, since they are the user's to mend; the offline solve says when they disagree.
+    pub fn for_given_masks(self) -> MountContact {
+        match self {
+            MountContact::Auto => MountContact::Fit,
+            told => told,
         }
     }
 }

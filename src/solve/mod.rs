@@ -36,6 +36,7 @@ mod search;
 mod shared_joints;
 mod uncertainty;
 
+pub use crate::config::calibration::MountContact;
 pub use boundary::{mount_contact_disagrees, MOUNT_DISAGREEMENT_PX};
 pub use covariance::model_floor;
 pub use disagreement::{JACKKNIFE_MIN_VIEWS, MAX_GROUPS};
@@ -139,48 +140,6 @@ pub struct SolveOptions {
     /// (with the observed outline matched to it), or left out only when the masks disagree
     /// with the rendered robot there ([`MountContact::Auto`], the default).
     pub mount_contact: MountContact,
-}
-
-/// How a fit treats the robot's outline at its mount contact (docs/method.md §6). A base on a
-/// plate of its own colour gives masks that run fat there (the `builtin` segmenter never sees
-/// the plate uncovered), and hand-made masks can leave out a flange the mesh has: either
-/// pulls the camera along its axis. Where the masks are right there, the foot's outline holds
-/// the depth, so it is left out only when it disagrees.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Deserialize,
-    serde::Serialize,
-    clap::ValueEnum,
-)]
-#[serde(rename_all = "kebab-case")]
-pub enum MountContact {
-    /// Fit it, then leave it out and solve again when the masks' outline there lies more
-    /// than [`MOUNT_DISAGREEMENT_PX`] from the rendered one, beyond how far the rest of the
-    /// outline lies, in most views ([`mount_contact_disagrees`]). Meant for masks a
-    /// segmenter draws; the offline solve fits masks a run gives
-    /// ([`MountContact::for_given_masks`]).
-    #[default]
-    Auto,
-    /// Always fit it.
-    Fit,
-    /// Always leave it out.
-    LeaveOut,
-}
-
-impl MountContact {
-    /// What it means for masks the run gives (hand-made, or another tool's): `auto` fits
-    /// them, since they are the user's to mend; the offline solve says when they disagree.
-    pub fn for_given_masks(self) -> MountContact {
-        match self {
-            MountContact::Auto => MountContact::Fit,
-            told => told,
-        }
-    }
 }
 
 impl SolveOptions {
