@@ -269,29 +269,12 @@ fn auto_leaves_the_mount_out_where_the_masks_disagree_there() {
     let camera = scene.camera.undistorted();
     let truth = scene.camera_from_base;
     let opts = SolveOptions::default();
-    assert!(!mount_contact_disagrees(
-        &CpuRenderer,
-        &camera,
-        &views,
-        &truth,
-        &opts
-    ));
+    let disagrees = |v: &[View]| mount_contact_disagrees(&CpuRenderer, &camera, v, &truth, &opts);
+    assert!(!disagrees(&views));
     let plated = painted_at_foot(&robot, &views, &truth, &camera, 4.0, true);
-    assert!(mount_contact_disagrees(
-        &CpuRenderer,
-        &camera,
-        &plated,
-        &truth,
-        &opts
-    ));
+    assert!(disagrees(&plated));
     let thin = painted_at_foot(&robot, &views, &truth, &camera, 4.0, false);
-    assert!(mount_contact_disagrees(
-        &CpuRenderer,
-        &camera,
-        &thin,
-        &truth,
-        &opts
-    ));
+    assert!(disagrees(&thin));
     let auto = solve(&CpuRenderer, &scene.camera, &plated, &init, &opts).unwrap();
     assert!(auto.mount_contact_left_out);
     let told = SolveOptions {

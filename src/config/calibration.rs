@@ -193,23 +193,13 @@ impl InitialGuess {
 /// the plate uncovered), and hand-made masks can leave out a flange the mesh has: either
 /// pulls the camera along its axis. Where the masks are right there, the foot's outline holds
 /// the depth, so it is left out only when it disagrees.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Deserialize,
-    serde::Serialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum MountContact {
     /// Fit it, then leave it out and solve again when the masks' outline there lies more
-    /// than 2 px (`solve::MOUNT_DISAGREEMENT_PX`) from the rendered one, beyond how far the rest of the
-    /// outline lies, in most views (`solve::mount_contact_disagrees`). Meant for masks a
-    /// segmenter draws; the offline solve fits masks a run gives
+    /// than 2 px (`solve::MOUNT_DISAGREEMENT_PX`) from the rendered one, beyond how far the
+    /// rest of the outline lies, in most views (`solve::mount_contact_disagrees`). Meant
+    /// for masks a segmenter draws; the offline solve fits masks a run gives
     /// ([`MountContact::for_given_masks`]).
     #[default]
     Auto,

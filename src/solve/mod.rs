@@ -159,10 +159,8 @@ impl SolveOptions {
         SolveOptions {
             mount_contact: if report.mount_contact_left_out {
                 MountContact::LeaveOut
-            } else if self.mount_contact == MountContact::Auto {
-                MountContact::Fit
             } else {
-                self.mount_contact
+                self.mount_contact.for_given_masks()
             },
             ..self.clone()
         }
