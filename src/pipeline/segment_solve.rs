@@ -14,7 +14,7 @@ use crate::render::{PosedRobot, SilhouetteRenderer};
 use crate::robot::RobotModel;
 use crate::segment::builtin::evidence_over;
 use crate::segment::{Segmenter, ViewInput};
-use crate::solve::{solve, SolveOptions, SolveReport, View};
+use crate::solve::{solve, MountContact, SolveOptions, SolveReport, View};
 use rayon::prelude::*;
 
 /// The robot's silhouettes under `camera_from_base`, in each frame's own (distorted) image:
@@ -166,6 +166,7 @@ pub fn segment_and_solve(
         let mut views = views_of(&masks);
         let initial = start(&views)?;
         let mut report = solve(renderer, camera, &views, &initial, solve_opts)?;
+        let mut opts = kept_mount_decision(solve_opts, &report);
         let mut rounds = 1;
         while rounds < max_rounds && segmenter.uses_context() {
             let next = resegment(&report, min_band_px)?;
@@ -173,13 +174,8 @@ pub fn segment_and_solve(
                 / next.len().max(1) as f64;
             masks = next;
             views = views_of(&masks);
-            report = solve(
-                renderer,
-                camera,
-                &views,
-                &report.camera_from_base,
-                solve_opts,
-            )?;
+            report = solve(renderer, camera, &views, &report.camera_from_base, &opts)?;
+            opts = kept_mount_decision(&opts, &report);
             rounds += 1;
             if change >= 0.995 {
                 break;
@@ -219,13 +215,35 @@ pub fn segment_and_solve(
         camera,
         &views,
         &best.report.camera_from_base,
-        solve_opts,
+        &kept_mount_decision(solve_opts, &best.report),
     )?;
     Ok(Settled {
         masks,
         report,
         rounds: best.rounds + 1,
     })
+}
+
+/// `opts` for the next round after `report`: once a round's solve has left the mount
+/// contact out ([`MountContact::Auto`] deciding so), later rounds leave it out too. The
+/// masks come from the same segmenter on the same scene, and later rounds draw them in
+/// narrower bands round the render, which hides part of the disagreement that decided
+/// (docs/method.md §6): deciding again each round let the real xArm7's final solve flip
+/// back on a borderline vote.
+fn kept_mount_decision(opts: &SolveOptions, report: &SolveReport) -> SolveOptions {
+    SolveOptions {
+        mount_contact: mount_contact_after(opts.mount_contact, report.mount_contact_left_out),
+        ..opts.clone()
+    }
+}
+
+/// The mount-contact setting after a round asked `asked` and left the contact out or not.
+fn mount_contact_after(asked: MountContact, left_out: bool) -> MountContact {
+    if asked == MountContact::Auto && left_out {
+        MountContact::LeaveOut
+    } else {
+        asked
+    }
 }
 
 /// Tuning of [`search_view_pairs`].
@@ -529,4 +547,19 @@ pub fn segment_among_recorded(
     let priors = priors(renderer, camera, &robots, pose);
     let bands = vec![band_px; frames.len()];
     Ok(segment_frames(segmenter, &frames, Some(&priors), &bands)?.pop())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_round_that_left_the_mount_out_decides_for_the_rounds_after_it() {
+        use MountContact::{Auto, Fit, LeaveOut};
+        assert_eq!(mount_contact_after(Auto, true), LeaveOut);
+        assert_eq!(mount_contact_after(Auto, false), Auto);
+        // What the user chose stands.
+        assert_eq!(mount_contact_after(Fit, false), Fit);
+        assert_eq!(mount_contact_after(LeaveOut, true), LeaveOut);
+    }
 }

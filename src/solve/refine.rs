@@ -4,13 +4,13 @@
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
-use super::{finish, SolveOptions, SolveReport, View};
+use super::{finish, MountContact, SolveOptions, SolveReport, View};
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
 use crate::error::Result;
 use crate::geometry::{exp_se3, Twist};
 use crate::mask::Mask;
-use crate::render::{PosedRobot, SilhouetteRenderer};
+use crate::render::{Mount, PosedRobot, SilhouetteRenderer};
 
 /// Largest band half-width (pixels) the refinement accepts; beyond it the posterior is too wide
 /// for a local refinement and the LM estimate stands.
@@ -80,6 +80,7 @@ impl Band {
         observed: &Mask,
         centre: &Isometry3<f64>,
         radius: i64,
+        left_out: Option<&Mount>,
     ) -> Band {
         let rendered = renderer.render(&view.robot, camera, centre, None).mask;
         let (w, h) = (i64::from(camera.width), i64::from(camera.height));
@@ -157,6 +158,11 @@ impl Band {
                 })
             })
             .collect();
+        // Chosen before the mount contact leaves the band: the band's window still renders
+        // the foot's triangles, so the pixels left in it are counted right.
+        if let Some(mount) = left_out {
+            leave_out_mount_contact(&mut band, camera, &view.robot, mount, &pixels_2d, radius);
+        }
         let outside_wrong = band
             .iter()
             .zip(rendered.data.iter().zip(&observed.data))
@@ -179,6 +185,51 @@ impl Band {
             outside_wrong,
             image_pixels: (w * h) as usize,
             image_band: band,
+        }
+    }
+}
+
+/// Takes the robot's mount contact out of a view's `band`: every pixel within `radius` of a
+/// mesh edge whose two ends lie at the contact ([`Mount::at_contact`]), as projected in
+/// `pixels_2d`. A fit that leaves the contact out of LM's outline residuals must not let the
+/// mask score read it either, or the flange or plate the masks disagree on pulls again.
+fn leave_out_mount_contact(
+    band: &mut [u8],
+    camera: &Intrinsics,
+    robot: &PosedRobot,
+    mount: &Mount,
+    pixels_2d: &[[f64; 2]],
+    radius: i64,
+) {
+    let (w, h) = (i64::from(camera.width), i64::from(camera.height));
+    let at_contact = |i: u32| mount.at_contact(i as usize, &robot.vertices_base[i as usize]);
+    let mut clear = |p: [f64; 2]| {
+        let (u, v) = (p[0].round() as i64, p[1].round() as i64);
+        for y in (v - radius).max(0)..=(v + radius).min(h - 1) {
+            for x in (u - radius).max(0)..=(u + radius).min(w - 1) {
+                band[(y * w + x) as usize] = 0;
+            }
+        }
+    };
+    for t in &robot.topology.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if !(at_contact(a) && at_contact(b)) {
+                continue;
+            }
+            let (pa, pb) = (pixels_2d[a as usize], pixels_2d[b as usize]);
+            if !(pa[0].is_finite() && pb[0].is_finite()) {
+                continue;
+            }
+            // Steps of at most one pixel along the projected edge.
+            let steps = (pa[0] - pb[0])
+                .hypot(pa[1] - pb[1])
+                .ceil()
+                .clamp(1.0, 4096.0) as usize;
+            for s in 0..=steps {
+                let f = s as f64 / steps as f64;
+                clear([pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1])]);
+            }
         }
     }
 }
@@ -241,10 +292,14 @@ pub(super) fn refine(
             }
         })
         .collect();
+    let leave_out = opts.mount_contact == MountContact::LeaveOut;
     let bands: Vec<Band> = views
         .par_iter()
         .zip(&observed)
-        .map(|(v, o)| Band::new(renderer, camera, v, o, &centre, radius))
+        .map(|(v, o)| {
+            let mount = leave_out.then(|| v.robot.mount()).flatten();
+            Band::new(renderer, camera, v, o, &centre, radius, mount)
+        })
         .collect();
     // All samples in one batch: a GPU backend renders them in one submission, the CPU one
     // renders each band's window on one thread, samples in parallel; both count exactly.

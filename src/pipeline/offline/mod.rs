@@ -374,6 +374,16 @@ fn fit_loaded(
         settled = segment_run(&mut run, config, &opts, renderer, masks_out, note)?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
+    // The rounds' decision on the mount contact stands for the solve of their masks.
+    let kept = &OfflineSolve {
+        mount_contact: MountContact::LeaveOut,
+        ..req.clone()
+    };
+    let req = match &settled {
+        Some(s) if s.mount_contact_left_out && asked == MountContact::Auto => kept,
+        _ => req,
+    };
+    let settled = settled.map(|s| s.camera_from_base);
     // The pool: every recorded view (views beyond K are only candidates for explore/random).
     let pool_size = if req.selection == Selection::First {
         k

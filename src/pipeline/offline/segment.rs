@@ -23,7 +23,8 @@ use crate::solve::{self, SolveOptions, SolveReport, View};
 /// (mean IoU ≥ 0.8): the solve that follows starts there, since masks drawn near that pose's
 /// render are what it must fit, and a start back at the guess can stop in another basin (hard
 /// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose). Every fit in
-/// the rounds and the searches takes `opts`.
+/// the rounds and the searches takes `opts`. With the pose, whether the rounds left the
+/// mount contact out: the solve that follows keeps that decision (as the rounds do).
 pub(super) fn segment_run(
     run: &mut LoadedRun,
     config: &SegmenterConfig,
@@ -31,7 +32,7 @@ pub(super) fn segment_run(
     renderer: &dyn Backend,
     masks_out: Option<&Path>,
     note: &mut dyn FnMut(&str),
-) -> Result<Option<Isometry3<f64>>> {
+) -> Result<Option<Settle>> {
     let segmenter = crate::segment::build(config, &run.dir.join("run.json"))?;
     let name = segmenter.name().to_string();
     let need: Vec<usize> = (0..run.views.len())
@@ -114,7 +115,20 @@ pub(super) fn segment_run(
         run.views[i].observed = run.camera.undistort_mask(mask);
         run.views[i].needs_mask = false;
     }
-    Ok((settled.report.mean_iou() >= POOR_FIT_IOU).then_some(settled.report.camera_from_base))
+    Ok(
+        (settled.report.mean_iou() >= POOR_FIT_IOU).then_some(Settle {
+            camera_from_base: settled.report.camera_from_base,
+            mount_contact_left_out: settled.report.mount_contact_left_out,
+        }),
+    )
+}
+
+/// Where [`segment_run`]'s rounds settled, when the fit there is good.
+pub(super) struct Settle {
+    /// The settled pose.
+    pub camera_from_base: Isometry3<f64>,
+    /// Whether its solve left the mount contact out.
+    pub mount_contact_left_out: bool,
 }
 
 /// View `i`'s colour frame, read for a segmenter.
