@@ -79,14 +79,6 @@ impl Mount {
         self.fixed.get(s.vertex as usize).copied().unwrap_or(false)
             && (base_from_camera * s.point_camera).z < self.floor_z + MOUNT_CONTACT_HEIGHT_M
     }
-
-    /// Whether vertex `index` of the posed robot, at base-frame point `point_base`, lies at
-    /// the mount contact: on a fixed link, less than [`MOUNT_CONTACT_HEIGHT_M`] above the
-    /// floor (the same height rule as [`Mount::holds`], for a vertex).
-    pub fn at_contact(&self, index: usize, point_base: &Point3<f64>) -> bool {
-        self.fixed.get(index).copied().unwrap_or(false)
-            && point_base.z < self.floor_z + MOUNT_CONTACT_HEIGHT_M
-    }
 }
 
 impl PosedRobot {

@@ -397,8 +397,8 @@ fn a_solve_of_given_masks_says_when_they_disagree_at_the_foot() {
 /// Left out means left out of the whole fit: with the mount contact left out, a plate the
 /// masks take for robot round the foot must not pull the posterior refinement's mask score
 /// either. LM still feels a little of it (the plate reaches past the contact's height), so
-/// the refined poses may move only as far as LM's own do (measured over these three scenes:
-/// 0.29 mm against LM's 0.26 mm; 0.46 mm when the refinement read the foot).
+/// the refined poses may move only about as far as LM's own do (measured over these three
+/// scenes: 0.20 mm against LM's 0.26 mm; 0.46 mm when the refinement read the foot).
 #[test]
 fn a_left_out_mount_contact_pulls_the_refinement_no_more_than_lm() {
     let robot = common::load_robot("xarm6");

@@ -224,20 +224,23 @@ pub fn segment_and_solve(
     })
 }
 
-/// `opts` for the next round after `report`: once a round's solve has left the mount
-/// contact out ([`MountContact::Auto`] deciding so), later rounds leave it out too. The
-/// masks come from the same segmenter on the same scene, and later rounds draw them in
-/// narrower bands round the render, which hides part of the disagreement that decided
-/// (docs/method.md §6): deciding again each round let the real xArm7's final solve flip
-/// back on a borderline vote.
-fn kept_mount_decision(opts: &SolveOptions, report: &SolveReport) -> SolveOptions {
+/// `opts` for the next round after `report`: once a round's solve that fits (mean IoU at
+/// least [`POOR_FIT_IOU`]) has left the mount contact out ([`MountContact::Auto`] deciding
+/// so), later rounds leave it out too. The masks come from the same segmenter on the same
+/// scene, and later rounds draw them in narrower bands round the render, which hides part
+/// of the disagreement that decided (docs/method.md §6): deciding again each round let the
+/// real xArm7's final solve flip back on a borderline vote. A round that fits poorly binds
+/// nothing: its few fitting views are a thin basis for the rest.
+pub fn kept_mount_decision(opts: &SolveOptions, report: &SolveReport) -> SolveOptions {
+    let decided = report.mount_contact_left_out && report.mean_iou() >= POOR_FIT_IOU;
     SolveOptions {
-        mount_contact: mount_contact_after(opts.mount_contact, report.mount_contact_left_out),
+        mount_contact: mount_contact_after(opts.mount_contact, decided),
         ..opts.clone()
     }
 }
 
-/// The mount-contact setting after a round asked `asked` and left the contact out or not.
+/// The mount-contact setting after a round asked `asked` and decided to leave the contact
+/// out or not.
 fn mount_contact_after(asked: MountContact, left_out: bool) -> MountContact {
     if asked == MountContact::Auto && left_out {
         MountContact::LeaveOut

@@ -10,7 +10,7 @@ use crate::camera::Intrinsics;
 use crate::error::Result;
 use crate::geometry::{exp_se3, Twist};
 use crate::mask::Mask;
-use crate::render::{Mount, PosedRobot, SilhouetteRenderer};
+use crate::render::{BoundarySample, Mount, PosedRobot, SilhouetteRenderer};
 
 /// Largest band half-width (pixels) the refinement accepts; beyond it the posterior is too wide
 /// for a local refinement and the LM estimate stands.
@@ -57,7 +57,7 @@ fn max_displacement_px(
 }
 
 /// The part of a view that poses near `centre` can change: pixels within `radius` of the
-/// rendered outline, and the triangles whose (dilated) bounds touch them. Samples render only
+/// rendered outline (less the mount contact when the fit leaves it out), and the triangles whose (dilated) bounds touch them. Samples render only
 /// the band's window of the image and only the vertices its triangles use (see
 /// [`crate::scoring::cpu::band_mismatches`]), so one sample costs a small fraction of a full
 /// render.
@@ -82,7 +82,10 @@ impl Band {
         radius: i64,
         left_out: Option<&Mount>,
     ) -> Band {
-        let rendered = renderer.render(&view.robot, camera, centre, None).mask;
+        // The outline samples are wanted only to find the mount contact.
+        let step = left_out.map(|_| CONTACT_STEP_PX);
+        let silhouette = renderer.render(&view.robot, camera, centre, step);
+        let rendered = silhouette.mask;
         let (w, h) = (i64::from(camera.width), i64::from(camera.height));
         // Band = pixels within `radius` (Chebyshev) of a rendered outline pixel.
         let mut band = vec![0u8; (w * h) as usize];
@@ -161,7 +164,12 @@ impl Band {
         // Chosen before the mount contact leaves the band: the band's window still renders
         // the foot's triangles, so the pixels left in it are counted right.
         if let Some(mount) = left_out {
-            leave_out_mount_contact(&mut band, camera, &view.robot, mount, &pixels_2d, radius);
+            let base_from_camera = centre.inverse();
+            let contact = silhouette
+                .boundary
+                .iter()
+                .filter(|s| mount.holds(s, &base_from_camera));
+            leave_out_mount_contact(&mut band, camera, contact, radius);
         }
         let outside_wrong = band
             .iter()
@@ -189,46 +197,27 @@ impl Band {
     }
 }
 
-/// Takes the robot's mount contact out of a view's `band`: every pixel within `radius` of a
-/// mesh edge whose two ends lie at the contact ([`Mount::at_contact`]), as projected in
-/// `pixels_2d`. A fit that leaves the contact out of LM's outline residuals must not let the
-/// mask score read it either, or the flange or plate the masks disagree on pulls again.
-fn leave_out_mount_contact(
+/// Outline sample spacing (pixels) used to find the mount contact in the band.
+const CONTACT_STEP_PX: f64 = 1.0;
+
+/// Takes the robot's mount contact out of a view's `band`: every pixel within one more than
+/// `radius` (the band's own reach) of a rendered outline sample at the contact, chosen by
+/// [`Mount::holds`] as LM leaves samples out. A fit that leaves the contact out of LM's
+/// outline residuals must not let the mask score read it either, or the flange or plate the
+/// masks disagree on pulls again.
+fn leave_out_mount_contact<'a>(
     band: &mut [u8],
     camera: &Intrinsics,
-    robot: &PosedRobot,
-    mount: &Mount,
-    pixels_2d: &[[f64; 2]],
+    contact: impl Iterator<Item = &'a BoundarySample>,
     radius: i64,
 ) {
     let (w, h) = (i64::from(camera.width), i64::from(camera.height));
-    let at_contact = |i: u32| mount.at_contact(i as usize, &robot.vertices_base[i as usize]);
-    let mut clear = |p: [f64; 2]| {
-        let (u, v) = (p[0].round() as i64, p[1].round() as i64);
-        for y in (v - radius).max(0)..=(v + radius).min(h - 1) {
-            for x in (u - radius).max(0)..=(u + radius).min(w - 1) {
+    let reach = radius + 1;
+    for s in contact {
+        let (u, v) = (s.pixel[0].round() as i64, s.pixel[1].round() as i64);
+        for y in (v - reach).max(0)..=(v + reach).min(h - 1) {
+            for x in (u - reach).max(0)..=(u + reach).min(w - 1) {
                 band[(y * w + x) as usize] = 0;
-            }
-        }
-    };
-    for t in &robot.topology.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            if !(at_contact(a) && at_contact(b)) {
-                continue;
-            }
-            let (pa, pb) = (pixels_2d[a as usize], pixels_2d[b as usize]);
-            if !(pa[0].is_finite() && pb[0].is_finite()) {
-                continue;
-            }
-            // Steps of at most one pixel along the projected edge.
-            let steps = (pa[0] - pb[0])
-                .hypot(pa[1] - pb[1])
-                .ceil()
-                .clamp(1.0, 4096.0) as usize;
-            for s in 0..=steps {
-                let f = s as f64 / steps as f64;
-                clear([pa[0] + f * (pb[0] - pa[0]), pa[1] + f * (pb[1] - pa[1])]);
             }
         }
     }

@@ -33,7 +33,7 @@ use crate::config::CalibrationSettings;
 use crate::error::{Error, Result};
 use crate::geometry::{rotation_error_deg, to_rows, translation_error_mm};
 use crate::init::{initialise, InitOptions};
-use crate::pipeline::segment_solve::{LiveFrames, POOR_FIT_IOU};
+use crate::pipeline::segment_solve::{kept_mount_decision, LiveFrames, POOR_FIT_IOU};
 use crate::pipeline::undecided::{undecided_term, SegmentedFrame};
 use crate::render::PosedRobot;
 use crate::run::rig::{write_result, JointCorrections, RunLayout, RunSummary};
@@ -570,7 +570,8 @@ impl<'a> Session<'a> {
     /// fit nowhere near it.
     fn solve_from(&self, k: usize, previous: &Isometry3<f64>) -> Result<SolveReport> {
         let (r, t) = (self.renderer.as_ref(), &self.tracks[k]);
-        let report = solve(r, &t.camera, &t.views, previous, &self.solve_opts)?;
+        let opts = self.opts_for(k);
+        let report = solve(r, &t.camera, &t.views, previous, &opts)?;
         let refit_below = match t.unit.config.mount().is_fixed() {
             true => POOR_FIT_IOU,
             false => REFIT_IOU,
@@ -578,12 +579,22 @@ impl<'a> Session<'a> {
         let Some(guess) = t.guess.filter(|_| report.mean_iou() < refit_below) else {
             return Ok(report);
         };
-        let again = solve(r, &t.camera, &t.views, &guess, &self.solve_opts)?;
+        let again = solve(r, &t.camera, &t.views, &guess, &opts)?;
         Ok(if again.mean_iou() > report.mean_iou() {
             again
         } else {
             report
         })
+    }
+
+    /// The solve options for camera `k`'s next solve: once one of its solves has left the
+    /// mount contact out, the rest do too, as in offline segment-and-solve rounds (later
+    /// masks, drawn round a settled render, hide part of what decided).
+    fn opts_for(&self, k: usize) -> SolveOptions {
+        match &self.tracks[k].report {
+            Some(report) => kept_mount_decision(&self.solve_opts, report),
+            None => self.solve_opts.clone(),
+        }
     }
 
     /// Reads the joints and grabs a frame from every camera at the arm's present pose,
@@ -691,6 +702,7 @@ impl<'a> Session<'a> {
     /// under the final one and solve once more; when that estimate fits, with the final
     /// (narrowest) band: a narrow band is only safe around a right render.
     fn resegment_final(&mut self) -> Result<()> {
+        let opts = self.opts_for(0);
         let t = &mut self.tracks[0];
         let Some(live) = &t.live else {
             return Ok(());
@@ -720,7 +732,7 @@ impl<'a> Session<'a> {
             &t.camera,
             &t.views,
             &report.camera_from_base,
-            &self.solve_opts,
+            &opts,
         )?;
         t.report = Some(report);
         self.solve_s += started.elapsed().as_secs_f64();

@@ -23,8 +23,9 @@ use crate::solve::{self, SolveOptions, SolveReport, View};
 /// (mean IoU ≥ 0.8): the solve that follows starts there, since masks drawn near that pose's
 /// render are what it must fit, and a start back at the guess can stop in another basin (hard
 /// synthetic seed 3: 5.9° off from the guess, 0.006° from the settled pose). Every fit in
-/// the rounds and the searches takes `opts`. With the pose, whether the rounds left the
-/// mount contact out: the solve that follows keeps that decision (as the rounds do).
+/// the rounds and the searches takes `opts`, except that once a round leaves the mount
+/// contact out the later rounds do too ([`segment_solve::kept_mount_decision`]). With the
+/// pose, whether the rounds left it out: the solve that follows keeps that decision.
 pub(super) fn segment_run(
     run: &mut LoadedRun,
     config: &SegmenterConfig,
