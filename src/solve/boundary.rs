@@ -391,6 +391,11 @@ impl<'a> LeftOut<'a> {
         )
     }
 
+    /// Whether anything is left out.
+    pub(super) fn any(&self) -> bool {
+        self.mount.is_some()
+    }
+
     /// The mount contact of `robot` when `leave_out`, else nothing.
     pub(super) fn mount_if(
         robot: &'a PosedRobot,
@@ -403,7 +408,8 @@ impl<'a> LeftOut<'a> {
         }
     }
 
-    fn sample(&self, s: &BoundarySample) -> bool {
+    /// Whether outline sample `s` is left out.
+    pub(super) fn sample(&self, s: &BoundarySample) -> bool {
         self.mount
             .is_some_and(|m| m.holds(s, &self.base_from_camera))
     }

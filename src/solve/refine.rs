@@ -4,13 +4,14 @@
 use nalgebra::Isometry3;
 use rayon::prelude::*;
 
-use super::{finish, MountContact, SolveOptions, SolveReport, View};
+use super::boundary::LeftOut;
+use super::{finish, SolveOptions, SolveReport, View};
 use crate::backend::Backend;
 use crate::camera::Intrinsics;
 use crate::error::Result;
 use crate::geometry::{exp_se3, Twist};
 use crate::mask::Mask;
-use crate::render::{BoundarySample, Mount, PosedRobot, SilhouetteRenderer};
+use crate::render::{BoundarySample, PosedRobot, SilhouetteRenderer};
 
 /// Largest band half-width (pixels) the refinement accepts; beyond it the posterior is too wide
 /// for a local refinement and the LM estimate stands.
@@ -57,10 +58,10 @@ fn max_displacement_px(
 }
 
 /// The part of a view that poses near `centre` can change: pixels within `radius` of the
-/// rendered outline (less the mount contact when the fit leaves it out), and the triangles whose (dilated) bounds touch them. Samples render only
-/// the band's window of the image and only the vertices its triangles use (see
-/// [`crate::scoring::cpu::band_mismatches`]), so one sample costs a small fraction of a full
-/// render.
+/// rendered outline (less the mount contact when the fit leaves it out), and the triangles
+/// whose (dilated) bounds touch them. Samples render only the band's window of the image and
+/// only the vertices its triangles use (see [`crate::scoring::cpu::band_mismatches`]), so one
+/// sample costs a small fraction of a full render.
 struct Band {
     robot: PosedRobot,
     /// Disagreeing pixels outside the band (constant for nearby poses).
@@ -80,10 +81,10 @@ impl Band {
         observed: &Mask,
         centre: &Isometry3<f64>,
         radius: i64,
-        left_out: Option<&Mount>,
+        left_out: &LeftOut,
     ) -> Band {
         // The outline samples are wanted only to find the mount contact.
-        let step = left_out.map(|_| CONTACT_STEP_PX);
+        let step = left_out.any().then_some(CONTACT_STEP_PX);
         let silhouette = renderer.render(&view.robot, camera, centre, step);
         let rendered = silhouette.mask;
         let (w, h) = (i64::from(camera.width), i64::from(camera.height));
@@ -95,12 +96,7 @@ impl Band {
                 let edge = (u + 1 < w && rendered.get(u + 1, v) != here)
                     || (v + 1 < h && rendered.get(u, v + 1) != here);
                 if edge {
-                    for dv in (v - radius).max(0)..=(v + radius).min(h - 1) {
-                        let row = (dv * w) as usize;
-                        band[row + (u - radius).max(0) as usize
-                            ..=row + (u + radius).min(w - 1) as usize]
-                            .fill(1);
-                    }
+                    fill_square(&mut band, w, h, [u, v], radius, 1);
                 }
             }
         }
@@ -163,14 +159,8 @@ impl Band {
             .collect();
         // Chosen before the mount contact leaves the band: the band's window still renders
         // the foot's triangles, so the pixels left in it are counted right.
-        if let Some(mount) = left_out {
-            let base_from_camera = centre.inverse();
-            let contact = silhouette
-                .boundary
-                .iter()
-                .filter(|s| mount.holds(s, &base_from_camera));
-            leave_out_mount_contact(&mut band, camera, contact, radius);
-        }
+        let contact = silhouette.boundary.iter().filter(|s| left_out.sample(s));
+        leave_out_mount_contact(&mut band, camera, contact, radius);
         let outside_wrong = band
             .iter()
             .zip(rendered.data.iter().zip(&observed.data))
@@ -202,7 +192,7 @@ const CONTACT_STEP_PX: f64 = 1.0;
 
 /// Takes the robot's mount contact out of a view's `band`: every pixel within one more than
 /// `radius` (the band's own reach) of a rendered outline sample at the contact, chosen by
-/// [`Mount::holds`] as LM leaves samples out. A fit that leaves the contact out of LM's
+/// [`LeftOut`] as LM's are. A fit that leaves the contact out of LM's
 /// outline residuals must not let the mask score read it either, or the flange or plate the
 /// masks disagree on pulls again.
 fn leave_out_mount_contact<'a>(
@@ -212,14 +202,23 @@ fn leave_out_mount_contact<'a>(
     radius: i64,
 ) {
     let (w, h) = (i64::from(camera.width), i64::from(camera.height));
-    let reach = radius + 1;
     for s in contact {
-        let (u, v) = (s.pixel[0].round() as i64, s.pixel[1].round() as i64);
-        for y in (v - reach).max(0)..=(v + reach).min(h - 1) {
-            for x in (u - reach).max(0)..=(u + reach).min(w - 1) {
-                band[(y * w + x) as usize] = 0;
-            }
-        }
+        let at = [s.pixel[0].round() as i64, s.pixel[1].round() as i64];
+        fill_square(band, w, h, at, radius + 1, 0);
+    }
+}
+
+/// Sets the pixels of the `w` x `h` image `band` within `reach` (Chebyshev) of pixel `at` to
+/// `value`, clipped to the image.
+fn fill_square(band: &mut [u8], w: i64, h: i64, at: [i64; 2], reach: i64, value: u8) {
+    let [u, v] = at;
+    let (x0, x1) = ((u - reach).max(0), (u + reach).min(w - 1));
+    if x0 > x1 {
+        return;
+    }
+    for y in (v - reach).max(0)..=(v + reach).min(h - 1) {
+        let row = (y * w) as usize;
+        band[row + x0 as usize..=row + x1 as usize].fill(value);
     }
 }
 
@@ -281,13 +280,12 @@ pub(super) fn refine(
             }
         })
         .collect();
-    let leave_out = opts.mount_contact == MountContact::LeaveOut;
     let bands: Vec<Band> = views
         .par_iter()
         .zip(&observed)
         .map(|(v, o)| {
-            let mount = leave_out.then(|| v.robot.mount()).flatten();
-            Band::new(renderer, camera, v, o, &centre, radius, mount)
+            let left_out = LeftOut::of(&v.robot, opts, &centre);
+            Band::new(renderer, camera, v, o, &centre, radius, &left_out)
         })
         .collect();
     // All samples in one batch: a GPU backend renders them in one submission, the CPU one
