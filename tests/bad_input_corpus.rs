@@ -850,8 +850,8 @@ fn solve_cases() -> Vec<Case> {
         ),
         case(
             "--segmenter unknown",
-            &["solve", "run", "--segmenter", "sam"],
-            &["--segmenter", "sam"],
+            &["solve", "run", "--segmenter", "nosuch"],
+            &["--segmenter nosuch: unknown segmenter and no such file"],
             nothing,
         ),
         case(

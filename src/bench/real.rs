@@ -342,6 +342,7 @@ pub fn images_only(
         renderer,
         keep_all_views: false,
         segmenter: Some(SegmenterConfig::by_name("builtin").map_err(Error::Usage)?),
+        segmenter_file: None,
         ignore_masks: true,
         masks_out: Some(masks_dir.clone()),
         allow_poor_fit: true,

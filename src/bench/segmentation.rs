@@ -199,6 +199,7 @@ pub fn run_figures(run_dir: &Path, renderer: RendererChoice) -> Result<RunFigure
         ignore_masks: segmenter.is_some(),
         masks_out: segmenter.is_some().then(|| masks_dir.clone()),
         segmenter,
+        segmenter_file: None,
         allow_poor_fit: true,
         joint_noise_rad: SolveOptions::default().joint_noise_rad,
         model_floor: (0.0, 0.0),

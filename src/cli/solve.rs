@@ -45,9 +45,12 @@ pub struct SolveArgs {
     #[arg(long)]
     pub keep_all_views: bool,
     /// Segment views that have an image but no mask with this segmenter, in
-    /// segment → solve → re-segment rounds.
-    #[arg(long, value_enum)]
-    pub segmenter: Option<SegmenterArg>,
+    /// segment → solve → re-segment rounds: `builtin` (background plate, prior silhouette and
+    /// colour models, no training; docs/method.md), or a TOML file holding a `[segmenter]`
+    /// table as a cell config writes it (e.g. `kind = "sam"` with your exported model; its
+    /// paths are relative to that file).
+    #[arg(long, value_name = "builtin|FILE")]
+    pub segmenter: Option<String>,
     /// With --segmenter: segment every view's image, ignoring recorded masks.
     #[arg(long, requires = "segmenter")]
     pub ignore_masks: bool,
@@ -93,13 +96,6 @@ pub enum SelectArg {
     Random,
 }
 
-/// `--segmenter`: segmenters that work on recorded images.
-#[derive(Clone, Copy, ValueEnum)]
-pub enum SegmenterArg {
-    /// Background plate, prior silhouette and colour models, no training (docs/method.md).
-    Builtin,
-}
-
 /// Solves the run and prints the outcome (remarks on stderr as they happen).
 pub fn run(a: SolveArgs) -> anyhow::Result<()> {
     let optimizer = a.optimizer;
@@ -114,11 +110,12 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         SelectArg::Random => Selection::Random(a.seed),
         SelectArg::Explore => Selection::Explore,
     };
-    let segmenter = match a.segmenter {
-        Some(SegmenterArg::Builtin) => {
-            Some(SegmenterConfig::by_name("builtin").map_err(|e| anyhow!(e))?)
+    let (segmenter, segmenter_file) = match a.segmenter.as_deref().map(segmenter_config) {
+        Some(chosen) => {
+            let (config, file) = chosen?;
+            (Some(config), file)
         }
-        None => None,
+        None => (None, None),
     };
     let request = OfflineSolve {
         run: a.run,
@@ -132,6 +129,7 @@ pub fn run(a: SolveArgs) -> anyhow::Result<()> {
         renderer: a.renderer,
         keep_all_views: a.keep_all_views,
         segmenter,
+        segmenter_file,
         ignore_masks: a.ignore_masks,
         masks_out: a.masks_out,
         allow_poor_fit: a.allow_poor_fit,
@@ -267,5 +265,18 @@ fn number_within(text: &str, bound: f64, unit: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("{v}; allowed: 0 to {bound} {unit}"))
+    }
+}
+
+/// `--segmenter`'s value: a segmenter's name, or a file holding a `[segmenter]` table (and
+/// that file, which its paths are relative to).
+fn segmenter_config(value: &str) -> anyhow::Result<(SegmenterConfig, Option<PathBuf>)> {
+    let path = std::path::Path::new(value);
+    match SegmenterConfig::by_name(value) {
+        Ok(config) => Ok((config, None)),
+        Err(_) if value.ends_with(".toml") || path.is_file() => {
+            Ok((SegmenterConfig::from_file(path)?, Some(path.to_path_buf())))
+        }
+        Err(e) => Err(anyhow!(e)),
     }
 }

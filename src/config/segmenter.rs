@@ -190,6 +190,10 @@ pub enum SegmenterConfig {
     /// A segmentation network exported to ONNX, run on the CPU by tract. Needs the `onnx`
     /// cargo feature; the variant exists without it so such a config says how to rebuild.
     Onnx(OnnxConfig),
+    /// A SAM-family promptable model the user exported to ONNX (an image encoder and a mask
+    /// decoder), prompted with the box and interior points of the silhouette rendered under
+    /// the current estimate, so no one clicks. Needs the `onnx` cargo feature.
+    Sam(SamConfig),
     /// No training: background plate from the other views of the fixed camera, the silhouette
     /// rendered under the current estimate as a prior band, colour models and smoothing
     /// (module [`builtin`]).
@@ -268,6 +272,49 @@ impl OnnxConfig {
     }
 }
 
+/// Most interior points a `sam` prompt carries per view, beside its box.
+pub const MAX_SAM_POINTS: u32 = 16;
+
+/// `[segmenter] kind = "sam"`: the two halves of a SAM-family model and how to prompt them.
+/// No weights ship with easyhec and none are downloaded: export your own (docs/hardware/onnx.md).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SamConfig {
+    /// The image encoder's `.onnx` file, relative to the config file: one input, `1x3xSxS`.
+    pub encoder: PathBuf,
+    /// The mask decoder's `.onnx` file, relative to the config file: it takes the encoder's
+    /// outputs by name, `point_coords` and `point_labels`, and returns `low_res_masks`.
+    pub decoder: PathBuf,
+    /// How the frame becomes the encoder's square input: `longest-side` (SAM: scaled to fit,
+    /// padded below and right) or `stretch` (SAM 2: stretched to the square).
+    #[serde(default)]
+    pub resize: SamResize,
+    /// Interior points per view, besides the box: the deepest pixels of the rendered
+    /// silhouette, spread apart (0 to [`MAX_SAM_POINTS`]).
+    #[serde(default = "SamConfig::default_points")]
+    pub points: u32,
+    /// A pixel is robot where the decoder's mask logit exceeds this.
+    #[serde(default)]
+    pub threshold: f32,
+}
+
+impl SamConfig {
+    fn default_points() -> u32 {
+        3
+    }
+}
+
+/// How a frame is fitted to a SAM-family encoder's square input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SamResize {
+    /// Scaled so its longer side fills the square, keeping its aspect, the rest zero (SAM).
+    #[default]
+    LongestSide,
+    /// Stretched to the square (SAM 2).
+    Stretch,
+}
+
 /// Where the channel axis sits in the model's 4-d tensors.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -342,7 +389,20 @@ impl SegmenterConfig {
     /// silhouettes) rather than one frame at a time: the config-side twin of
     /// `Segmenter::uses_context`, for the rule in `CellConfig::check_whole_run_segmenters`.
     pub fn reads_whole_run(&self) -> bool {
-        matches!(self, SegmenterConfig::Builtin { .. })
+        matches!(
+            self,
+            SegmenterConfig::Builtin { .. } | SegmenterConfig::Sam(_)
+        )
+    }
+
+    /// The `kind` a config spells this segmenter with.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            SegmenterConfig::SimTruth { .. } => "sim-truth",
+            SegmenterConfig::Onnx(_) => "onnx",
+            SegmenterConfig::Sam(_) => "sam",
+            SegmenterConfig::Builtin { .. } => "builtin",
+        }
     }
 
     /// The narrowest band of the last re-segmentation once the estimate has settled and fits:
@@ -357,6 +417,9 @@ impl SegmenterConfig {
     /// Checks the values a segmenter would be built from; `config_path` is the cell config,
     /// which errors name.
     pub fn validate(&self, config_path: &Path) -> Result<()> {
+        if let SegmenterConfig::Sam(sam) = self {
+            return sam.validate(config_path);
+        }
         if let SegmenterConfig::Builtin {
             min_band_px,
             final_band_px,
@@ -378,6 +441,26 @@ impl SegmenterConfig {
         Ok(())
     }
 
+    /// A segmenter from a file holding a `[segmenter]` table (`easyhec solve --segmenter
+    /// FILE`); its model paths stay relative to that file, which is the config path to build
+    /// it with.
+    pub fn from_file(path: &Path) -> Result<SegmenterConfig> {
+        #[derive(Deserialize)]
+        struct Table {
+            segmenter: SegmenterConfig,
+        }
+        let text = crate::io::read_text_input(path)?;
+        let table: Table = toml::from_str(&text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| 1 + text[..s.start.min(text.len())].matches('\n').count());
+            let at = line.map(|l| format!("line {l}: ")).unwrap_or_default();
+            Error::input(path, "segmenter", format!("{at}{}", e.message()))
+        })?;
+        table.segmenter.validate(path)?;
+        Ok(table.segmenter)
+    }
+
     /// A segmenter by command-line name (`easyhec solve --segmenter NAME`).
     pub fn by_name(name: &str) -> std::result::Result<SegmenterConfig, String> {
         match name {
@@ -389,8 +472,33 @@ impl SegmenterConfig {
                 "--segmenter sim-truth: recorded images carry no ground truth; use builtin".into(),
             ),
             other => Err(format!(
-                "--segmenter {other}: unknown segmenter; use builtin"
+                "--segmenter {other}: unknown segmenter and no such file; allowed: builtin, or a TOML file with a [segmenter] table"
             )),
         }
+    }
+}
+
+impl SamConfig {
+    /// Checks the prompt's size and the threshold; the model files are checked when the
+    /// segmenter is built.
+    fn validate(&self, config_path: &Path) -> Result<()> {
+        if self.points > MAX_SAM_POINTS {
+            return Err(Error::input(
+                config_path,
+                "segmenter.points",
+                format!(
+                    "is {}: allowed 0 to {MAX_SAM_POINTS} interior points per view",
+                    self.points
+                ),
+            ));
+        }
+        if !self.threshold.is_finite() {
+            return Err(Error::input(
+                config_path,
+                "segmenter.threshold",
+                format!("{} is not a number: give a logit, e.g. 0.0", self.threshold),
+            ));
+        }
+        Ok(())
     }
 }

@@ -17,12 +17,15 @@ use std::path::{Path, PathBuf};
 
 use easyhec_drivers::Frame;
 
+use crate::config::segmenter::SamConfig;
 use crate::config::{NoiseModel, OnnxConfig, SegmenterConfig};
 use crate::error::{Error, Result};
 use crate::mask::Mask;
 
 #[cfg(feature = "onnx")]
 pub mod onnx;
+#[cfg(feature = "onnx")]
+pub mod sam;
 
 /// A segmenter's masks with what the images alone said about each pixel.
 #[derive(Clone, Debug, PartialEq)]
@@ -123,6 +126,7 @@ pub fn build_with_truth(
             sim_truth(truth, noise.clone(), *seed, config_path)
         }
         SegmenterConfig::Onnx(cfg) => onnx_segmenter(cfg, config_path),
+        SegmenterConfig::Sam(cfg) => sam_segmenter(cfg, config.min_band_px(), config_path),
         SegmenterConfig::Builtin { min_band_px, .. } => Ok(Box::new(Builtin {
             params: BuiltinParams::default(),
             min_band_px: *min_band_px,
@@ -217,6 +221,35 @@ fn onnx_segmenter(_cfg: &OnnxConfig, config_path: &Path) -> Result<Box<dyn Segme
         config_path,
         "segmenter.kind",
         "\"onnx\" runs the model with tract, which this build leaves out: rebuild with --features onnx",
+    ))
+}
+
+/// The two models of a `[segmenter] kind = "sam"` table, loaded and checked; views with no
+/// estimate to prompt from are drawn by the builtin segmenter.
+#[cfg(feature = "onnx")]
+fn sam_segmenter(
+    cfg: &SamConfig,
+    min_band_px: f32,
+    config_path: &Path,
+) -> Result<Box<dyn Segmenter>> {
+    let fallback = Builtin {
+        params: BuiltinParams::default(),
+        min_band_px,
+    };
+    Ok(Box::new(sam::SamSegmenter::load(
+        cfg,
+        config_path,
+        fallback,
+    )?))
+}
+
+/// Without the `onnx` feature a SAM segmenter config is an error that says how to get one.
+#[cfg(not(feature = "onnx"))]
+fn sam_segmenter(_: &SamConfig, _: f32, config_path: &Path) -> Result<Box<dyn Segmenter>> {
+    Err(Error::input(
+        config_path,
+        "segmenter.kind",
+        "\"sam\" runs the model with tract, which this build leaves out: rebuild with --features onnx",
     ))
 }
 

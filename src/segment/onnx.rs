@@ -97,7 +97,7 @@ impl OutputGeometry {
 }
 
 /// `1x3x640x480`-style text of a shape.
-fn dims_text(shape: &[usize]) -> String {
+pub(super) fn dims_text(shape: &[usize]) -> String {
     shape
         .iter()
         .map(|d| d.to_string())
@@ -106,13 +106,47 @@ fn dims_text(shape: &[usize]) -> String {
 }
 
 /// A fixed dimension of a declared input, `None` where the model leaves it symbolic.
-fn fixed(d: &DimFact) -> Option<usize> {
+pub(super) fn fixed(d: &DimFact) -> Option<usize> {
     d.concretize()?.to_i64().ok()?.try_into().ok()
 }
 
 /// A tract error as one line.
-fn one_line(e: &TractError) -> String {
+pub(super) fn one_line(e: &TractError) -> String {
     format!("{e:#}").replace('\n', " ")
+}
+
+/// Reads the ONNX file at `model_path` (checked first: a regular file of at most
+/// [`MAX_MODEL_BYTES`]) as a model tract can type; errors name `config_path` and `field`.
+pub(super) fn read_model(
+    model_path: &Path,
+    config_path: &Path,
+    field: &str,
+) -> Result<InferenceModel> {
+    let bad = |message: String| Error::input(config_path, field, message);
+    let shown = model_path.display();
+    let unreadable = std::fs::metadata(model_path)
+        .ok()
+        .and_then(|meta| crate::io::input_file_problem(&meta, MAX_MODEL_BYTES));
+    if let Some(problem) = unreadable {
+        return Err(bad(format!("{shown} {problem}")));
+    }
+    let bytes = match std::fs::read(model_path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(bad(format!(
+                "{shown}: no such file (the path is relative to this config)"
+            )))
+        }
+        Err(e) => return Err(Error::io(model_path, e)),
+    };
+    tract_onnx::onnx()
+        .model_for_read(&mut bytes.as_slice())
+        .map_err(|e| {
+            bad(format!(
+                "{shown} is not an ONNX model tract can read ({}): export it with torch.onnx.export (weights inside the file)",
+                one_line(&e)
+            ))
+        })
 }
 
 impl OnnxSegmenter {
@@ -153,33 +187,7 @@ impl OnnxSegmenter {
                 ));
             }
         }
-        let unreadable = std::fs::metadata(&model_path)
-            .ok()
-            .and_then(|meta| crate::io::input_file_problem(&meta, MAX_MODEL_BYTES));
-        if let Some(problem) = unreadable {
-            return Err(bad("segmenter.model", format!("{shown} {problem}")));
-        }
-        let bytes = match std::fs::read(&model_path) {
-            Ok(b) => b,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                return Err(bad(
-                    "segmenter.model",
-                    format!("{shown}: no such file (the path is relative to this config)"),
-                ))
-            }
-            Err(e) => return Err(Error::io(&model_path, e)),
-        };
-        let mut model = tract_onnx::onnx()
-            .model_for_read(&mut bytes.as_slice())
-            .map_err(|e| {
-                bad(
-                    "segmenter.model",
-                    format!(
-                        "{shown} is not an ONNX model tract can read ({}): export it with torch.onnx.export (weights inside the file)",
-                        one_line(&e)
-                    ),
-                )
-            })?;
+        let mut model = read_model(&model_path, config_path, "segmenter.model")?;
         let inputs = model.inputs.len();
         if inputs != 1 {
             return Err(bad(
@@ -465,7 +473,7 @@ impl OnnxSegmenter {
 
 /// Bilinear taps along one axis of length `n` at sample position `s` (pixel centres at
 /// integers), clamped to the edge.
-fn taps(s: f32, n: usize) -> (usize, usize, f32) {
+pub(super) fn taps(s: f32, n: usize) -> (usize, usize, f32) {
     let s = s.clamp(0.0, (n - 1) as f32);
     let i0 = s.floor() as usize;
     let i1 = (i0 + 1).min(n - 1);

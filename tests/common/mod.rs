@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod daemon;
+pub mod onnx_pb;
 
 use std::path::PathBuf;
 

@@ -56,6 +56,9 @@ pub struct OfflineSolve {
     pub keep_all_views: bool,
     /// Segment views without masks with this segmenter.
     pub segmenter: Option<SegmenterConfig>,
+    /// The file the segmenter's table came from, when it came from one: its model paths are
+    /// relative to it and its errors name it (otherwise the run's `run.json`).
+    pub segmenter_file: Option<PathBuf>,
     /// With a segmenter: segment every view's image, ignoring recorded masks.
     pub ignore_masks: bool,
     /// With a segmenter: where to write the masks it made.
@@ -371,7 +374,20 @@ fn fit_loaded(
     if let Some(config) = &req.segmenter {
         let t = Instant::now();
         let opts = starting_options(req);
-        settled = segment_run(&mut run, config, &opts, renderer, masks_out, note)?;
+        let config_path = req
+            .segmenter_file
+            .clone()
+            .unwrap_or_else(|| run.dir.join("run.json"));
+        let segmenter = crate::segment::build(config, &config_path)?;
+        settled = segment_run(
+            &mut run,
+            config,
+            segmenter.as_ref(),
+            &opts,
+            renderer,
+            masks_out,
+            note,
+        )?;
         timings.segment_s = Some(t.elapsed().as_secs_f64());
     }
     // The rounds' decision on the mount contact stands for the solve of their masks.

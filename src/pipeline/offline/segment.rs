@@ -16,6 +16,7 @@ use crate::pipeline::segment_solve::{self, PairSearchOptions, POOR_FIT_IOU};
 use crate::pipeline::undecided::{undecided_term, SegmentedFrame};
 use crate::render::PosedRobot;
 use crate::run::LoadedRun;
+use crate::segment::Segmenter;
 use crate::solve::{self, SolveOptions, SolveReport, View};
 
 /// Fills the masks of views that need one: segment → solve → re-segment over those views
@@ -29,12 +30,12 @@ use crate::solve::{self, SolveOptions, SolveReport, View};
 pub(super) fn segment_run(
     run: &mut LoadedRun,
     config: &SegmenterConfig,
+    segmenter: &dyn Segmenter,
     opts: &SolveOptions,
     renderer: &dyn Backend,
     masks_out: Option<&Path>,
     note: &mut dyn FnMut(&str),
 ) -> Result<Option<Settle>> {
-    let segmenter = crate::segment::build(config, &run.dir.join("run.json"))?;
     let name = segmenter.name().to_string();
     let need: Vec<usize> = (0..run.views.len())
         .filter(|&i| run.views[i].needs_mask)
@@ -75,7 +76,7 @@ pub(super) fn segment_run(
     let settled = segment_solve::segment_and_solve(
         renderer,
         &run.camera,
-        segmenter.as_ref(),
+        segmenter,
         &frame_refs,
         &robots,
         &start,
@@ -96,7 +97,7 @@ pub(super) fn segment_run(
         let scene = PairScene {
             renderer,
             run,
-            segmenter: segmenter.as_ref(),
+            segmenter,
             frames: &frame_refs,
             joints: &joints,
             need: &need,
