@@ -565,6 +565,25 @@ mod with_tract {
         assert!(err.contains("initial_guess"), "{err}");
     }
 
+    /// A decoder whose `low_res_masks` are its input `source` as is, with the prompt inputs
+    /// `prompts` (of `point_coords` and `point_labels`) besides.
+    fn identity_decoder(source: &str, prompts: &[&str]) -> Vec<u8> {
+        let low = [Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)];
+        let mut inputs = vec![value_info(source, &low)];
+        for &p in prompts {
+            inputs.push(match p {
+                "point_coords" => value_info(p, &[Fixed(1), Fixed(5), Fixed(2)]),
+                _ => value_info(p, &[Fixed(1), Fixed(5)]),
+            });
+        }
+        graph_model(
+            vec![node("Identity", &[source], "low_res_masks", &[])],
+            vec![],
+            inputs,
+            vec![value_info("low_res_masks", &low)],
+        )
+    }
+
     #[test]
     fn models_that_do_not_fit_the_contract_are_refused_when_built() {
         let err = error(&encoder([1, 3, 64, 48]), &sam_decoder(2), SAM);
@@ -574,18 +593,7 @@ mod with_tract {
             "{err}"
         );
         // A decoder with no point labels cannot be prompted.
-        let no_labels = graph_model(
-            vec![node("Identity", &["embedding"], "low_res_masks", &[])],
-            vec![],
-            vec![
-                value_info("embedding", &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)]),
-                value_info("point_coords", &[Fixed(1), Fixed(5), Fixed(2)]),
-            ],
-            vec![value_info(
-                "low_res_masks",
-                &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)],
-            )],
-        );
+        let no_labels = identity_decoder("embedding", &["point_coords"]);
         let err = error(&encoder(SQUARE), &no_labels, SAM);
         assert!(
             err.contains("cell.toml: segmenter.decoder: ")
@@ -593,19 +601,7 @@ mod with_tract {
             "{err}"
         );
         // An input the encoder does not make is named, with what the encoder does make.
-        let stranger = graph_model(
-            vec![node("Identity", &["embedding2"], "low_res_masks", &[])],
-            vec![],
-            vec![
-                value_info("embedding2", &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)]),
-                value_info("point_coords", &[Fixed(1), Fixed(5), Fixed(2)]),
-                value_info("point_labels", &[Fixed(1), Fixed(5)]),
-            ],
-            vec![value_info(
-                "low_res_masks",
-                &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)],
-            )],
-        );
+        let stranger = identity_decoder("embedding2", &["point_coords", "point_labels"]);
         let err = error(&encoder(SQUARE), &stranger, SAM);
         assert!(
             err.contains("takes an input 'embedding2' that is neither an encoder output (embedding, detail) nor a prompt"),

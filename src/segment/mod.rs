@@ -253,6 +253,22 @@ fn sam_segmenter(_: &SamConfig, _: f32, config_path: &Path) -> Result<Box<dyn Se
     ))
 }
 
+/// A frame's width and height in pixels, once its RGB bytes are checked to fill them: a model
+/// fed a short buffer would read past it. `segmenter` names the kind in the error.
+#[cfg(feature = "onnx")]
+fn frame_size(frame: &Frame, segmenter: &str) -> Result<(usize, usize)> {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    if w == 0 || h == 0 || frame.rgb.len() != w * h * 3 {
+        return Err(Error::Hardware(format!(
+            "segmenter '{segmenter}': a {}x{} frame with {} RGB bytes",
+            frame.width,
+            frame.height,
+            frame.rgb.len()
+        )));
+    }
+    Ok((w, h))
+}
+
 /// Where a model path in the config at `config_path` points.
 pub fn resolve_model_path(config_path: &Path, model: &Path) -> PathBuf {
     config_path.parent().unwrap_or(Path::new(".")).join(model)

@@ -486,15 +486,7 @@ impl Segmenter for OnnxSegmenter {
     }
 
     fn segment(&self, frame: &Frame) -> Result<Mask> {
-        let (fw, fh) = (frame.width as usize, frame.height as usize);
-        if fw == 0 || fh == 0 || frame.rgb.len() != fw * fh * 3 {
-            return Err(Error::Hardware(format!(
-                "segmenter 'onnx': a {}x{} frame with {} RGB bytes",
-                frame.width,
-                frame.height,
-                frame.rgb.len()
-            )));
-        }
+        let (fw, fh) = super::frame_size(frame, "onnx")?;
         let input = self.input_tensor(frame)?;
         let outputs = self
             .plan

@@ -141,15 +141,7 @@ impl SamSegmenter {
     /// The mask of one frame, prompted by `prior` (the render under the estimate, the frame's
     /// size) with a band of `band_px`.
     fn prompted(&self, frame: &Frame, prior: &Mask, band_px: f32) -> Result<Mask> {
-        let (w, h) = (frame.width as usize, frame.height as usize);
-        if w == 0 || h == 0 || frame.rgb.len() != w * h * 3 {
-            return Err(Error::Hardware(format!(
-                "segmenter 'sam': a {}x{} frame with {} RGB bytes",
-                frame.width,
-                frame.height,
-                frame.rgb.len()
-            )));
-        }
+        let (w, h) = super::frame_size(frame, "sam")?;
         if (prior.width, prior.height) != (frame.width, frame.height) {
             return Err(Error::Hardware(format!(
                 "segmenter 'sam': the prior is {}x{}, the frame {w}x{h}",
@@ -290,21 +282,11 @@ impl SamSegmenter {
                 dims_text(&shape)
             )));
         }
-        let values = masks
-            .cast_to::<f32>()
-            .map_err(|e| self.failed(Half::Decoder, &e))?;
-        let values = values
-            .as_slice::<f32>()
-            .map_err(|e| self.failed(Half::Decoder, &e))?;
+        let values = self.floats(masks)?;
         let mut best = 0;
         if self.has_iou && k != SAM_MASKS_WITH_SINGLE_TOKEN {
             if let Some(scores) = outputs.get(1) {
-                let scores = scores
-                    .cast_to::<f32>()
-                    .map_err(|e| self.failed(Half::Decoder, &e))?;
-                let scores = scores
-                    .as_slice::<f32>()
-                    .map_err(|e| self.failed(Half::Decoder, &e))?;
+                let scores = self.floats(scores)?;
                 best = (0..k.min(scores.len()))
                     .max_by(|&a, &b| scores[a].total_cmp(&scores[b]))
                     .unwrap_or(0);
@@ -317,6 +299,16 @@ impl SamSegmenter {
             logits: values[best * plane..(best + 1) * plane].to_vec(),
             side: self.side,
         })
+    }
+
+    /// A decoder output's values as `f32`, in order.
+    fn floats(&self, value: &TValue) -> Result<Vec<f32>> {
+        let cast = value
+            .cast_to::<f32>()
+            .map_err(|e| self.failed(Half::Decoder, &e))?;
+        cast.as_slice::<f32>()
+            .map(<[f32]>::to_vec)
+            .map_err(|e| self.failed(Half::Decoder, &e))
     }
 
     fn missing_embedding(&self, k: usize, returned: usize) -> Error {
