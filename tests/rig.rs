@@ -274,6 +274,14 @@ fn configs_a_rig_cannot_serve_are_refused_naming_the_key() {
         ),
         (
             base.replacen(
+                "name = \"high\"",
+                "name = \"high\"\nsegmenter = { kind = \"sam\", encoder = \"e.onnx\", decoder = \"d.onnx\" }",
+                1,
+            ),
+            "camera[2].segmenter.kind: \"sam\" for camera 'high': it reads the whole run of one camera (views with no estimate yet are drawn by builtin",
+        ),
+        (
+            base.replacen(
                 "initial_guess = { eye = [0.35, -1.25, 0.85], look_at = [0.2, 0.0, 0.35] }",
                 "initial_guess = { eye = [0.35, -1.25, 0.85], look_at = [0.35, -1.25, 0.85] }",
                 1,

@@ -73,10 +73,29 @@ fn a_segmenter_file_is_checked_as_a_cell_config_would_be() {
         )
     );
     write("kind = \"sam\"\nencoder = \"e.onnx\"\ndecodr = \"d.onnx\"\n");
+    // The line is the table's: a table tagged by `kind` is read whole before its keys are.
     let err = SegmenterConfig::from_file(&path).unwrap_err().to_string();
     assert!(
-        err.starts_with(&format!("{}: segmenter: ", path.display())) && err.contains("decodr"),
+        err.starts_with(&format!(
+            "{}: line 1: unknown field `decodr`",
+            path.display()
+        )),
         "{err}"
+    );
+    write("kind = \"sam\"\nencoder = \"e.onnx\"\ndecoder = \"d.onnx\"\npoints = \"three\"\n");
+    let err = SegmenterConfig::from_file(&path).unwrap_err().to_string();
+    assert!(
+        err.starts_with(&format!("{}: line 1: ", path.display())) && err.contains("three"),
+        "{err}"
+    );
+    write("kind = \"sim-truth\"\n");
+    let err = SegmenterConfig::from_file(&path).unwrap_err().to_string();
+    assert_eq!(
+        err,
+        format!(
+            "{}: segmenter.kind: \"sim-truth\" reads a simulated camera's truth, which recorded images do not carry; allowed: builtin, onnx, sam",
+            path.display()
+        )
     );
     // Through the command line, a missing model is named beside the file that names it.
     write("kind = \"sam\"\nencoder = \"e.onnx\"\ndecoder = \"d.onnx\"\n");
@@ -234,7 +253,8 @@ mod with_tract {
 
     /// A SAM-style decoder: `masks` masks scored by `iou_predictions` (two: the wrong one
     /// first, scored lower; four: SAM's single-mask token first, scored lowest), every optional
-    /// prompt input declared before the embedding, and the prompt checked.
+    /// prompt input declared before the embedding, the prompt checked, and a full-size output
+    /// as SAM's export has.
     fn sam_decoder(masks: usize) -> Vec<u8> {
         let (mut nodes, mut inits) = box_nodes();
         let (checks, check_inits) = prompt_checks();
@@ -260,6 +280,14 @@ mod with_tract {
             "value",
             initializer("", &[1, k], scores),
         ));
+        // SAM's full-size masks, shaped by the values of `orig_im_size`: never typed, since
+        // the segmenter prunes it.
+        nodes.push(with_int(
+            node("Cast", &["orig_im_size"], "size_i64", &[]),
+            "to",
+            7,
+        ));
+        nodes.push(node("ConstantOfShape", &["size_i64"], "masks", &[]));
         graph_model(
             nodes,
             inits,
@@ -277,16 +305,27 @@ mod with_tract {
                     &[Fixed(1), Fixed(k), Fixed(LOW), Fixed(LOW)],
                 ),
                 value_info("iou_predictions", &[Fixed(1), Fixed(k)]),
+                value_info("masks", &[Named("h"), Named("w")]),
             ],
         )
     }
 
     /// A SAM 2-style decoder, as samexporter writes one: both encoder outputs, in the other
-    /// order, a `mask_input` whose first dimension is symbolic, one mask called `masks`, no
-    /// scores.
+    /// order, a `mask_input` whose first dimension is symbolic, and three masks called `masks`
+    /// (the right one scored highest) with their `iou_predictions`.
     fn sam2_decoder() -> Vec<u8> {
         let (mut nodes, inits) = box_nodes();
-        nodes.push(node("Identity", &["right"], "masks", &[]));
+        nodes.push(node("Neg", &["right"], "wrong", &[]));
+        nodes.push(with_int(
+            node("Concat", &["wrong", "right", "wrong"], "masks", &[]),
+            "axis",
+            1,
+        ));
+        nodes.push(with_tensor(
+            node("Constant", &[], "iou_predictions", &[]),
+            "value",
+            initializer("", &[1, 3], &[0.2, 0.9, 0.5]),
+        ));
         graph_model(
             nodes,
             inits,
@@ -301,10 +340,10 @@ mod with_tract {
                 ),
                 value_info("has_mask_input", &[Fixed(1)]),
             ],
-            vec![value_info(
-                "masks",
-                &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)],
-            )],
+            vec![
+                value_info("masks", &[Fixed(1), Fixed(3), Fixed(LOW), Fixed(LOW)]),
+                value_info("iou_predictions", &[Fixed(1), Fixed(3)]),
+            ],
         )
     }
 
@@ -418,13 +457,7 @@ mod with_tract {
             assert!(s.uses_context());
             let what = format!("sam, longest-side, {masks} masks");
             assert_robot_only(&prompted_mask(s.as_ref()), &what);
-            // Drawn again (the next round), the frame's encoder outputs are reused: same mask;
-            // a frame with no robot in it is not served the last frame's.
-            assert_eq!(
-                prompted_mask(s.as_ref()),
-                prompted_mask(s.as_ref()),
-                "{what}"
-            );
+            // A frame with no robot in it is not served the last frame's encoder outputs.
             let mut empty = frame();
             for px in empty.rgb.chunks_exact_mut(3) {
                 px.copy_from_slice(&[128, 126, 124]);
@@ -582,6 +615,49 @@ mod with_tract {
             inputs,
             vec![value_info("low_res_masks", &low)],
         )
+    }
+
+    #[test]
+    fn a_bump_check_draws_only_its_new_frame() {
+        // The recorded view's frame is broken: drawing it would fail, so a mask means the
+        // check left it alone, as a prompted view needs nothing from the others.
+        let s = build(&encoder(SQUARE), &sam_decoder(2), SAM).unwrap();
+        assert!(s.prompted_views_stand_alone());
+        let robot = easyhec::robot::RobotModel::from_urdf(
+            common::repo_root().join("robots/xarm6/robot.urdf"),
+        )
+        .unwrap();
+        let camera = easyhec::camera::Intrinsics {
+            width: W,
+            height: H,
+            fx: 60.0,
+            fy: 60.0,
+            cx: 47.5,
+            cy: 31.5,
+            distortion: None,
+        };
+        let pose = easyhec::nalgebra::Isometry3::look_at_rh(
+            &easyhec::nalgebra::Point3::new(1.6, 0.2, 0.6),
+            &easyhec::nalgebra::Point3::new(0.0, 0.0, 0.35),
+            &easyhec::nalgebra::Vector3::z(),
+        );
+        let joints = vec![0.0, -0.35, -0.6, 0.0, 0.95, 0.0];
+        let mut broken = frame();
+        broken.rgb.truncate(10);
+        let recorded = vec![(broken, vec![0.4, -0.2, -0.9, 0.0, 0.8, 0.0])];
+        let mask = easyhec::pipeline::segment_solve::segment_among_recorded(
+            &easyhec::render::CpuRenderer,
+            s.as_ref(),
+            &robot,
+            &camera,
+            frame(),
+            &joints,
+            recorded,
+            &pose,
+            4.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(mask.is_some());
     }
 
     #[test]

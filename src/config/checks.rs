@@ -146,7 +146,7 @@ impl CellConfig {
             return Err(Error::input(
                 path,
                 key,
-                format!("\"{}\" for camera '{}': it reads the whole run of one camera (the background from its other views), so it cannot serve a cell of [[camera]] tables (its loop and bump check read a run of a list); allowed there: per-frame segmenters (\"onnx\", \"sim-truth\")", seg.kind(), cam.name),
+                format!("\"{}\" for camera '{}': it reads the whole run of one camera ({}), so it cannot serve a cell of [[camera]] tables (its loop and bump check read a run of a list); allowed there: per-frame segmenters (\"onnx\", \"sim-truth\")", seg.kind(), cam.name, seg.whole_run_reason()),
             ));
         }
         Ok(())

@@ -120,19 +120,23 @@ pub fn read_config(path: &Path) -> Result<CellConfig> {
 /// Parses cell-config text; `path` is what errors name. Parsing only: [`CellConfig::validate`]
 /// checks the values.
 pub fn parse_config(text: &str, path: &Path) -> Result<CellConfig> {
-    toml::from_str(text).map_err(|e| {
-        let start = e.span().map(|s| s.start.min(text.len()));
-        // Lines counted by the newlines before the span, so a span at a line's first column
-        // names that line, not the one above.
-        let line = start
-            .and_then(|s| text.get(..s))
-            .map_or(0, |t| t.matches('\n').count() + 1);
-        let field = match start.and_then(|s| key_of_value_at(text, s)) {
-            Some(key) => format!("line {line} ({key})"),
-            None => format!("line {line}"),
-        };
-        Error::input(path, field, e.message().replace('\n', " "))
-    })
+    toml::from_str(text).map_err(|e| toml_error(text, path, &e))
+}
+
+/// A TOML parse error of `text` (read from `path`) as one line naming the line and, where the
+/// parser stopped in a value, its dotted key.
+pub(crate) fn toml_error(text: &str, path: &Path, e: &toml::de::Error) -> Error {
+    let start = e.span().map(|s| s.start.min(text.len()));
+    // Lines counted by the newlines before the span, so a span at a line's first column
+    // names that line, not the one above.
+    let line = start
+        .and_then(|s| text.get(..s))
+        .map_or(0, |t| t.matches('\n').count() + 1);
+    let field = match start.and_then(|s| key_of_value_at(text, s)) {
+        Some(key) => format!("line {line} ({key})"),
+        None => format!("line {line}"),
+    };
+    Error::input(path, field, e.message().replace('\n', " "))
 }
 
 /// The dotted key (`table.key`, under the nearest table header above) whose value the byte

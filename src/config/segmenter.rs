@@ -395,6 +395,17 @@ impl SegmenterConfig {
         )
     }
 
+    /// Why a segmenter that [`SegmenterConfig::reads_whole_run`] does, for the error that
+    /// refuses it in a list of cameras.
+    pub fn whole_run_reason(&self) -> &'static str {
+        match self {
+            SegmenterConfig::Sam(_) => {
+                "views with no estimate yet are drawn by builtin, from the background its other views show"
+            }
+            _ => "the background from its other views",
+        }
+    }
+
     /// The `kind` a config spells this segmenter with.
     pub fn kind(&self) -> &'static str {
         match self {
@@ -450,13 +461,14 @@ impl SegmenterConfig {
             segmenter: SegmenterConfig,
         }
         let text = crate::io::read_text_input(path)?;
-        let table: Table = toml::from_str(&text).map_err(|e| {
-            let line = e
-                .span()
-                .map(|s| 1 + text[..s.start.min(text.len())].matches('\n').count());
-            let at = line.map(|l| format!("line {l}: ")).unwrap_or_default();
-            Error::input(path, "segmenter", format!("{at}{}", e.message()))
-        })?;
+        let table: Table = toml::from_str(&text).map_err(|e| super::toml_error(&text, path, &e))?;
+        if let SegmenterConfig::SimTruth { .. } = table.segmenter {
+            return Err(Error::input(
+                path,
+                "segmenter.kind",
+                "\"sim-truth\" reads a simulated camera's truth, which recorded images do not carry; allowed: builtin, onnx, sam",
+            ));
+        }
         table.segmenter.validate(path)?;
         Ok(table.segmenter)
     }

@@ -518,7 +518,8 @@ impl LiveFrames {
 /// rendered under `pose` as its prior and band `band_px` (the bump check uses the loop's
 /// tightest: a wider one lets the hard cases, a light robot on a light wall or distractors
 /// touching it, spread the mask, and a knocked camera still moves the robot off the render by
-/// more than this).
+/// more than this). A segmenter whose prompted views stand alone (`sam`) draws `frame` by
+/// itself.
 #[allow(clippy::too_many_arguments)]
 pub fn segment_among_recorded(
     renderer: &dyn SilhouetteRenderer,
@@ -531,6 +532,11 @@ pub fn segment_among_recorded(
     pose: &Isometry3<f64>,
     band_px: f32,
 ) -> Result<Option<Mask>> {
+    let recorded = if segmenter.prompted_views_stand_alone() {
+        Vec::new()
+    } else {
+        recorded
+    };
     let (mut frames, mut all_joints): (Vec<Frame>, Vec<Vec<f64>>) = recorded
         .into_iter()
         .filter(|(_, q)| {

@@ -58,6 +58,13 @@ pub trait Segmenter: Send + Sync {
         false
     }
 
+    /// Whether a view given a prior is drawn from its own frame alone, the other views lending
+    /// it nothing: then a caller that needs one view's mask (a bump check) need not draw the
+    /// others. False by default, and for `builtin`, whose background plate is the others'.
+    fn prompted_views_stand_alone(&self) -> bool {
+        false
+    }
+
     /// Per-pixel log-odds for robot from the images alone (no prior), one per frame, when the
     /// segmenter has such evidence: it lets a caller fit each view's joints to its image where
     /// the recorded ones are wrong ([`crate::pipeline::segment_solve::search_view_pairs`]). None by default.
