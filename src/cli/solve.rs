@@ -45,10 +45,10 @@ pub struct SolveArgs {
     #[arg(long)]
     pub keep_all_views: bool,
     /// Segment views that have an image but no mask with this segmenter, in
-    /// segment → solve → re-segment rounds: `builtin` (background plate, prior silhouette and
-    /// colour models, no training; docs/method.md), or a TOML file holding a `[segmenter]`
-    /// table as a cell config writes it (e.g. `kind = "sam"` with your exported model; its
-    /// paths are relative to that file).
+    /// segment → solve → re-segment rounds. Either builtin, the segmenter with no training
+    /// (background plate, prior silhouette and colour models; docs/method.md), or a TOML file
+    /// holding a `[segmenter]` table as a cell config writes it (e.g. `kind = "sam"` with your
+    /// exported model; its paths are relative to that file).
     #[arg(long, value_name = "builtin|FILE")]
     pub segmenter: Option<String>,
     /// With --segmenter: segment every view's image, ignoring recorded masks.
