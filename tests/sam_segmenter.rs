@@ -100,19 +100,10 @@ fn a_segmenter_file_is_checked_as_a_cell_config_would_be() {
     // Through the command line, a missing model is named beside the file that names it.
     write("kind = \"sam\"\nencoder = \"e.onnx\"\ndecoder = \"d.onnx\"\n");
     let run = dir.path().join("run");
-    let synth = std::process::Command::new(common::easyhec_bin())
-        .args([
-            "synth", "--seed", "1", "--views", "2", "--images", "easy", "--robot",
-        ])
-        .arg(common::repo_root().join("robots/xarm6/robot.urdf"))
-        .arg("--out")
-        .arg(&run)
-        .output()
-        .unwrap();
-    assert!(
-        synth.status.success(),
-        "{}",
-        String::from_utf8_lossy(&synth.stderr)
+    common::synth_run(
+        &run,
+        "xarm6",
+        &["--seed", "1", "--views", "2", "--images", "easy"],
     );
     let out = common::solve_run(
         &run,
@@ -623,10 +614,7 @@ mod with_tract {
         // check left it alone, as a prompted view needs nothing from the others.
         let s = build(&encoder(SQUARE), &sam_decoder(2), SAM).unwrap();
         assert!(s.prompted_views_stand_alone());
-        let robot = easyhec::robot::RobotModel::from_urdf(
-            common::repo_root().join("robots/xarm6/robot.urdf"),
-        )
-        .unwrap();
+        let robot = common::load_robot("xarm6");
         let camera = easyhec::camera::Intrinsics {
             width: W,
             height: H,

@@ -204,9 +204,15 @@ impl SamSegmenter {
                     .ok_or_else(|| self.missing_embedding(k, embeddings.len()))?,
                 DecoderInput::PointCoords => tensor(&[1, n, 2], &coords)?.into_tvalue(),
                 DecoderInput::PointLabels => tensor(&[1, n], &labels)?.into_tvalue(),
+                                // `Decoder::load` builds the zeros wherever the decoder takes `mask_input`.
                 DecoderInput::MaskInput => match &self.decoder.mask_input {
                     Some(zeros) => TValue::from_const(zeros.clone()),
-                    None => tensor(&[1, 1, 1, 1], &[0.0])?.into_tvalue(),
+                    None => {
+                        return Err(Error::Hardware(format!(
+                            "segmenter 'sam' ({}): mask_input was not prepared when the decoder was loaded",
+                            self.decoder_path.display()
+                        )))
+                    }
                 },
                 DecoderInput::HasMaskInput => tensor(&[1], &[0.0])?.into_tvalue(),
                 DecoderInput::OrigImSize => tensor(&[2], &[h as f32, w as f32])?.into_tvalue(),
