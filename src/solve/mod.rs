@@ -344,7 +344,7 @@ pub fn with_view_disagreement(
         return report;
     };
     let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
-    let widened = disagreement::with_excess(&report.statistical_covariance, &jackknife, dof);
+    let widened = disagreement::widened_by_views(&report.statistical_covariance, &jackknife, dof);
     // A segmentation term already added stays in.
     let segmentation = report
         .segmentation
