@@ -15,7 +15,7 @@
 //! `C = (g-1)/g sum (d_j - d)(d_j - d)^T` estimates the estimate's covariance.
 //!
 //! The jackknife does not replace the statistical covariance `S`; it is a test of it
-//! ([`widened_by_views`]). In the frame where `S` is the identity, the jackknife's largest
+//! ([`inter_view_term`]). In the frame where `S` is the identity, the jackknife's largest
 //! variance `l` is compared with what chance gives: under a right `S`, `l` is the largest
 //! eigenvalue of a 6x6 Wishart matrix with `g - 1` degrees of freedom over `g - 1`, whose 99%
 //! quantile is 10.3 at two degrees of freedom and 4.2 at nine. The warm left-out walks spread
@@ -127,13 +127,14 @@ fn rejection_threshold(dof: usize) -> f64 {
     WALK_SPREAD * LARGEST_EIGENVALUE_Q99[k]
 }
 
-/// `statistical` as the views' disagreement leaves it: unchanged while the jackknife
+/// What the views' disagreement adds to `statistical`: nothing while the jackknife
 /// (`jackknife`, with `dof` degrees of freedom) stays within chance of it; once its largest
 /// variance in the frame where `statistical` is the identity passes
-/// [`rejection_threshold`], each direction takes the larger of the two, the jackknife's
-/// scaled by `(t / z)^2`. When `statistical` is not positive definite (an unpinned or
-/// degenerate fit) it is returned unchanged.
-pub(super) fn widened_by_views(
+/// [`rejection_threshold`], what makes each direction the larger of the two, the jackknife's
+/// scaled by `(t / z)^2`. Returned on its own, not summed, so the report keeps it exactly
+/// positive semidefinite. Nothing when `statistical` is not positive definite (an unpinned or
+/// degenerate fit).
+pub(super) fn inter_view_term(
     statistical: &Matrix6<f64>,
     jackknife: &Matrix6<f64>,
     dof: usize,
@@ -141,28 +142,27 @@ pub(super) fn widened_by_views(
     // An unpinned fit is `diag(inf)`; whitening by it would turn the infinities into NaN.
     let finite = |m: &Matrix6<f64>| m.iter().all(|v| v.is_finite());
     if !finite(statistical) || !finite(jackknife) {
-        return *statistical;
+        return Matrix6::zeros();
     }
     let Some(root) = statistical.cholesky().map(|c| c.l()) else {
-        return *statistical;
+        return Matrix6::zeros();
     };
     let Some(root_inv) = root.try_inverse() else {
-        return *statistical;
+        return Matrix6::zeros();
     };
     let whitened = root_inv * jackknife * root_inv.transpose();
     let eig = (whitened + whitened.transpose())
         .scale(0.5)
         .symmetric_eigen();
     if eig.eigenvalues.max() <= rejection_threshold(dof) {
-        return *statistical;
+        return Matrix6::zeros();
     }
-    // What each direction adds beyond its statistical 1, built on its own so that it stays
-    // positive semidefinite to the last bit (the report keeps it as the inter-view term).
+    // What each direction adds beyond its statistical 1.
     let scale = student_scale(dof).powi(2);
     let added = eig.eigenvalues.map(|v| (scale * v - 1.0).max(0.0));
     let w = eig.eigenvectors * Matrix6::from_diagonal(&added) * eig.eigenvectors.transpose();
     let term = root * w * root.transpose();
-    statistical + (term + term.transpose()).scale(0.5)
+    (term + term.transpose()).scale(0.5)
 }
 
 /// The two finest factors of `pyramid`, coarser first (one when it has one level).
@@ -200,13 +200,16 @@ mod tests {
         // Whitened 10 and 10.4, just under the threshold at nine degrees of freedom (2.5 x
         // 4.18 = 10.45).
         let jackknife = Matrix6::from_diagonal(&Twist::new(40.0, 10.4, 0.5, 0.0, 0.0, 0.0));
-        assert_eq!(widened_by_views(&statistical, &jackknife, 9), statistical);
+        assert_eq!(
+            inter_view_term(&statistical, &jackknife, 9),
+            Matrix6::zeros()
+        );
         // The same spread from three views (two degrees of freedom) would be rejected only
         // past 2.5 x 10.28 = 25.7.
         let from_three_views = Matrix6::from_diagonal(&Twist::new(100.0, 25.6, 0.5, 0.0, 0.0, 0.0));
         assert_eq!(
-            widened_by_views(&statistical, &from_three_views, 2),
-            statistical
+            inter_view_term(&statistical, &from_three_views, 2),
+            Matrix6::zeros()
         );
     }
 
@@ -215,7 +218,7 @@ mod tests {
         let statistical = Matrix6::identity();
         let spread = |l: f64| Matrix6::from_diagonal(&Twist::new(l, 0.0, 0.0, 0.0, 0.0, 0.0));
         let rejected =
-            |l: f64, dof: usize| widened_by_views(&statistical, &spread(l), dof) != statistical;
+            |l: f64, dof: usize| inter_view_term(&statistical, &spread(l), dof) != Matrix6::zeros();
         assert!(rejected(10.5, 9) && !rejected(10.4, 9));
         assert!(rejected(16.7, 4) && !rejected(16.5, 4));
         assert!(rejected(25.8, 2) && !rejected(25.6, 2));
@@ -226,7 +229,7 @@ mod tests {
         let statistical = Matrix6::from_diagonal(&Twist::new(4.0, 1.0, 1.0, 1.0, 1.0, 1.0));
         // Direction 1 is past the threshold; direction 0 (5 times, whitened) alone would not be.
         let jackknife = Matrix6::from_diagonal(&Twist::new(20.0, 100.0, 0.5, 0.0, 0.0, 0.0));
-        let c = widened_by_views(&statistical, &jackknife, 9);
+        let c = statistical + inter_view_term(&statistical, &jackknife, 9);
         let t2 = (2.262f64 / 1.96).powi(2);
         assert!((c[(0, 0)] - t2 * 20.0).abs() < 1e-9, "{c}");
         assert!((c[(1, 1)] - t2 * 100.0).abs() < 1e-9, "{c}");
@@ -235,11 +238,11 @@ mod tests {
             assert!((c[(k, k)] - 1.0).abs() < 1e-9, "{c}");
         }
         assert!((c - c.transpose()).norm() < 1e-12);
-        // A degenerate or unpinned statistical covariance is left as it is.
+        // A degenerate or unpinned statistical covariance gets nothing added.
         let singular = Matrix6::zeros();
-        assert_eq!(widened_by_views(&singular, &jackknife, 9), singular);
+        assert_eq!(inter_view_term(&singular, &jackknife, 9), Matrix6::zeros());
         let unpinned = Matrix6::from_diagonal_element(f64::INFINITY);
-        assert_eq!(widened_by_views(&unpinned, &jackknife, 9), unpinned);
+        assert_eq!(inter_view_term(&unpinned, &jackknife, 9), Matrix6::zeros());
     }
 
     /// With correlated axes the test runs in the statistical covariance's own frame: a
@@ -251,14 +254,15 @@ mod tests {
             ((i * 7 + j * 3) % 5) as f64 - 2.0 + if i == j { 6.0 } else { 0.0 }
         });
         let statistical = a * a.transpose() * 1e-6;
-        let c = widened_by_views(&statistical, &(statistical * 30.0), 9);
+        let term = inter_view_term(&statistical, &(statistical * 30.0), 9);
+        let c = statistical + term;
         let t2 = (2.262f64 / 1.96).powi(2);
         let expected = statistical * (30.0 * t2);
         assert!(
             (c - expected).abs().max() < 1e-9 * expected.abs().max(),
             "{c} vs {expected}"
         );
-        let added = (c - statistical).symmetric_eigenvalues();
+        let added = term.symmetric_eigenvalues();
         assert!(added.min() >= -1e-12 * expected.abs().max(), "{added}");
     }
 

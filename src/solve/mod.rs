@@ -344,16 +344,16 @@ pub fn with_view_disagreement(
         return report;
     };
     let floor = model_floor(opts.floor_rotation_deg, opts.floor_translation_mm);
-    let widened = disagreement::widened_by_views(&report.statistical_covariance, &jackknife, dof);
+    let term = disagreement::inter_view_term(&report.statistical_covariance, &jackknife, dof);
     // A segmentation term already added stays in.
     let segmentation = report
         .segmentation
         .covariance()
         .copied()
         .unwrap_or_else(Matrix6::zeros);
-    report.covariance = widened + floor + segmentation;
+    report.covariance = report.statistical_covariance + term + floor + segmentation;
     report.uncertainty = uncertainty_of(&report.covariance, &pose);
-    report.disagreement = Disagreement::Measured(Box::new(widened - report.statistical_covariance));
+    report.disagreement = Disagreement::Measured(Box::new(term));
     report
 }
 
