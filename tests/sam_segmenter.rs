@@ -128,7 +128,7 @@ mod with_tract {
     use super::*;
 
     use crate::common::onnx_pb::{
-        graph_model, initializer, int64_initializer, node, value_info, with_int, with_tensor,
+        graph_model, initializer, int64_initializer, node, value_info, with_int, with_tensor, Dim,
         Fixed, Named, Pb,
     };
     use easyhec::mask::Mask;
@@ -669,6 +669,35 @@ mod with_tract {
         let err = error(&encoder(SQUARE), &stranger, SAM);
         assert!(
             err.contains("takes an input 'embedding2' that is neither an encoder output (embedding, detail) nor a prompt"),
+            "{err}"
+        );
+        // A mask_input is filled with zeros when the decoder is loaded, so its shape must be
+        // fixed (but for the prompt count) and bounded.
+        let with_mask_input = |dims: &[Dim]| {
+            let (mut nodes, inits) = box_nodes();
+            nodes.push(node("Identity", &["right"], "low_res_masks", &[]));
+            let inputs = vec![
+                value_info("embedding", &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)]),
+                value_info("point_coords", &[Fixed(1), Fixed(5), Fixed(2)]),
+                value_info("point_labels", &[Fixed(1), Fixed(5)]),
+                value_info("mask_input", dims),
+            ];
+            let out = value_info(
+                "low_res_masks",
+                &[Fixed(1), Fixed(1), Fixed(LOW), Fixed(LOW)],
+            );
+            graph_model(nodes, inits, inputs, vec![out])
+        };
+        let huge = with_mask_input(&[Fixed(1), Fixed(1), Fixed(4096), Fixed(2048)]);
+        let err = error(&encoder(SQUARE), &huge, SAM);
+        assert!(
+            err.ends_with("d.onnx takes a mask_input of 1x1x4096x2048: allowed at most 4194304 values (SAM: 1x1x256x256)"),
+            "{err}"
+        );
+        let shapeless = with_mask_input(&[Fixed(1), Named("c"), Fixed(LOW), Fixed(LOW)]);
+        let err = error(&encoder(SQUARE), &shapeless, SAM);
+        assert!(
+            err.ends_with("d.onnx has a mask_input with no fixed shape: export it with one (SAM: 1x1x256x256)"),
             "{err}"
         );
         // A decoder whose masks go by another name; `masks` only counts where no

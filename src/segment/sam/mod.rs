@@ -196,27 +196,19 @@ impl SamSegmenter {
         };
         let mut feed = TVec::new();
         for input in &self.decoder.inputs {
-            let value = match *input {
-                DecoderInput::Embedding(k) => embeddings
-                    .get(k)
-                    .cloned()
-                    .map(TValue::from_const)
-                    .ok_or_else(|| self.missing_embedding(k, embeddings.len()))?,
-                DecoderInput::PointCoords => tensor(&[1, n, 2], &coords)?.into_tvalue(),
-                DecoderInput::PointLabels => tensor(&[1, n], &labels)?.into_tvalue(),
-                                // `Decoder::load` builds the zeros wherever the decoder takes `mask_input`.
-                DecoderInput::MaskInput => match &self.decoder.mask_input {
-                    Some(zeros) => TValue::from_const(zeros.clone()),
-                    None => {
-                        return Err(Error::Hardware(format!(
-                            "segmenter 'sam' ({}): mask_input was not prepared when the decoder was loaded",
-                            self.decoder_path.display()
-                        )))
-                    }
-                },
-                DecoderInput::HasMaskInput => tensor(&[1], &[0.0])?.into_tvalue(),
-                DecoderInput::OrigImSize => tensor(&[2], &[h as f32, w as f32])?.into_tvalue(),
-            };
+            let value =
+                match input {
+                    DecoderInput::Embedding(k) => embeddings
+                        .get(*k)
+                        .cloned()
+                        .map(TValue::from_const)
+                        .ok_or_else(|| self.missing_embedding(*k, embeddings.len()))?,
+                    DecoderInput::PointCoords => tensor(&[1, n, 2], &coords)?.into_tvalue(),
+                    DecoderInput::PointLabels => tensor(&[1, n], &labels)?.into_tvalue(),
+                    DecoderInput::MaskInput(zeros) => TValue::from_const(zeros.clone()),
+                    DecoderInput::HasMaskInput => tensor(&[1], &[0.0])?.into_tvalue(),
+                    DecoderInput::OrigImSize => tensor(&[2], &[h as f32, w as f32])?.into_tvalue(),
+                };
             feed.push(value);
         }
         Ok(feed)

@@ -19,13 +19,15 @@ const MAX_MASK_INPUT_VALUES: usize = 1 << 22;
 const PROMPT_INPUTS: &str = "point_coords, point_labels, mask_input, has_mask_input, orig_im_size";
 
 /// What the decoder is fed at one of its inputs.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub(super) enum DecoderInput {
     /// The encoder's output of this index.
     Embedding(usize),
     PointCoords,
     PointLabels,
-    MaskInput,
+    /// These zeros (no earlier mask), built in the input's own shape when the decoder is
+    /// loaded, so a run never meets a shape it was not checked for.
+    MaskInput(Arc<Tensor>),
     HasMaskInput,
     OrigImSize,
 }
@@ -121,10 +123,8 @@ fn output_names(model: &InferenceModel) -> Vec<String> {
 /// The decoder, typed for a prompt of a fixed number of points.
 pub(super) struct Decoder {
     pub(super) plan: TypedSimplePlan<TypedModel>,
-    /// What each input is, in the decoder's order.
+    /// What each input is fed, in the decoder's order.
     pub(super) inputs: Vec<DecoderInput>,
-    /// The zeros `mask_input` is fed (no earlier mask), when the decoder takes one.
-    pub(super) mask_input: Option<Arc<Tensor>>,
     /// Whether the second output is `iou_predictions`.
     pub(super) has_iou: bool,
 }
@@ -143,12 +143,6 @@ impl Decoder {
         let mut model = read_model(path, config_path, "segmenter.decoder")?;
         let inputs =
             classify_inputs(&model, embeddings).map_err(|m| bad(format!("{shown} {m}")))?;
-        let mask_input = match inputs.iter().position(|&i| i == DecoderInput::MaskInput) {
-            Some(ix) => {
-                Some(zero_mask_input(&model, ix).map_err(|m| bad(format!("{shown}: {m}")))?)
-            }
-            None => None,
-        };
         let cannot_run = |e: TractError| {
             bad(format!(
                 "tract cannot run {shown} with {n} prompt points ({})",
@@ -156,13 +150,11 @@ impl Decoder {
             ))
         };
         for (ix, input) in inputs.iter().enumerate() {
-            let shape: Vec<usize> = match *input {
-                DecoderInput::Embedding(k) => embeddings[k].1.clone(),
+            let shape: Vec<usize> = match input {
+                DecoderInput::Embedding(k) => embeddings[*k].1.clone(),
                 DecoderInput::PointCoords => vec![1, n, 2],
                 DecoderInput::PointLabels => vec![1, n],
-                DecoderInput::MaskInput => {
-                    mask_input.as_ref().map_or(vec![], |t| t.shape().to_vec())
-                }
+                DecoderInput::MaskInput(zeros) => zeros.shape().to_vec(),
                 DecoderInput::HasMaskInput => vec![1],
                 DecoderInput::OrigImSize => vec![2],
             };
@@ -170,7 +162,7 @@ impl Decoder {
                 .set_input_fact(ix, InferenceFact::dt_shape(f32::datum_type(), shape))
                 .map_err(cannot_run)?;
         }
-        let with_size = inputs.contains(&DecoderInput::OrigImSize);
+        let with_size = inputs.iter().any(|i| matches!(i, DecoderInput::OrigImSize));
         let (masks, has_iou) =
             keep_mask_outputs(&mut model, with_size).map_err(|m| bad(format!("{shown} {m}")))?;
         let typed = model.into_optimized().map_err(cannot_run)?;
@@ -189,24 +181,24 @@ impl Decoder {
         Ok(Decoder {
             plan: typed.into_runnable().map_err(cannot_run)?,
             inputs,
-            mask_input,
             has_iou,
         })
     }
 }
 
-/// What each of the decoder's inputs is, by name; or why one cannot be fed.
+/// What each of the decoder's inputs is fed, by name; or why one cannot be fed (a message to
+/// follow the model's path).
 fn classify_inputs(
     model: &InferenceModel,
     embeddings: &[(String, Vec<usize>)],
 ) -> std::result::Result<Vec<DecoderInput>, String> {
     let mut inputs = Vec::with_capacity(model.inputs.len());
-    for outlet in &model.inputs {
+    for (ix, outlet) in model.inputs.iter().enumerate() {
         let name = model.node(outlet.node).name.as_str();
         inputs.push(match name {
             "point_coords" => DecoderInput::PointCoords,
             "point_labels" => DecoderInput::PointLabels,
-            "mask_input" => DecoderInput::MaskInput,
+            "mask_input" => DecoderInput::MaskInput(zero_mask_input(model, ix)?),
             "has_mask_input" => DecoderInput::HasMaskInput,
             "orig_im_size" => DecoderInput::OrigImSize,
             _ => match embeddings.iter().position(|(n, _)| n == name) {
@@ -221,11 +213,18 @@ fn classify_inputs(
             },
         });
     }
-    for (needed, name) in [
-        (DecoderInput::PointCoords, "point_coords"),
-        (DecoderInput::PointLabels, "point_labels"),
+    let fed = |wanted: fn(&DecoderInput) -> bool| inputs.iter().any(wanted);
+    for (name, present) in [
+        (
+            "point_coords",
+            fed(|i| matches!(i, DecoderInput::PointCoords)),
+        ),
+        (
+            "point_labels",
+            fed(|i| matches!(i, DecoderInput::PointLabels)),
+        ),
     ] {
-        if !inputs.contains(&needed) {
+        if !present {
             return Err(format!(
                 "has no input '{name}': a SAM decoder is prompted through point_coords and point_labels"
             ));
@@ -238,7 +237,9 @@ fn classify_inputs(
 /// leading dimension (SAM 2 exports: the prompt count), taken as one, and at most
 /// [`MAX_MASK_INPUT_VALUES`] values.
 fn zero_mask_input(model: &InferenceModel, ix: usize) -> std::result::Result<Arc<Tensor>, String> {
-    let fact = model.input_fact(ix).map_err(|e| one_line(&e))?;
+    let fact = model
+        .input_fact(ix)
+        .map_err(|e| format!("has a mask_input tract cannot read ({})", one_line(&e)))?;
     let dims: Option<Vec<usize>> = fact
         .shape
         .dims()
@@ -247,18 +248,19 @@ fn zero_mask_input(model: &InferenceModel, ix: usize) -> std::result::Result<Arc
         .collect();
     let shape = dims
         .filter(|d| !d.is_empty())
-        .ok_or("mask_input has no fixed shape: export it with one (SAM: 1x1x256x256)")?;
+        .ok_or("has a mask_input with no fixed shape: export it with one (SAM: 1x1x256x256)")?;
     let values = shape
         .iter()
         .try_fold(1usize, |n, &d| n.checked_mul(d))
         .filter(|&n| n <= MAX_MASK_INPUT_VALUES)
         .ok_or_else(|| {
             format!(
-                "mask_input is {}: allowed at most {MAX_MASK_INPUT_VALUES} values (SAM: 1x1x256x256)",
+                "takes a mask_input of {}: allowed at most {MAX_MASK_INPUT_VALUES} values (SAM: 1x1x256x256)",
                 dims_text(&shape)
             )
         })?;
-    let zeros = Tensor::from_shape(&shape, &vec![0f32; values]).map_err(|e| one_line(&e))?;
+    let zeros = Tensor::from_shape(&shape, &vec![0f32; values])
+        .map_err(|e| format!("has a mask_input that cannot be filled ({})", one_line(&e)))?;
     Ok(Arc::new(zeros))
 }
 
