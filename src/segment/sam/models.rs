@@ -192,9 +192,13 @@ fn classify_inputs(
     model: &InferenceModel,
     embeddings: &[(String, Vec<usize>)],
 ) -> std::result::Result<Vec<DecoderInput>, String> {
-    let mut inputs = Vec::with_capacity(model.inputs.len());
-    for (ix, outlet) in model.inputs.iter().enumerate() {
-        let name = model.node(outlet.node).name.as_str();
+    let names: Vec<&str> = model
+        .inputs
+        .iter()
+        .map(|outlet| model.node(outlet.node).name.as_str())
+        .collect();
+    let mut inputs = Vec::with_capacity(names.len());
+    for (ix, &name) in names.iter().enumerate() {
         inputs.push(match name {
             "point_coords" => DecoderInput::PointCoords,
             "point_labels" => DecoderInput::PointLabels,
@@ -204,29 +208,19 @@ fn classify_inputs(
             _ => match embeddings.iter().position(|(n, _)| n == name) {
                 Some(k) => DecoderInput::Embedding(k),
                 None => {
-                    let names: Vec<&str> = embeddings.iter().map(|(n, _)| n.as_str()).collect();
+                    let made: Vec<&str> = embeddings.iter().map(|(n, _)| n.as_str()).collect();
                     return Err(format!(
                         "takes an input '{name}' that is neither an encoder output ({}) nor a prompt ({PROMPT_INPUTS})",
-                        names.join(", ")
+                        made.join(", ")
                     ));
                 }
             },
         });
     }
-    let fed = |wanted: fn(&DecoderInput) -> bool| inputs.iter().any(wanted);
-    for (name, present) in [
-        (
-            "point_coords",
-            fed(|i| matches!(i, DecoderInput::PointCoords)),
-        ),
-        (
-            "point_labels",
-            fed(|i| matches!(i, DecoderInput::PointLabels)),
-        ),
-    ] {
-        if !present {
+    for wanted in ["point_coords", "point_labels"] {
+        if !names.contains(&wanted) {
             return Err(format!(
-                "has no input '{name}': a SAM decoder is prompted through point_coords and point_labels"
+                "has no input '{wanted}': a SAM decoder is prompted through point_coords and point_labels"
             ));
         }
     }
