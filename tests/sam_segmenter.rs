@@ -123,6 +123,26 @@ fn a_segmenter_file_is_checked_as_a_cell_config_would_be() {
     assert!(!run.join("result.json").exists());
 }
 
+/// The template a cell with its own SAM export copies: a hardware camera, a guess to prompt
+/// from, and the model files named relative to the config.
+#[test]
+fn the_shipped_template_prompts_a_sam_model_from_a_guess() {
+    let cfg = easyhec::config::read_config(
+        &common::repo_root().join("config/sam-segmenter.toml.example"),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let SegmenterConfig::Sam(sam) = &cfg.segmenter else {
+        panic!("{:?}", cfg.segmenter)
+    };
+    assert_eq!(sam.encoder, std::path::Path::new("sam_vit_b.encoder.onnx"));
+    assert_eq!(sam.decoder, std::path::Path::new("sam_vit_b.decoder.onnx"));
+    assert_eq!(
+        sam.resize,
+        easyhec::config::segmenter::SamResize::LongestSide
+    );
+    assert!(cfg.calibration.initial_guess.is_some());
+}
+
 #[cfg(feature = "onnx")]
 mod with_tract {
     use super::*;

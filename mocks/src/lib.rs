@@ -14,6 +14,7 @@
 //! The renderer is injected rather than owned so this crate stays below the `easyhec` library
 //! (which owns robot models and rendering) in the dependency graph.
 
+mod links;
 pub mod piper;
 pub mod servo_bus;
 mod sim_arm;

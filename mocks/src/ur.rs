@@ -34,8 +34,8 @@ use async_trait::async_trait;
 use easyhec_drivers::ur::model::{self, DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT};
 use easyhec_drivers::{DriverError, Result as DriverResult};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::watch;
 
+use crate::links::{closed, Links};
 use crate::JointSource;
 use controller::Controller;
 pub use dashboard::GREETING as DASHBOARD_GREETING;
@@ -186,16 +186,9 @@ pub struct RtdeRequest {
     pub payload: Vec<u8>,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-struct Signals {
-    drop_generation: u64,
-    refuse: bool,
-    shutdown: bool,
-}
-
 struct Shared {
     ctl: Mutex<Controller>,
-    signals: watch::Sender<Signals>,
+    links: Links,
     requests: Mutex<Vec<RtdeRequest>>,
     connections: Mutex<u64>,
 }
@@ -221,10 +214,7 @@ impl Shared {
             (out, drop_now)
         };
         if let Some(refuse) = drop_now {
-            self.signals.send_modify(|s| {
-                s.drop_generation += 1;
-                s.refuse |= refuse;
-            });
+            self.links.drop_all(refuse);
         }
         out
     }
@@ -302,7 +292,7 @@ impl MockUr {
         };
         let shared = Arc::new(Shared {
             ctl: Mutex::new(Controller::new(cfg)),
-            signals: watch::Sender::new(Signals::default()),
+            links: Links::new(),
             requests: Mutex::new(Vec::new()),
             connections: Mutex::new(0),
         });
@@ -317,15 +307,12 @@ impl MockUr {
         tokio::spawn(accept_loop(shared.clone(), script, Port::Script));
         // Motion, faults and the script run on time even when nobody is asking.
         tokio::spawn(async move {
-            let mut rx = shared.signals.subscribe();
-            let mut tick = tokio::time::interval(Duration::from_millis(2));
-            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-            loop {
-                tokio::select! {
-                    _ = tick.tick() => shared.with(|_| ()),
-                    r = rx.changed() => if r.is_err() || rx.borrow().shutdown { return },
-                }
-            }
+            let ticking = shared.clone();
+            let tick = move || ticking.with(|_| ());
+            shared
+                .links
+                .tick_until_shutdown(Duration::from_millis(2), tick)
+                .await;
         });
         Ok(mock)
     }
@@ -416,10 +403,7 @@ impl MockUr {
 
     /// Closes every connection now; with `refuse_reconnect` the listeners close too.
     pub fn drop_connections(&self, refuse_reconnect: bool) {
-        self.shared.signals.send_modify(|s| {
-            s.drop_generation += 1;
-            s.refuse |= refuse_reconnect;
-        });
+        self.shared.links.drop_all(refuse_reconnect);
     }
 
     /// A one-line summary of where it listens.
@@ -434,28 +418,14 @@ impl MockUr {
 
 impl Drop for MockUr {
     fn drop(&mut self) {
-        self.shared.signals.send_modify(|s| s.shutdown = true);
+        self.shared.links.shut_down();
     }
 }
 
 async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: Port) {
-    let mut rx = shared.signals.subscribe();
-    loop {
-        let stream = tokio::select! {
-            r = listener.accept() => match r {
-                Ok((s, _)) => s,
-                Err(_) => continue,
-            },
-            r = rx.changed() => {
-                let s = *rx.borrow();
-                if r.is_err() || s.refuse || s.shutdown {
-                    return;
-                }
-                continue;
-            }
-        };
-        let _ = stream.set_nodelay(true);
-        let generation = rx.borrow().drop_generation;
+    let serving = shared.clone();
+    let serve = move |stream: TcpStream, generation: u64| {
+        let shared = serving.clone();
         match port {
             Port::Rtde => {
                 let id = {
@@ -463,35 +433,17 @@ async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: Port) {
                     *n += 1;
                     *n
                 };
-                tokio::spawn(rtde::serve_rtde(shared.clone(), stream, id, generation));
+                tokio::spawn(rtde::serve_rtde(shared, stream, id, generation));
             }
             Port::Dashboard => {
-                tokio::spawn(dashboard::serve_dashboard(
-                    shared.clone(),
-                    stream,
-                    generation,
-                ));
+                tokio::spawn(dashboard::serve_dashboard(shared, stream, generation));
             }
             Port::Script => {
-                tokio::spawn(dashboard::serve_script(shared.clone(), stream, generation));
+                tokio::spawn(dashboard::serve_script(shared, stream, generation));
             }
         }
-    }
-}
-
-/// Waits until this connection must close (a drop after it was accepted, or shutdown).
-async fn closed(rx: &mut watch::Receiver<Signals>, generation: u64) {
-    loop {
-        {
-            let s = *rx.borrow_and_update();
-            if s.shutdown || s.drop_generation != generation {
-                return;
-            }
-        }
-        if rx.changed().await.is_err() {
-            return;
-        }
-    }
+    };
+    shared.links.accept(listener, serve).await;
 }
 
 /// Reads `actual_q` once from an RTDE port (a mock or a real controller): connect, negotiate

@@ -36,8 +36,8 @@ use easyhec_drivers::xarm::{read_report_from, Model};
 use easyhec_drivers::Result as DriverResult;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::watch;
 
+use crate::links::{closed, Links};
 use crate::JointSource;
 use controller::{Controller, ReportKind};
 
@@ -196,16 +196,9 @@ pub struct RequestRecord {
     pub params: Vec<u8>,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-struct Signals {
-    drop_generation: u64,
-    refuse: bool,
-    shutdown: bool,
-}
-
 struct Shared {
     ctl: Mutex<Controller>,
-    signals: watch::Sender<Signals>,
+    links: Links,
     connections: Mutex<u64>,
 }
 
@@ -226,10 +219,7 @@ impl Shared {
             (out, c.drop_now.take())
         };
         if let Some(refuse) = drop_now {
-            self.signals.send_modify(|s| {
-                s.drop_generation += 1;
-                s.refuse |= refuse;
-            });
+            self.links.drop_all(refuse);
         }
         out
     }
@@ -312,7 +302,7 @@ impl MockXArm {
         };
         let shared = Arc::new(Shared {
             ctl: Mutex::new(Controller::new(cfg)),
-            signals: watch::Sender::new(Signals::default()),
+            links: Links::new(),
             connections: Mutex::new(0),
         });
         let mock = MockXArm {
@@ -339,14 +329,12 @@ impl MockXArm {
         }
         // Faults fire on time even when nobody is asking.
         tokio::spawn(async move {
-            let mut rx = shared.signals.subscribe();
-            let mut tick = tokio::time::interval(Duration::from_millis(5));
-            loop {
-                tokio::select! {
-                    _ = tick.tick() => shared.with(|_| ()),
-                    r = rx.changed() => if r.is_err() || rx.borrow().shutdown { return },
-                }
-            }
+            let ticking = shared.clone();
+            let tick = move || ticking.with(|_| ());
+            shared
+                .links
+                .tick_until_shutdown(Duration::from_millis(5), tick)
+                .await;
         });
         Ok(mock)
     }
@@ -407,10 +395,7 @@ impl MockXArm {
 
     /// Closes every connection now; with `refuse_reconnect` the listeners close too.
     pub fn drop_connections(&self, refuse_reconnect: bool) {
-        self.shared.signals.send_modify(|s| {
-            s.drop_generation += 1;
-            s.refuse |= refuse_reconnect;
-        });
+        self.shared.links.drop_all(refuse_reconnect);
     }
 
     /// A one-line summary of where it listens.
@@ -437,28 +422,14 @@ impl MockXArm {
 
 impl Drop for MockXArm {
     fn drop(&mut self) {
-        self.shared.signals.send_modify(|s| s.shutdown = true);
+        self.shared.links.shut_down();
     }
 }
 
 async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: Port) {
-    let mut rx = shared.signals.subscribe();
-    loop {
-        let stream = tokio::select! {
-            r = listener.accept() => match r {
-                Ok((s, _)) => s,
-                Err(_) => continue,
-            },
-            r = rx.changed() => {
-                let s = *rx.borrow();
-                if r.is_err() || s.refuse || s.shutdown {
-                    return;
-                }
-                continue;
-            }
-        };
-        let _ = stream.set_nodelay(true);
-        let generation = rx.borrow().drop_generation;
+    let serving = shared.clone();
+    let serve = move |stream: TcpStream, generation: u64| {
+        let shared = serving.clone();
         match port {
             Port::Command => {
                 let id = {
@@ -466,38 +437,18 @@ async fn accept_loop(shared: Arc<Shared>, listener: TcpListener, port: Port) {
                     *n += 1;
                     *n
                 };
-                tokio::spawn(serve_commands(shared.clone(), stream, id, generation));
+                tokio::spawn(serve_commands(shared, stream, id, generation));
             }
             Port::Report { period, kind } => {
-                tokio::spawn(serve_reports(
-                    shared.clone(),
-                    stream,
-                    period,
-                    kind,
-                    generation,
-                ));
+                tokio::spawn(serve_reports(shared, stream, period, kind, generation));
             }
         }
-    }
-}
-
-/// Waits until this connection must close (a drop after it was accepted, or shutdown).
-async fn closed(rx: &mut watch::Receiver<Signals>, generation: u64) {
-    loop {
-        {
-            let s = *rx.borrow_and_update();
-            if s.shutdown || s.drop_generation != generation {
-                return;
-            }
-        }
-        if rx.changed().await.is_err() {
-            return;
-        }
-    }
+    };
+    shared.links.accept(listener, serve).await;
 }
 
 async fn serve_commands(shared: Arc<Shared>, mut stream: TcpStream, id: u64, generation: u64) {
-    let mut rx = shared.signals.subscribe();
+    let mut rx = shared.links.subscribe();
     let mut buf = Vec::new();
     let mut chunk = [0u8; 2048];
     loop {
@@ -579,7 +530,7 @@ async fn serve_reports(
     kind: ReportKind,
     generation: u64,
 ) {
-    let mut rx = shared.signals.subscribe();
+    let mut rx = shared.links.subscribe();
     // The first frame goes out at once: a client connecting gets a current reading.
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

@@ -127,7 +127,7 @@ pub(super) fn reply(c: &mut Controller, line: &str) -> String {
 }
 
 pub(super) async fn serve_dashboard(shared: Arc<Shared>, stream: TcpStream, generation: u64) {
-    let mut rx = shared.signals.subscribe();
+    let mut rx = shared.links.subscribe();
     let (read, mut write) = stream.into_split();
     if write
         .write_all(format!("{GREETING}\n").as_bytes())
@@ -197,7 +197,7 @@ fn take_programs(buf: &mut String, out: &mut Vec<String>) {
 }
 
 pub(super) async fn serve_script(shared: Arc<Shared>, mut stream: TcpStream, generation: u64) {
-    let mut rx = shared.signals.subscribe();
+    let mut rx = shared.links.subscribe();
     let mut buf = String::new();
     let mut chunk = vec![0u8; 16384];
     loop {

@@ -150,7 +150,7 @@ pub(super) async fn serve_rtde(
     connection: u64,
     generation: u64,
 ) {
-    let mut rx = shared.signals.subscribe();
+    let mut rx = shared.links.subscribe();
     let (mut read, mut write) = stream.into_split();
     let mut s = Session {
         connection,

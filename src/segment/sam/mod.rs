@@ -25,6 +25,7 @@
 mod cache;
 mod models;
 mod prompt;
+mod resample;
 
 pub use prompt::{prompt_of, prompt_tensors, Fit, Prompt};
 
@@ -35,7 +36,7 @@ use easyhec_drivers::Frame;
 use tract_onnx::prelude::*;
 
 use super::builtin::signed_distance;
-use super::onnx::{dims_text, one_line, taps};
+use super::onnx::{dims_text, one_line};
 use super::{Builtin, Segmenter, ViewInput};
 use crate::config::segmenter::{SamConfig, SamResize};
 use crate::error::{Error, Result};
@@ -163,16 +164,12 @@ impl SamSegmenter {
             frame.height as usize,
             self.encoder.side,
         );
+        let planes = resample::resized_planes(&frame.rgb, w, h, fit.width, fit.height);
         let mut data = vec![0f32; 3 * s * s];
-        for v in 0..fit.height {
-            let (y0, y1, ty) = taps((v as f32 + 0.5) / fit.sy - 0.5, h);
-            for u in 0..fit.width {
-                let (x0, x1, tx) = taps((u as f32 + 0.5) / fit.sx - 0.5, w);
-                for c in 0..3 {
-                    let p = |xx: usize, yy: usize| f32::from(frame.rgb[(yy * w + xx) * 3 + c]);
-                    let top = p(x0, y0) + (p(x1, y0) - p(x0, y0)) * tx;
-                    let bottom = p(x0, y1) + (p(x1, y1) - p(x0, y1)) * tx;
-                    let value = top + (bottom - top) * ty;
+        for (c, plane) in planes.iter().enumerate() {
+            for v in 0..fit.height {
+                for u in 0..fit.width {
+                    let value = plane[v * fit.width + u];
                     data[(c * s + v) * s + u] = (value - PIXEL_MEAN[c]) / PIXEL_STD[c];
                 }
             }
