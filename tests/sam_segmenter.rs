@@ -126,7 +126,7 @@ fn a_segmenter_file_is_checked_as_a_cell_config_would_be() {
 /// The template a cell with its own SAM export copies: a hardware camera, a guess to prompt
 /// from, and the model files named relative to the config.
 #[test]
-fn the_shipped_template_prompts_a_sam_model_from_a_guess() {
+fn the_shipped_template_names_a_sam_export_and_a_guess() {
     let cfg = easyhec::config::read_config(
         &common::repo_root().join("config/sam-segmenter.toml.example"),
     )

@@ -54,6 +54,11 @@ impl Links {
         mut serve: impl FnMut(TcpStream, u64),
     ) {
         let mut rx = self.0.subscribe();
+        // A drop that refused, or the shutdown, may have come before this task first ran.
+        let at_start = *rx.borrow_and_update();
+        if at_start.refuse || at_start.shutdown {
+            return;
+        }
         loop {
             let stream = tokio::select! {
                 r = listener.accept() => match r {
@@ -79,6 +84,9 @@ impl Links {
     /// nobody is asking.
     pub(crate) async fn tick_until_shutdown(&self, period: Duration, mut tick: impl FnMut()) {
         let mut rx = self.0.subscribe();
+        if rx.borrow_and_update().shutdown {
+            return;
+        }
         let mut clock = tokio::time::interval(period);
         clock.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {

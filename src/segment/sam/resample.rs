@@ -1,12 +1,12 @@
 //! Resizing a frame into the encoder's square the way the SAM families were trained on.
 //!
-//! SAM scales its training images with PIL's bilinear resize and SAM 2 with torchvision's
-//! antialiased one: both are a triangle filter whose width grows with the reduction, so each
-//! output pixel averages the frame pixels it covers. Plain bilinear sampling reads only the
-//! four nearest pixels: fitting a 1920x1080 frame into 1024, it weighs some frame pixels seven
-//! times as much as others (a 4K frame: half the columns not at all), so a thin edge shows or
-//! not by where it falls, and fine texture aliases into patterns the encoder never saw. When
-//! enlarging, the filter is exactly bilinear interpolation.
+//! SAM's published preprocessing scales an image with PIL's bilinear resize and SAM 2's with
+//! torchvision's antialiased one: both are a triangle filter whose width grows with the
+//! reduction, so each output pixel averages the frame pixels it covers. Plain bilinear
+//! sampling reads only the four nearest pixels: fitting a 1920x1080 frame into 1024, it weighs
+//! some frame pixels seven times as much as others (a 4K frame: nearly half the columns not at
+//! all), so a thin edge shows or not by where it falls, and fine texture aliases into patterns
+//! the encoder never saw. When enlarging, the filter is exactly bilinear interpolation.
 
 /// One output pixel's taps along one axis: the first input index and the normalised weights
 /// of it and the indices after it.
@@ -46,39 +46,45 @@ pub(super) fn resized_planes(
     out_w: usize,
     out_h: usize,
 ) -> [Vec<f32>; 3] {
+    let rows = resized_rows(rgb, w, h, out_w);
+    resized_columns(&rows, out_w, h, out_h)
+}
+
+/// Each of the `h` rows of `rgb` resized to `out_w` pixels, channels still interleaved.
+fn resized_rows(rgb: &[u8], w: usize, h: usize, out_w: usize) -> Vec<f32> {
     let across = axis_taps(w, out_w);
-    let down = axis_taps(h, out_h);
-    // Rows first: each frame row becomes out_w pixels, all three channels interleaved.
     let mut rows = vec![0f32; h * out_w * 3];
-    for y in 0..h {
-        let line = &rgb[y * w * 3..(y + 1) * w * 3];
-        for (u, t) in across.iter().enumerate() {
-            let mut acc = [0f32; 3];
+    for (line, out) in rgb
+        .chunks_exact(w * 3)
+        .zip(rows.chunks_exact_mut(out_w * 3))
+    {
+        for (t, px) in across.iter().zip(out.chunks_exact_mut(3)) {
             for (k, &wt) in t.weights.iter().enumerate() {
-                let p = &line[(t.first + k) * 3..(t.first + k) * 3 + 3];
+                let at = (t.first + k) * 3;
                 for c in 0..3 {
-                    acc[c] += wt * f32::from(p[c]);
+                    px[c] += wt * f32::from(line[at + c]);
                 }
             }
-            rows[(y * out_w + u) * 3..(y * out_w + u) * 3 + 3].copy_from_slice(&acc);
         }
     }
+    rows
+}
+
+/// The `h` rows of `rows` (`width` interleaved pixels each) resized to `out_h`, as planes.
+fn resized_columns(rows: &[f32], width: usize, h: usize, out_h: usize) -> [Vec<f32>; 3] {
+    let down = axis_taps(h, out_h);
     let mut planes = [
-        vec![0f32; out_w * out_h],
-        vec![0f32; out_w * out_h],
-        vec![0f32; out_w * out_h],
+        vec![0f32; width * out_h],
+        vec![0f32; width * out_h],
+        vec![0f32; width * out_h],
     ];
     for (v, t) in down.iter().enumerate() {
-        for u in 0..out_w {
-            let mut acc = [0f32; 3];
-            for (k, &wt) in t.weights.iter().enumerate() {
-                let p = &rows[((t.first + k) * out_w + u) * 3..((t.first + k) * out_w + u) * 3 + 3];
+        for (k, &wt) in t.weights.iter().enumerate() {
+            let row = &rows[(t.first + k) * width * 3..(t.first + k + 1) * width * 3];
+            for (u, px) in row.chunks_exact(3).enumerate() {
                 for c in 0..3 {
-                    acc[c] += wt * p[c];
+                    planes[c][v * width + u] += wt * px[c];
                 }
-            }
-            for c in 0..3 {
-                planes[c][v * out_w + u] = acc[c];
             }
         }
     }
@@ -131,22 +137,30 @@ mod tests {
     }
 
     #[test]
-    fn reducing_weighs_every_frame_pixel_alike() {
-        // A 1920-wide frame (1080p) fitted into SAM's 1024: by linearity, the output sum of a
-        // frame dark but for one pixel is that pixel's weight. Averaging gives every pixel
-        // about 1024/1920 of one output pixel; sampling the four nearest pixels gives some
-        // 0.94 and others 0.13, so a thin edge's place in the frame sets how much it shows.
-        let (w, out_w) = (1920, 1024);
-        let ideal = out_w as f32 / w as f32;
-        for x in (2..w - 2).step_by(7) {
-            let mut rgb = vec![0u8; w * 3];
-            rgb[x * 3] = 255;
-            let planes = resized_planes(&rgb, w, 1, out_w, 1);
-            let weight = planes[0].iter().sum::<f32>() / 255.0;
-            assert!(
-                (weight - ideal).abs() < 0.02,
-                "column {x} weighs {weight}, not about {ideal}"
-            );
+    fn reducing_weighs_every_frame_pixel_alike_along_both_axes() {
+        // A 1920-pixel side (1080p's width) fitted into SAM's 1024: by linearity, the output
+        // sum of a frame dark but for one pixel is that pixel's weight. Averaging gives every
+        // pixel about 1024/1920 of one output pixel (within 3%; the two at each border a
+        // little less); sampling the four nearest gives some 0.94 and others 0.13, so a thin
+        // edge's place in the frame sets how much it shows.
+        let (n, out) = (1920, 1024);
+        let ideal = out as f32 / n as f32;
+        for along_rows in [true, false] {
+            let (w, h, out_w, out_h) = if along_rows {
+                (n, 1, out, 1)
+            } else {
+                (1, n, 1, out)
+            };
+            for at in (2..n - 2).step_by(7) {
+                let mut rgb = vec![0u8; n * 3];
+                rgb[at * 3] = 255;
+                let planes = resized_planes(&rgb, w, h, out_w, out_h);
+                let weight = planes[0].iter().sum::<f32>() / 255.0;
+                assert!(
+                    (weight - ideal).abs() < 0.02,
+                    "pixel {at} (along rows: {along_rows}) weighs {weight}, not about {ideal}"
+                );
+            }
         }
     }
 
