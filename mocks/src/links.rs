@@ -78,22 +78,23 @@ impl Links {
             serve(stream, generation);
         }
     }
+}
 
-    /// Calls `tick` every `period` until the mock is dropped (ticks missed under load are
-    /// skipped, not caught up), so a controller's motion and faults run on time even when
-    /// nobody is asking.
-    pub(crate) async fn tick_until_shutdown(&self, period: Duration, mut tick: impl FnMut()) {
-        let mut rx = self.0.subscribe();
-        if rx.borrow_and_update().shutdown {
-            return;
-        }
-        let mut clock = tokio::time::interval(period);
-        clock.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-        loop {
-            tokio::select! {
-                _ = clock.tick() => tick(),
-                r = rx.changed() => if r.is_err() || rx.borrow().shutdown { return },
-            }
+/// Calls `tick` every `period` until the mock is dropped (ticks missed under load are
+/// skipped, not caught up), so a controller's motion and faults run on time even when nobody
+/// is asking. `rx` comes from [`Links::subscribe`] before the task is spawned, so a shutdown
+/// cannot slip past it.
+pub(crate) async fn tick_until_shutdown(
+    mut rx: watch::Receiver<LinkState>,
+    period: Duration,
+    mut tick: impl FnMut(),
+) {
+    let mut clock = tokio::time::interval(period);
+    clock.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    loop {
+        tokio::select! {
+            _ = clock.tick() => tick(),
+            r = rx.changed() => if r.is_err() || rx.borrow().shutdown { return },
         }
     }
 }

@@ -35,7 +35,7 @@ use easyhec_drivers::ur::model::{self, DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT};
 use easyhec_drivers::{DriverError, Result as DriverResult};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::links::{closed, Links};
+use crate::links::{closed, tick_until_shutdown, Links};
 use crate::JointSource;
 use controller::Controller;
 pub use dashboard::GREETING as DASHBOARD_GREETING;
@@ -306,14 +306,12 @@ impl MockUr {
         tokio::spawn(accept_loop(shared.clone(), dashboard, Port::Dashboard));
         tokio::spawn(accept_loop(shared.clone(), script, Port::Script));
         // Motion, faults and the script run on time even when nobody is asking.
-        tokio::spawn(async move {
-            let ticking = shared.clone();
-            let tick = move || ticking.with(|_| ());
-            shared
-                .links
-                .tick_until_shutdown(Duration::from_millis(2), tick)
-                .await;
-        });
+        let links = shared.links.subscribe();
+        tokio::spawn(tick_until_shutdown(
+            links,
+            Duration::from_millis(2),
+            move || shared.with(|_| ()),
+        ));
         Ok(mock)
     }
 

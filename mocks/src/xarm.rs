@@ -37,7 +37,7 @@ use easyhec_drivers::Result as DriverResult;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-use crate::links::{closed, Links};
+use crate::links::{closed, tick_until_shutdown, Links};
 use crate::JointSource;
 use controller::{Controller, ReportKind};
 
@@ -328,14 +328,12 @@ impl MockXArm {
             }
         }
         // Faults fire on time even when nobody is asking.
-        tokio::spawn(async move {
-            let ticking = shared.clone();
-            let tick = move || ticking.with(|_| ());
-            shared
-                .links
-                .tick_until_shutdown(Duration::from_millis(5), tick)
-                .await;
-        });
+        let links = shared.links.subscribe();
+        tokio::spawn(tick_until_shutdown(
+            links,
+            Duration::from_millis(5),
+            move || shared.with(|_| ()),
+        ));
         Ok(mock)
     }
 

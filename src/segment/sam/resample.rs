@@ -1,4 +1,4 @@
-//! Resizing a frame into the encoder's square the way the SAM families were trained on.
+//! Resizing a frame into the encoder's square as the SAM families' own preprocessing does.
 //!
 //! SAM's published preprocessing scales an image with PIL's bilinear resize and SAM 2's with
 //! torchvision's antialiased one: both are a triangle filter whose width grows with the
